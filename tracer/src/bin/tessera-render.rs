@@ -1,0 +1,122 @@
+//! `tessera-render`: the stand-alone tracer. Renders a `.ray` scene to a PNG on this machine,
+//! on all cores (or `--threads N`), with no service involved.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use indicatif::{ProgressBar, ProgressStyle};
+use tessera_tracer::{DirAssets, Limits, PngWriter, Scene, SceneError, TextureLimits, parse};
+
+/// Render a .ray scene to a PNG.
+#[derive(Debug, Parser)]
+#[command(name = "tessera-render", version, about)]
+struct Args {
+    /// The scene file. Texture names in it are resolved relative to its directory.
+    scene: PathBuf,
+
+    /// Where to write the PNG.
+    #[arg(short, long, default_value = "out.png")]
+    output: PathBuf,
+
+    /// Worker threads (default: one per core).
+    #[arg(long, env = "TESSERA_THREADS")]
+    threads: Option<usize>,
+
+    /// Override the scene's sampler: center, thesis, grid, jitter or adaptive.
+    #[arg(long, value_parser = ["center", "thesis", "grid", "jitter", "adaptive"])]
+    sampler: Option<String>,
+
+    /// Samples per axis for grid, jitter and adaptive (N × N per pixel at most).
+    #[arg(long)]
+    samples: Option<u32>,
+
+    /// Contrast threshold for the adaptive sampler.
+    #[arg(long)]
+    threshold: Option<f64>,
+
+    /// No progress bar or summary.
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    match run(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            if let Some(scene_err) = e.downcast_ref::<SceneError>() {
+                eprintln!("{}", scene_err.with_file(&args.scene.display().to_string()));
+            } else {
+                eprintln!("tessera-render: {e:#}");
+            }
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(args: &Args) -> Result<()> {
+    let source = std::fs::read_to_string(&args.scene)
+        .with_context(|| format!("cannot read {}", args.scene.display()))?;
+    let limits = Limits::default();
+    let mut desc = parse(&source, &limits)?;
+    desc.sampler = desc
+        .sampler
+        .with_overrides(
+            args.sampler.as_deref(),
+            args.samples,
+            args.threshold,
+            limits.max_samples,
+        )
+        .map_err(anyhow::Error::msg)?;
+    let dir = args.scene.parent().unwrap_or(Path::new("."));
+    let scene = Scene::build(&desc, &DirAssets::new(dir), &TextureLimits::default())?;
+
+    let mut pool = rayon::ThreadPoolBuilder::new();
+    if let Some(n) = args.threads {
+        anyhow::ensure!(n > 0, "--threads must be at least 1");
+        pool = pool.num_threads(n);
+    }
+    let pool = pool.build().context("cannot start the thread pool")?;
+
+    let total = u64::from(scene.width) * u64::from(scene.height);
+    let bar = if args.quiet || !std::io::stderr().is_terminal() {
+        ProgressBar::hidden()
+    } else {
+        let bar = ProgressBar::new(total);
+        bar.set_style(
+            ProgressStyle::with_template("{bar:40} {percent:>3}% {elapsed} (eta {eta})")
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        bar
+    };
+    let start = Instant::now();
+    let (rgb, stats) = pool.install(|| scene.render_image(32, |done| bar.set_position(done)));
+    bar.finish_and_clear();
+    let elapsed = start.elapsed();
+
+    let file = std::fs::File::create(&args.output)
+        .with_context(|| format!("cannot create {}", args.output.display()))?;
+    let mut png = PngWriter::new(std::io::BufWriter::new(file), scene.width, scene.height)?;
+    png.write_rows(&rgb)?;
+    png.finish()
+        .with_context(|| format!("cannot write {}", args.output.display()))?;
+
+    if !args.quiet {
+        let rays = stats.total() as f64;
+        eprintln!(
+            "{}: {}×{} in {:.3} s on {} threads, {:.2} rays/pixel, {:.2} Mrays/s",
+            args.output.display(),
+            scene.width,
+            scene.height,
+            elapsed.as_secs_f64(),
+            pool.current_num_threads(),
+            rays / total as f64,
+            rays / elapsed.as_secs_f64() / 1e6
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,195 @@
+//! Diagnostics: positioned error messages about a scene file.
+//!
+//! Every problem the parser or the scene builder finds becomes a [`Diagnostic`] that names a
+//! 1-based line and column (counted in characters, as editors show them) and says what was
+//! expected. A [`SceneError`] carries all the diagnostics found in one pass, so a user fixes
+//! several mistakes per round trip. This module formats them; it does not find them.
+
+use std::fmt;
+
+/// A position in a scene file: 1-based line and column (in characters).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
+pub struct Pos {
+    pub line: u32,
+    pub column: u32,
+}
+
+impl Pos {
+    pub const fn new(line: u32, column: u32) -> Self {
+        Pos { line, column }
+    }
+}
+
+impl fmt::Display for Pos {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}:{}", self.line, self.column)
+    }
+}
+
+/// One problem in a scene, at a position.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Diagnostic {
+    pub pos: Pos,
+    pub message: String,
+}
+
+impl Diagnostic {
+    pub fn new(pos: Pos, message: impl Into<String>) -> Self {
+        Diagnostic {
+            pos,
+            message: message.into(),
+        }
+    }
+}
+
+impl fmt::Display for Diagnostic {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}", self.pos, self.message)
+    }
+}
+
+/// The ways a scene can be refused: one or more positioned diagnostics, sorted by position.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub struct SceneError {
+    diagnostics: Vec<Diagnostic>,
+}
+
+impl SceneError {
+    /// Builds an error from a non-empty list; the list is sorted by position and deduplicated.
+    pub fn new(mut diagnostics: Vec<Diagnostic>) -> Self {
+        diagnostics.sort_by_key(|d| d.pos);
+        diagnostics.dedup();
+        debug_assert!(!diagnostics.is_empty());
+        SceneError { diagnostics }
+    }
+
+    pub fn single(pos: Pos, message: impl Into<String>) -> Self {
+        SceneError::new(vec![Diagnostic::new(pos, message)])
+    }
+
+    pub fn diagnostics(&self) -> &[Diagnostic] {
+        &self.diagnostics
+    }
+
+    /// The first (earliest) diagnostic.
+    pub fn first(&self) -> &Diagnostic {
+        // `new` is the only constructor and every caller passes at least one diagnostic.
+        &self.diagnostics[0]
+    }
+
+    /// Formats every diagnostic as `file:line:col: message`, one per line.
+    pub fn with_file<'a>(&'a self, file: &'a str) -> WithFile<'a> {
+        WithFile { error: self, file }
+    }
+}
+
+impl fmt::Display for SceneError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, d) in self.diagnostics.iter().enumerate() {
+            if i > 0 {
+                writeln!(f)?;
+            }
+            write!(f, "{d}")?;
+        }
+        Ok(())
+    }
+}
+
+/// Display adapter produced by [`SceneError::with_file`].
+pub struct WithFile<'a> {
+    error: &'a SceneError,
+    file: &'a str,
+}
+
+impl fmt::Display for WithFile<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, d) in self.error.diagnostics.iter().enumerate() {
+            if i > 0 {
+                writeln!(f)?;
+            }
+            write!(f, "{}:{}", self.file, d)?;
+        }
+        Ok(())
+    }
+}
+
+/// The known word closest to `word`, if it is close enough to be a plausible misspelling
+/// (optimal-string-alignment distance at most one third of the longer word, and at least 1).
+pub fn closest<'a>(word: &str, candidates: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
+    let word = word.to_ascii_lowercase();
+    let mut best: Option<(usize, &str)> = None;
+    for c in candidates {
+        let d = edit_distance(&word, c);
+        let limit = (word.chars().count().max(c.len()) / 3).max(1);
+        if d <= limit && best.is_none_or(|(bd, _)| d < bd) {
+            best = Some((d, c));
+        }
+    }
+    best.map(|(_, c)| c)
+}
+
+/// Optimal string alignment distance (Levenshtein plus adjacent transpositions).
+fn edit_distance(a: &str, b: &str) -> usize {
+    let a: Vec<char> = a.chars().collect();
+    let b: Vec<char> = b.chars().collect();
+    // Inputs are keys typed on one line; cap the work so a hostile 1 MB "key" costs nothing.
+    if a.len() > 64 || b.len() > 64 {
+        return usize::MAX;
+    }
+    let mut d = vec![vec![0usize; b.len() + 1]; a.len() + 1];
+    for (i, row) in d.iter_mut().enumerate() {
+        row[0] = i;
+    }
+    for (j, cell) in d[0].iter_mut().enumerate() {
+        *cell = j;
+    }
+    for i in 1..=a.len() {
+        for j in 1..=b.len() {
+            let cost = usize::from(a[i - 1] != b[j - 1]);
+            let mut v = (d[i - 1][j] + 1)
+                .min(d[i][j - 1] + 1)
+                .min(d[i - 1][j - 1] + cost);
+            if i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1] {
+                v = v.min(d[i - 2][j - 2] + 1);
+            }
+            d[i][j] = v;
+        }
+    }
+    d[a.len()][b.len()]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn distance_counts_edits_and_transpositions() {
+        assert_eq!(edit_distance("color1", "color1"), 0);
+        assert_eq!(edit_distance("colr1", "color1"), 1);
+        assert_eq!(edit_distance("clor1", "color1"), 1);
+        assert_eq!(edit_distance("oclor1", "color1"), 1);
+        assert_eq!(edit_distance("abc", "xyz"), 3);
+    }
+
+    #[test]
+    fn closest_suggests_only_plausible_words() {
+        let keys = ["color1", "color2", "mirror", "translate"];
+        assert_eq!(closest("colour1", keys), Some("color1"));
+        assert_eq!(closest("MIROR", keys), Some("mirror"));
+        assert_eq!(closest("tranlsate", keys), Some("translate"));
+        assert_eq!(closest("zzz", keys), None);
+    }
+
+    #[test]
+    fn errors_are_sorted_and_formatted_with_the_file() {
+        let e = SceneError::new(vec![
+            Diagnostic::new(Pos::new(3, 1), "b"),
+            Diagnostic::new(Pos::new(1, 9), "a"),
+        ]);
+        assert_eq!(
+            e.with_file("s.ray").to_string(),
+            "s.ray:1:9: a\ns.ray:3:1: b"
+        );
+        assert_eq!(e.first().message, "a");
+    }
+}

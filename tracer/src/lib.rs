@@ -1,0 +1,48 @@
+//! The Tessera ray tracer: the ray tracer of Weicher's 2002 thesis on distributed ray
+//! tracing, extended with an arbitrary camera, many lights, more shapes and CSG.
+//!
+//! This crate turns `.ray` scene text into pixels. It parses and validates scenes
+//! ([`scene`]), places unit shapes with composite and inverse matrices ([`transform`],
+//! [`shape`]), shades them exactly as the format's "exact image" defines ([`render`]),
+//! samples pixels deterministically ([`sampler`]), and encodes sRGB PNGs ([`png_out`]).
+//! It knows nothing of networks, databases or job queues: the farm's service and workers
+//! call [`Scene::render_rect`] on tiles, and a tile's pixels never depend on the tile.
+//!
+//! ```
+//! use tessera_tracer::{Limits, MemoryAssets, Rect, Scene, TextureLimits};
+//!
+//! let src = "[GLOBALS]\nwidth = 8\nheight = 6\nlight = <0, 0, 100>\n[/GLOBALS]\n\
+//!            [OBJECT]\ntype = sphere\nradius = 20\n[/OBJECT]\n";
+//! let scene = Scene::from_source(src, &Limits::default(), &MemoryAssets::new(),
+//!                                &TextureLimits::default()).expect("valid scene");
+//! let whole = scene.render_rect(Rect::full(8, 6));
+//! let corner = scene.render_rect(Rect::new(5, 3, 3, 3));
+//! assert_eq!(&whole[(3 * 8 + 5) * 3..(3 * 8 + 6) * 3], &corner[..3]);
+//! ```
+
+// `!(x > 0.0)` is this crate's idiom for "not a positive number, NaN included": NaN fails every
+// comparison, so the negated form rejects it where `x <= 0.0` would let it through.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+pub mod camera;
+pub mod diag;
+pub mod math;
+pub mod png_out;
+pub mod render;
+pub mod sampler;
+pub mod scene;
+pub mod shape;
+pub mod srgb;
+pub mod texture;
+pub mod tile;
+pub mod transform;
+pub mod world;
+
+pub use diag::{Diagnostic, Pos, SceneError};
+pub use png_out::{PngError, PngWriter, SharedBuffer, encode_png};
+pub use render::RayStats;
+pub use sampler::Sampler;
+pub use scene::{Limits, SceneDesc, parse};
+pub use texture::{AssetSource, DirAssets, MemoryAssets, Texture, TextureError, TextureLimits};
+pub use tile::{Rect, tiles};
+pub use world::Scene;

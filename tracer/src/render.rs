@@ -1,0 +1,241 @@
+//! Shading and rendering: the radiance of SCENE.md's "exact image" along a ray, pixels by
+//! the scene's sampler, tiles and whole images.
+//!
+//! Radiance at the nearest hit, with `n` the normal facing the ray:
+//!
+//! ```text
+//! local = c · (ambient + k · Σ_lights color_l · max(0, n·l̂) · V_l)
+//! V_l   = 1 if the segment to the light is clear, else 1 − shadow
+//! L     = (1 − m) · local + m · L(mirror ray)     (black past max_depth bounces)
+//! ```
+//!
+//! Work a scene does not need is not done: no shadow ray where `n·l ≤ 0`, where `shadow = 0`,
+//! where nothing but the (convex) surface itself could block the light, or where the surface
+//! is a perfect mirror; no mirror ray where `m = 0`; no texture lookup without a texture.
+//!
+//! Pixels are independent of one another except through the sampler, which is itself
+//! tile-independent, so any rectangle can be rendered alone and match the whole image.
+
+use std::cell::Cell;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use glam::DVec3;
+use rayon::prelude::*;
+
+use crate::math::{Color, Ray, offset_ray_origin};
+use crate::sampler::Sample;
+use crate::srgb;
+use crate::tile::{Rect, tiles};
+use crate::world::{Hit, Object, Scene};
+
+/// Counts of rays traced, for benchmarks ("rays per pixel").
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RayStats {
+    pub primary: u64,
+    pub shadow: u64,
+    pub mirror: u64,
+}
+
+impl RayStats {
+    pub fn total(&self) -> u64 {
+        self.primary + self.shadow + self.mirror
+    }
+
+    pub fn add(&mut self, other: &RayStats) {
+        self.primary += other.primary;
+        self.shadow += other.shadow;
+        self.mirror += other.mirror;
+    }
+}
+
+/// Per-render ray counters (interior mutability, so the sampler's `Fn` closure can count).
+#[derive(Default)]
+struct Counters {
+    primary: Cell<u64>,
+    shadow: Cell<u64>,
+    mirror: Cell<u64>,
+}
+
+impl Counters {
+    fn bump(c: &Cell<u64>) {
+        c.set(c.get() + 1);
+    }
+
+    fn stats(&self) -> RayStats {
+        RayStats {
+            primary: self.primary.get(),
+            shadow: self.shadow.get(),
+            mirror: self.mirror.get(),
+        }
+    }
+}
+
+/// Where a secondary ray starts: the hit point lifted off the surface.
+struct SurfacePoint {
+    p: DVec3,
+    /// Per-axis bound on what the offset must clear (hit-point error, plus the rounding of
+    /// carrying a nearby point back into this object's space).
+    err: DVec3,
+    /// Unit normal facing the incoming ray.
+    n: DVec3,
+    /// Whether the incoming ray arrived from the outside of the solid.
+    outside: bool,
+}
+
+impl SurfacePoint {
+    fn new(obj: &Object, hit: &Hit, ray: &Ray) -> SurfacePoint {
+        let (p, p_err) = obj.transform.point_to_world(hit.local.p, hit.local.p_err);
+        let outward = obj.transform.normal_to_world(hit.local.n).normalize();
+        let outside = outward.dot(ray.dir) <= 0.0;
+        let n = if outside { outward } else { -outward };
+        // The factor 2 leaves room for the intersection routine's own rounding when it
+        // classifies the new origin as off the surface (a few ulps of the unit shape).
+        let err = 2.0 * (p_err + obj.transform.round_trip_error(p));
+        SurfacePoint { p, err, n, outside }
+    }
+
+    /// Origin for a ray leaving towards `dir`.
+    fn origin_towards(&self, dir: DVec3) -> DVec3 {
+        offset_ray_origin(self.p, self.err, self.n, dir)
+    }
+}
+
+impl Scene {
+    /// The surface colour `c` at a hit: texture, checker or plain `color1`.
+    fn surface_color(&self, obj: &Object, hit: &Hit) -> Color {
+        let m = &obj.material;
+        if let Some(tex) = &m.texture {
+            return m.color1 * tex.sample(obj.shape.uv(hit.local.p, hit.local.face));
+        }
+        if let Some(c2) = m.color2 {
+            let p = hit.local.p * obj.own_scale;
+            // `as i64` saturates, so huge coordinates cannot overflow the sum.
+            let cell = (p.x.floor() as i64)
+                .wrapping_add(p.y.floor() as i64)
+                .wrapping_add(p.z.floor() as i64);
+            if cell & 1 != 0 {
+                return c2;
+            }
+        }
+        m.color1
+    }
+
+    /// Radiance along `ray` (not yet clamped). `skip` is an object the ray cannot meet again.
+    fn radiance(
+        &self,
+        ray: &Ray,
+        bounces_left: u32,
+        skip: Option<u32>,
+        c: &Counters,
+    ) -> (Color, u32) {
+        let Some(hit) = self.intersect(ray, f64::INFINITY, skip) else {
+            return (self.background, Sample::BACKGROUND);
+        };
+        let obj = &self.objects[hit.object as usize];
+        let m = &obj.material;
+        let sp = SurfacePoint::new(obj, &hit, ray);
+        let self_skip = obj.shape.cannot_rehit(sp.outside).then_some(hit.object);
+
+        let mut color = Color::ZERO;
+        if m.mirror < 1.0 {
+            let mut light_sum = Color::ZERO;
+            if m.diffuse > 0.0 {
+                let can_block = self.shadow > 0.0 && self.anything_else(self_skip);
+                for light in &self.lights {
+                    let to_light = light.position - sp.p;
+                    let cos = sp.n.dot(to_light);
+                    if !(cos > 0.0) {
+                        continue;
+                    }
+                    let cos = cos / to_light.length();
+                    let mut v = 1.0;
+                    if can_block {
+                        Counters::bump(&c.shadow);
+                        let origin = sp.origin_towards(to_light);
+                        let shadow_ray = Ray::new(origin, light.position - origin);
+                        if self.occluded(&shadow_ray, 1.0, self_skip) {
+                            v = 1.0 - self.shadow;
+                        }
+                    }
+                    light_sum += light.color * (cos * v);
+                }
+            }
+            let local = self.surface_color(obj, &hit) * (self.ambient + light_sum * m.diffuse);
+            color += local * (1.0 - m.mirror);
+        }
+        if m.mirror > 0.0 && bounces_left > 0 {
+            Counters::bump(&c.mirror);
+            let d = ray.dir.normalize();
+            let r = d - sp.n * (2.0 * d.dot(sp.n));
+            let mirror_ray = Ray::new(sp.origin_towards(r), r);
+            let (reflected, _) = self.radiance(&mirror_ray, bounces_left - 1, self_skip, c);
+            color += reflected * m.mirror;
+        }
+        (color, hit.object)
+    }
+
+    /// The clamped radiance of the primary ray through image-plane position `(x, y)`.
+    fn primary(&self, x: f64, y: f64, c: &Counters) -> Sample {
+        Counters::bump(&c.primary);
+        let ray = self.camera.ray(x, y);
+        let (l, object) = self.radiance(&ray, self.max_depth, None, c);
+        Sample {
+            color: l.min(Color::ONE),
+            object,
+        }
+    }
+
+    /// Linear pixel values of a rectangle, row-major, with the rays it took.
+    pub fn render_rect_linear(&self, rect: Rect) -> (Vec<Color>, RayStats) {
+        let counters = Counters::default();
+        let mut out = vec![Color::ZERO; rect.pixel_count()];
+        self.sampler
+            .render_rect(rect, |x, y| self.primary(x, y, &counters), &mut out);
+        (out, counters.stats())
+    }
+
+    /// 8-bit sRGB RGB bytes of a rectangle, row-major: what a worker sends for a tile.
+    pub fn render_rect(&self, rect: Rect) -> Vec<u8> {
+        self.render_rect_stats(rect).0
+    }
+
+    /// [`Self::render_rect`] with the rays it took.
+    pub fn render_rect_stats(&self, rect: Rect) -> (Vec<u8>, RayStats) {
+        let (linear, stats) = self.render_rect_linear(rect);
+        let mut bytes = Vec::with_capacity(linear.len() * 3);
+        for c in linear {
+            bytes.extend_from_slice(&srgb::encode_rgb8(c));
+        }
+        (bytes, stats)
+    }
+
+    /// Renders the whole image as 8-bit sRGB RGB rows, on the current rayon pool, in tiles of
+    /// `tile` pixels. `progress` is called with the number of pixels finished so far.
+    pub fn render_image<P>(&self, tile: u32, progress: P) -> (Vec<u8>, RayStats)
+    where
+        P: Fn(u64) + Sync,
+    {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let done = AtomicU64::new(0);
+        let parts: Vec<(Rect, Vec<u8>, RayStats)> = tiles(self.width, self.height, tile)
+            .into_par_iter()
+            .map(|r| {
+                let (bytes, stats) = self.render_rect_stats(r);
+                let n = done.fetch_add(r.pixel_count() as u64, Ordering::Relaxed);
+                progress(n + r.pixel_count() as u64);
+                (r, bytes, stats)
+            })
+            .collect();
+        let mut image = vec![0u8; w * h * 3];
+        let mut total = RayStats::default();
+        for (r, bytes, stats) in parts {
+            total.add(&stats);
+            let row_bytes = r.width as usize * 3;
+            for (i, row) in bytes.chunks_exact(row_bytes).enumerate() {
+                let start = ((r.y as usize + i) * w + r.x as usize) * 3;
+                image[start..start + row_bytes].copy_from_slice(row);
+            }
+        }
+        (image, total)
+    }
+}

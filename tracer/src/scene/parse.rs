@@ -1,0 +1,1090 @@
+//! The `.ray` parser: items from the lexer → a block tree → a validated [`SceneDesc`].
+//!
+//! Errors are collected, not thrown: a bad value, an unknown key or a misplaced tag is
+//! recorded and parsing goes on with the next item, so one run reports every independent
+//! mistake. Only the final result is all-or-nothing.
+
+use std::collections::HashMap;
+
+use glam::DVec3;
+
+use super::lex::{Item, lex};
+use super::{
+    CameraDesc, CsgDesc, CsgOp, Light, Limits, MaterialDesc, Node, ObjectDesc, SceneDesc,
+    TextureRef,
+};
+use crate::diag::{Diagnostic, Pos, SceneError, closest};
+use crate::math::Color;
+use crate::sampler::Sampler;
+use crate::shape::Shape;
+use crate::transform::{Transform, TransformOp};
+
+const TAGS: &[&str] = &[
+    "rayfile", "globals", "global", "camera", "light", "object", "csg",
+];
+const GLOBAL_KEYS: &[&str] = &[
+    "width",
+    "height",
+    "ambient",
+    "shadow",
+    "background",
+    "max_depth",
+    "antialias",
+    "sampler",
+    "samples",
+    "threshold",
+    "light",
+];
+const CAMERA_KEYS: &[&str] = &["eye", "look_at", "up", "fov"];
+const LIGHT_KEYS: &[&str] = &["position", "color"];
+const TRANSFORM_KEYS: &[&str] = &["scale", "rotate", "translate"];
+const MATERIAL_KEYS: &[&str] = &[
+    "color1",
+    "color2",
+    "texture",
+    "mirror",
+    "reflection",
+    "diffuse",
+];
+const OBJECT_KEYS: &[&str] = &[
+    "type",
+    "radius",
+    "major",
+    "minor",
+    "color1",
+    "color2",
+    "texture",
+    "mirror",
+    "reflection",
+    "diffuse",
+    "scale",
+    "rotate",
+    "translate",
+];
+const CSG_KEYS: &[&str] = &["op", "scale", "rotate", "translate"];
+const SHAPES: &[&str] = &["sphere", "plane", "cube", "cylinder", "cone", "torus"];
+const SAMPLERS: &[&str] = &["center", "thesis", "grid", "jitter", "adaptive"];
+
+/// Parses and validates a `.ray` scene. All problems found are returned together, sorted by
+/// position.
+pub fn parse(source: &str, limits: &Limits) -> Result<SceneDesc, SceneError> {
+    let (items, mut errors) = lex(source);
+    let root = build_tree(items, &mut errors);
+    let mut p = Parser {
+        errors,
+        limits,
+        objects: 0,
+        textures: Vec::new(),
+    };
+    let desc = p.scene(&root);
+    if p.errors.is_empty() {
+        Ok(desc)
+    } else {
+        Err(SceneError::new(p.errors))
+    }
+}
+
+#[derive(Debug)]
+struct Entry {
+    key: String,
+    key_pos: Pos,
+    value: String,
+    value_pos: Pos,
+}
+
+#[derive(Debug)]
+struct Block {
+    /// Lower-cased tag name; empty for the root.
+    name: String,
+    pos: Pos,
+    entries: Vec<Entry>,
+    children: Vec<Block>,
+}
+
+impl Block {
+    fn new(name: String, pos: Pos) -> Self {
+        Block {
+            name,
+            pos,
+            entries: Vec::new(),
+            children: Vec::new(),
+        }
+    }
+
+    fn display(&self) -> String {
+        format!("[{}]", self.name.to_ascii_uppercase())
+    }
+}
+
+/// Nests items into blocks by their tags, reporting unknown, misplaced, unmatched and
+/// unclosed tags. The returned root holds the top-level blocks (a `[rayfile]` wrapper is
+/// unwrapped) and any entries written outside every block.
+fn build_tree(items: Vec<Item>, errors: &mut Vec<Diagnostic>) -> Block {
+    let mut stack: Vec<Block> = vec![Block::new(String::new(), Pos::new(1, 1))];
+    let mut seen_rayfile = false;
+    let mut seen_anything = false;
+    for item in items {
+        match item {
+            Item::Tag {
+                name,
+                close: false,
+                pos,
+            } => {
+                let parent = stack.last().map(|b| b.name.as_str()).unwrap_or("");
+                if !TAGS.contains(&name.as_str()) {
+                    let hint = match closest(&name, TAGS.iter().copied()) {
+                        Some(s) => format!("; did you mean [{}]?", s.to_ascii_uppercase()),
+                        None => {
+                            "; expected [GLOBALS], [CAMERA], [LIGHT], [OBJECT] or [CSG]".to_string()
+                        }
+                    };
+                    errors.push(Diagnostic::new(
+                        pos,
+                        format!("unknown tag [{}]{hint}", name.to_ascii_uppercase()),
+                    ));
+                } else if name == "rayfile" {
+                    if seen_rayfile || seen_anything || stack.len() > 1 {
+                        errors.push(Diagnostic::new(
+                            pos,
+                            "[rayfile] may only wrap the whole file, once, as its first tag",
+                        ));
+                    }
+                    seen_rayfile = true;
+                } else {
+                    let allowed = match name.as_str() {
+                        "object" | "csg" => matches!(parent, "" | "rayfile" | "csg"),
+                        _ => matches!(parent, "" | "rayfile"),
+                    };
+                    if !allowed {
+                        errors.push(Diagnostic::new(
+                            pos,
+                            format!(
+                                "[{}] cannot appear inside [{}]; close [/{}] first",
+                                name.to_ascii_uppercase(),
+                                parent.to_ascii_uppercase(),
+                                parent.to_ascii_uppercase()
+                            ),
+                        ));
+                    }
+                }
+                seen_anything = true;
+                stack.push(Block::new(name, pos));
+            }
+            Item::Tag {
+                name,
+                close: true,
+                pos,
+            } => {
+                let Some(depth) = stack.iter().skip(1).rposition(|b| b.name == name) else {
+                    errors.push(Diagnostic::new(
+                        pos,
+                        format!(
+                            "[/{0}] closes nothing: no [{0}] is open",
+                            name.to_ascii_uppercase()
+                        ),
+                    ));
+                    continue;
+                };
+                let depth = depth + 1;
+                while stack.len() > depth + 1 {
+                    let Some(open) = stack.pop() else { break };
+                    errors.push(unclosed(&open, Some(pos)));
+                    attach(&mut stack, open);
+                }
+                if let Some(done) = stack.pop() {
+                    attach(&mut stack, done);
+                }
+            }
+            Item::Entry {
+                key,
+                key_pos,
+                value,
+                value_pos,
+            } => {
+                seen_anything = true;
+                if let Some(top) = stack.last_mut() {
+                    top.entries.push(Entry {
+                        key,
+                        key_pos,
+                        value,
+                        value_pos,
+                    });
+                }
+            }
+        }
+    }
+    while stack.len() > 1 {
+        let Some(open) = stack.pop() else { break };
+        errors.push(unclosed(&open, None));
+        attach(&mut stack, open);
+    }
+    stack
+        .pop()
+        .unwrap_or_else(|| Block::new(String::new(), Pos::new(1, 1)))
+}
+
+/// Adds a finished block to its parent; a `[rayfile]` wrapper is dissolved into it.
+fn attach(stack: &mut [Block], block: Block) {
+    let Some(parent) = stack.last_mut() else {
+        return;
+    };
+    if block.name == "rayfile" {
+        parent.entries.extend(block.entries);
+        parent.children.extend(block.children);
+    } else {
+        parent.children.push(block);
+    }
+}
+
+fn unclosed(block: &Block, at: Option<Pos>) -> Diagnostic {
+    let name = block.name.to_ascii_uppercase();
+    let message = match at {
+        Some(p) => format!(
+            "[{name}] is not closed: expected [/{name}] before line {}",
+            p.line
+        ),
+        None => format!("[{name}] is not closed: expected [/{name}] before the end of the file"),
+    };
+    Diagnostic::new(block.pos, message)
+}
+
+struct Parser<'a> {
+    errors: Vec<Diagnostic>,
+    limits: &'a Limits,
+    objects: usize,
+    textures: Vec<String>,
+}
+
+/// Which block kinds a key belongs to, for "`fov` belongs in [CAMERA]" hints.
+fn home_of(key: &str) -> Option<&'static str> {
+    if GLOBAL_KEYS.contains(&key) {
+        Some("[GLOBALS]")
+    } else if CAMERA_KEYS.contains(&key) {
+        Some("[CAMERA]")
+    } else if LIGHT_KEYS.contains(&key) {
+        Some("[LIGHT]")
+    } else if OBJECT_KEYS.contains(&key) {
+        Some("[OBJECT]")
+    } else if CSG_KEYS.contains(&key) {
+        Some("[CSG]")
+    } else {
+        None
+    }
+}
+
+impl Parser<'_> {
+    fn err(&mut self, pos: Pos, message: impl Into<String>) {
+        self.errors.push(Diagnostic::new(pos, message));
+    }
+
+    fn scene(&mut self, root: &Block) -> SceneDesc {
+        let mut desc = SceneDesc {
+            width: 640,
+            height: 480,
+            ambient: Color::splat(0.1),
+            shadow: 1.0,
+            background: Color::ZERO,
+            max_depth: 5,
+            sampler: Sampler::Center,
+            camera: CameraDesc::default(),
+            lights: Vec::new(),
+            objects: Vec::new(),
+        };
+        for e in &root.entries {
+            let hint = match home_of(&e.key) {
+                Some(home) => format!("; it belongs inside {home}"),
+                None => String::new(),
+            };
+            self.err(
+                e.key_pos,
+                format!("`{}` is outside every block{hint}", e.key),
+            );
+        }
+        let mut globals_at: Option<Pos> = None;
+        let mut camera_at: Option<Pos> = None;
+        for b in &root.children {
+            match b.name.as_str() {
+                "globals" | "global" => {
+                    if let Some(first) = globals_at {
+                        self.err(
+                            b.pos,
+                            format!(
+                                "a second globals block; the first is at line {}",
+                                first.line
+                            ),
+                        );
+                    } else {
+                        globals_at = Some(b.pos);
+                        self.globals(b, &mut desc);
+                    }
+                }
+                "camera" => {
+                    if let Some(first) = camera_at {
+                        self.err(
+                            b.pos,
+                            format!("a second [CAMERA]; the first is at line {}", first.line),
+                        );
+                    } else {
+                        camera_at = Some(b.pos);
+                        desc.camera = self.camera(b);
+                    }
+                }
+                "light" => {
+                    if let Some(l) = self.light(b) {
+                        desc.lights.push(l);
+                    }
+                }
+                "object" | "csg" => {
+                    if let Some(n) = self.node(b, 0) {
+                        desc.objects.push(n);
+                    }
+                }
+                _ => {} // unknown tags were reported while nesting
+            }
+        }
+        if desc.lights.len() > self.limits.max_lights {
+            self.err(
+                Pos::new(1, 1),
+                format!(
+                    "the scene has {} lights; the limit is {}",
+                    desc.lights.len(),
+                    self.limits.max_lights
+                ),
+            );
+        }
+        desc
+    }
+
+    /// Checks keys against the block's list, reports unknown and duplicated ones, and returns
+    /// the entries to interpret (transform keys may repeat; others may not).
+    fn entries<'b>(&mut self, b: &'b Block, keys: &[&str]) -> Vec<&'b Entry> {
+        let mut seen: HashMap<&str, Pos> = HashMap::new();
+        let mut out = Vec::new();
+        for e in &b.entries {
+            if !keys.contains(&e.key.as_str()) {
+                let msg = self.unknown_key_message(b, &e.key, keys);
+                self.err(e.key_pos, msg);
+                continue;
+            }
+            let canonical = if e.key == "reflection" {
+                "mirror"
+            } else {
+                e.key.as_str()
+            };
+            if !TRANSFORM_KEYS.contains(&canonical) {
+                if let Some(first) = seen.get(canonical) {
+                    self.err(
+                        e.key_pos,
+                        format!(
+                            "`{}` is given twice in {}; the first is at line {}",
+                            e.key,
+                            b.display(),
+                            first.line
+                        ),
+                    );
+                    continue;
+                }
+                seen.insert(canonical, e.key_pos);
+            }
+            out.push(e);
+        }
+        out
+    }
+
+    fn unknown_key_message(&self, b: &Block, key: &str, keys: &[&str]) -> String {
+        let block = b.display();
+        if b.name == "csg" && MATERIAL_KEYS.contains(&key) {
+            return format!(
+                "`{key}` is not a [CSG] key: a CSG surface takes the material of its [OBJECT] children"
+            );
+        }
+        if let Some(s) = closest(key, keys.iter().copied()) {
+            return format!("unknown key `{key}` in {block}; did you mean `{s}`?");
+        }
+        if let Some(home) = home_of(key) {
+            return format!("`{key}` is not a {block} key; it belongs in {home}");
+        }
+        format!(
+            "unknown key `{key}` in {block}; expected one of: {}",
+            keys.join(", ")
+        )
+    }
+
+    fn globals(&mut self, b: &Block, desc: &mut SceneDesc) {
+        let entries = self.entries(b, GLOBAL_KEYS);
+        let mut antialias: Option<(bool, Pos)> = None;
+        let mut sampler: Option<(&str, Pos)> = None;
+        let mut samples: Option<(u32, Pos)> = None;
+        let mut threshold: Option<(f64, Pos)> = None;
+        let mut width_pos = b.pos;
+        for e in entries {
+            let v = Value::new(e);
+            match e.key.as_str() {
+                "width" | "height" => {
+                    let max = self.limits.max_dimension;
+                    if let Some(n) = self.check(v.whole(1, max)) {
+                        if e.key == "width" {
+                            desc.width = n;
+                            width_pos = e.value_pos;
+                        } else {
+                            desc.height = n;
+                        }
+                    }
+                }
+                "ambient" => {
+                    if let Some(c) = self.check(v.color()) {
+                        desc.ambient = c;
+                    }
+                }
+                "background" => {
+                    if let Some(c) = self.check(v.color()) {
+                        desc.background = c;
+                    }
+                }
+                "shadow" => {
+                    if let Some(x) = self.check(v.number_in(0.0, 1.0)) {
+                        desc.shadow = x;
+                    }
+                }
+                "max_depth" => {
+                    if let Some(n) = self.check(v.whole(0, self.limits.max_bounces)) {
+                        desc.max_depth = n;
+                    }
+                }
+                "antialias" => {
+                    if let Some(f) = self.check(v.flag()) {
+                        antialias = Some((f, e.key_pos));
+                    }
+                }
+                "sampler" => {
+                    if let Some(s) = self.check(v.keyword(SAMPLERS, "sampler")) {
+                        sampler = Some((s, e.key_pos));
+                    }
+                }
+                "samples" => {
+                    if let Some(n) = self.check(v.whole(1, self.limits.max_samples)) {
+                        samples = Some((n, e.key_pos));
+                    }
+                }
+                "threshold" => {
+                    if let Some(x) = self.check(v.positive()) {
+                        threshold = Some((x, e.key_pos));
+                    }
+                }
+                "light" => {
+                    if let Some(p) = self.check(v.vector()) {
+                        desc.lights.push(Light {
+                            position: p,
+                            color: Color::ONE,
+                        });
+                    }
+                }
+                _ => {}
+            }
+        }
+        if u64::from(desc.width) * u64::from(desc.height) > self.limits.max_pixels {
+            self.err(
+                width_pos,
+                format!(
+                    "the image is {}×{} = {} pixels; the limit is {}",
+                    desc.width,
+                    desc.height,
+                    u64::from(desc.width) * u64::from(desc.height),
+                    self.limits.max_pixels
+                ),
+            );
+        }
+        desc.sampler = self.sampler(antialias, sampler, samples, threshold);
+    }
+
+    fn sampler(
+        &mut self,
+        antialias: Option<(bool, Pos)>,
+        sampler: Option<(&str, Pos)>,
+        samples: Option<(u32, Pos)>,
+        threshold: Option<(f64, Pos)>,
+    ) -> Sampler {
+        if let (Some((_, at)), Some(_)) = (antialias, sampler) {
+            self.err(
+                at,
+                "`antialias` and `sampler` both choose the sampling; keep one",
+            );
+        }
+        let name = match (sampler, antialias) {
+            (Some((s, _)), _) => s,
+            (None, Some((true, _))) => "thesis",
+            _ => "center",
+        };
+        let takes_samples = matches!(name, "grid" | "jitter" | "adaptive");
+        if let (false, Some((_, at))) = (takes_samples, samples) {
+            self.err(
+                at,
+                format!("`samples` applies to sampler = grid, jitter or adaptive, not {name}"),
+            );
+        }
+        if let (true, Some((_, at))) = (name != "adaptive", threshold) {
+            self.err(at, "`threshold` applies to sampler = adaptive only");
+        }
+        let n = samples.map(|(n, _)| n);
+        match name {
+            "thesis" => Sampler::Thesis,
+            "grid" => Sampler::Grid { n: n.unwrap_or(4) },
+            "jitter" => Sampler::Jitter { n: n.unwrap_or(4) },
+            "adaptive" => Sampler::Adaptive {
+                max: n.unwrap_or(Sampler::DEFAULT_ADAPTIVE_MAX),
+                threshold: threshold.map_or(Sampler::DEFAULT_THRESHOLD, |(t, _)| t),
+            },
+            _ => Sampler::Center,
+        }
+    }
+
+    fn camera(&mut self, b: &Block) -> CameraDesc {
+        let mut cam = CameraDesc::default();
+        let mut up_pos = b.pos;
+        for e in self.entries(b, CAMERA_KEYS) {
+            let v = Value::new(e);
+            match e.key.as_str() {
+                "eye" => {
+                    if let Some(p) = self.check(v.vector()) {
+                        cam.eye = p;
+                    }
+                }
+                "look_at" => {
+                    if let Some(p) = self.check(v.vector()) {
+                        cam.look_at = p;
+                    }
+                }
+                "up" => {
+                    if let Some(p) = self.check(v.vector()) {
+                        cam.up = p;
+                        up_pos = e.value_pos;
+                    }
+                }
+                "fov" => {
+                    if let Some(f) = self.check(v.number_open(0.0, 180.0)) {
+                        cam.fov_degrees = f;
+                    }
+                }
+                _ => {}
+            }
+        }
+        let forward = cam.look_at - cam.eye;
+        if !(forward.length_squared() > 0.0 && forward.is_finite()) {
+            self.err(b.pos, "the camera's `eye` and `look_at` are the same point");
+        } else if cam.up.length_squared() == 0.0
+            || forward.normalize().cross(cam.up.normalize()).length() < 1e-9
+        {
+            self.err(
+                up_pos,
+                "the camera's `up` is parallel to its view direction (or zero); choose another",
+            );
+        }
+        cam
+    }
+
+    fn light(&mut self, b: &Block) -> Option<Light> {
+        let mut position = None;
+        let mut color = Color::ONE;
+        for e in self.entries(b, LIGHT_KEYS) {
+            let v = Value::new(e);
+            match e.key.as_str() {
+                "position" => position = self.check(v.vector()),
+                "color" => {
+                    if let Some(c) = self.check(v.color()) {
+                        color = c;
+                    }
+                }
+                _ => {}
+            }
+        }
+        if position.is_none() && !b.entries.iter().any(|e| e.key == "position") {
+            self.err(b.pos, "[LIGHT] needs `position = <x, y, z>`");
+        }
+        Some(Light {
+            position: position?,
+            color,
+        })
+    }
+
+    fn node(&mut self, b: &Block, depth: usize) -> Option<Node> {
+        match b.name.as_str() {
+            "object" => self.object(b).map(Node::Object),
+            "csg" => self.csg(b, depth + 1).map(Node::Csg),
+            _ => None,
+        }
+    }
+
+    fn count_object(&mut self, pos: Pos) {
+        self.objects += 1;
+        if self.objects == self.limits.max_objects + 1 {
+            self.err(
+                pos,
+                format!("too many objects: the limit is {}", self.limits.max_objects),
+            );
+        }
+    }
+
+    fn object(&mut self, b: &Block) -> Option<ObjectDesc> {
+        self.count_object(b.pos);
+        let entries = self.entries(b, OBJECT_KEYS);
+        let errors_before = self.errors.len();
+
+        // The shape first: which own keys apply depends on it.
+        let kind = match entries.iter().find(|e| e.key == "type") {
+            None => {
+                self.err(
+                    b.pos,
+                    format!("[OBJECT] needs `type = {}`", SHAPES.join("|")),
+                );
+                None
+            }
+            Some(e) => self.check(Value::new(e).keyword(SHAPES, "type")),
+        };
+
+        let mut radius: Option<f64> = None;
+        let mut major: Option<f64> = None;
+        let mut minor: Option<f64> = None;
+        let mut material = MaterialDesc::default();
+        let mut steps: Vec<(TransformOp, Pos)> = Vec::new();
+        let mut color2_pos = None;
+        for e in &entries {
+            let v = Value::new(e);
+            let own = |shapes: &[&str]| kind.is_none_or(|k| shapes.contains(&k));
+            match e.key.as_str() {
+                "radius" | "major" | "minor" => {
+                    let applies = match e.key.as_str() {
+                        "radius" => own(&["sphere", "cylinder"]),
+                        _ => own(&["torus"]),
+                    };
+                    if !applies {
+                        let shape = kind.unwrap_or("");
+                        self.err(
+                            e.key_pos,
+                            format!("`{}` does not apply to a {shape}", e.key),
+                        );
+                        continue;
+                    }
+                    let x = self.check(v.positive());
+                    match e.key.as_str() {
+                        "radius" => radius = x,
+                        "major" => major = x,
+                        _ => minor = x,
+                    }
+                }
+                "color1" => {
+                    if let Some(c) = self.check(v.color()) {
+                        material.color1 = c;
+                    }
+                }
+                "color2" => {
+                    material.color2 = self.check(v.color());
+                    color2_pos = Some(e.key_pos);
+                }
+                "texture" => {
+                    if let Some(name) = self.check(v.name()) {
+                        self.note_texture(&name, e.value_pos);
+                        material.texture = Some(TextureRef {
+                            name,
+                            pos: e.value_pos,
+                        });
+                    }
+                }
+                "mirror" | "reflection" => {
+                    if let Some(m) = self.check(v.number_in(0.0, 1.0)) {
+                        material.mirror = m;
+                    }
+                }
+                "diffuse" => {
+                    if let Some(d) = self.check(v.non_negative()) {
+                        material.diffuse = d;
+                    }
+                }
+                "scale" | "rotate" | "translate" => {
+                    if let Some(op) = self.check(v.transform_op(&e.key)) {
+                        steps.push((op, e.key_pos));
+                    }
+                }
+                _ => {} // "type", handled above
+            }
+        }
+        if let (Some(_), Some(at)) = (&material.texture, color2_pos) {
+            self.err(
+                at,
+                "`color2` makes a checker and `texture` an image map; an object takes one of them",
+            );
+        }
+
+        let (shape, own_scale) = match kind? {
+            "sphere" => (Shape::Sphere, DVec3::splat(radius.unwrap_or(1.0))),
+            "plane" => (Shape::Plane, DVec3::ONE),
+            other => {
+                let _ = (major, minor); // used by the torus
+                self.err(
+                    b.pos,
+                    format!("type `{other}` is not supported by this build of the tracer"),
+                );
+                return None;
+            }
+        };
+        let transform =
+            self.transform(std::iter::once((TransformOp::Scale(own_scale), b.pos)).chain(steps));
+        if self.errors.len() > errors_before {
+            return None;
+        }
+        Some(ObjectDesc {
+            pos: b.pos,
+            shape,
+            own_scale,
+            transform: transform?,
+            material,
+        })
+    }
+
+    fn note_texture(&mut self, name: &str, pos: Pos) {
+        if self.textures.iter().any(|t| t == name) {
+            return;
+        }
+        self.textures.push(name.to_string());
+        if self.textures.len() == self.limits.max_textures + 1 {
+            self.err(
+                pos,
+                format!(
+                    "too many texture files: the limit is {}",
+                    self.limits.max_textures
+                ),
+            );
+        }
+    }
+
+    fn csg(&mut self, b: &Block, depth: usize) -> Option<CsgDesc> {
+        if depth == self.limits.max_csg_depth + 1 {
+            self.err(
+                b.pos,
+                format!(
+                    "[CSG] nested too deeply: the limit is {} levels",
+                    self.limits.max_csg_depth
+                ),
+            );
+            return None;
+        }
+        let errors_before = self.errors.len();
+        let mut op = None;
+        let mut steps = Vec::new();
+        for e in self.entries(b, CSG_KEYS) {
+            let v = Value::new(e);
+            match e.key.as_str() {
+                "op" => {
+                    op = self
+                        .check(v.keyword(&["union", "intersection", "difference"], "op"))
+                        .map(|k| match k {
+                            "union" => CsgOp::Union,
+                            "intersection" => CsgOp::Intersection,
+                            _ => CsgOp::Difference,
+                        });
+                }
+                _ => {
+                    if let Some(op) = self.check(v.transform_op(&e.key)) {
+                        steps.push((op, e.key_pos));
+                    }
+                }
+            }
+        }
+        if !b.entries.iter().any(|e| e.key == "op") {
+            self.err(
+                b.pos,
+                "[CSG] needs `op = union`, `op = intersection` or `op = difference`",
+            );
+        }
+        let mut children = Vec::new();
+        let mut child_blocks = 0;
+        for c in &b.children {
+            if matches!(c.name.as_str(), "object" | "csg") {
+                child_blocks += 1;
+                if let Some(n) = self.node(c, depth) {
+                    children.push(n);
+                }
+            }
+        }
+        if child_blocks < 2 {
+            self.err(
+                b.pos,
+                format!(
+                    "[CSG] needs two or more [OBJECT] or [CSG] children; it has {child_blocks}"
+                ),
+            );
+        }
+        let transform = self.transform(steps);
+        if self.errors.len() > errors_before {
+            return None;
+        }
+        Some(CsgDesc {
+            pos: b.pos,
+            op: op?,
+            transform: transform?,
+            children,
+        })
+    }
+
+    /// Composes transform steps in the order written; reports the first step at which the
+    /// composite stops being finite and invertible.
+    fn transform(
+        &mut self,
+        steps: impl IntoIterator<Item = (TransformOp, Pos)>,
+    ) -> Option<Transform> {
+        let mut t = Transform::IDENTITY;
+        for (op, pos) in steps {
+            t = t.then(&Transform::from_op(op));
+            if !t.is_valid() {
+                self.err(
+                    pos,
+                    "this transform makes the object's matrix singular or non-finite",
+                );
+                return None;
+            }
+        }
+        Some(t)
+    }
+
+    fn check<T>(&mut self, r: Result<T, Diagnostic>) -> Option<T> {
+        match r {
+            Ok(v) => Some(v),
+            Err(d) => {
+                self.errors.push(d);
+                None
+            }
+        }
+    }
+}
+
+/// A value to interpret, with its position for error messages.
+struct Value<'a> {
+    text: &'a str,
+    pos: Pos,
+    key: &'a str,
+}
+
+impl<'a> Value<'a> {
+    fn new(e: &'a Entry) -> Self {
+        Value {
+            text: e.value.as_str(),
+            pos: e.value_pos,
+            key: e.key.as_str(),
+        }
+    }
+
+    fn fail<T>(&self, expected: &str) -> Result<T, Diagnostic> {
+        let found = if self.text.is_empty() {
+            "nothing".to_string()
+        } else {
+            format!("`{}`", shorten(self.text))
+        };
+        Err(Diagnostic::new(
+            self.pos,
+            format!("`{}`: expected {expected}, found {found}", self.key),
+        ))
+    }
+
+    fn at(&self, offset_chars: usize, message: String) -> Diagnostic {
+        let col = self
+            .pos
+            .column
+            .saturating_add(u32::try_from(offset_chars).unwrap_or(0));
+        Diagnostic::new(Pos::new(self.pos.line, col), message)
+    }
+
+    fn number(&self) -> Result<f64, Diagnostic> {
+        match parse_f64(self.text) {
+            Some(x) => Ok(x),
+            None => self.fail("a number like 1.5 or -2e3"),
+        }
+    }
+
+    fn number_in(&self, lo: f64, hi: f64) -> Result<f64, Diagnostic> {
+        let x = self.number()?;
+        if (lo..=hi).contains(&x) {
+            Ok(x)
+        } else {
+            self.fail(&format!("a number from {lo} to {hi}"))
+        }
+    }
+
+    fn number_open(&self, lo: f64, hi: f64) -> Result<f64, Diagnostic> {
+        let x = self.number()?;
+        if x > lo && x < hi {
+            Ok(x)
+        } else {
+            self.fail(&format!("a number between {lo} and {hi}, exclusive"))
+        }
+    }
+
+    fn positive(&self) -> Result<f64, Diagnostic> {
+        let x = self.number()?;
+        if x > 0.0 {
+            Ok(x)
+        } else {
+            self.fail("a number greater than 0")
+        }
+    }
+
+    fn non_negative(&self) -> Result<f64, Diagnostic> {
+        let x = self.number()?;
+        if x >= 0.0 {
+            Ok(x)
+        } else {
+            self.fail("a number ≥ 0")
+        }
+    }
+
+    fn whole(&self, lo: u32, hi: u32) -> Result<u32, Diagnostic> {
+        let expected = format!("a whole number from {lo} to {hi}");
+        match self.text.parse::<u64>() {
+            Ok(n) if n >= u64::from(lo) && n <= u64::from(hi) => Ok(n as u32),
+            _ => self.fail(&expected),
+        }
+    }
+
+    fn flag(&self) -> Result<bool, Diagnostic> {
+        match self.text.to_ascii_lowercase().as_str() {
+            "on" | "yes" | "true" => Ok(true),
+            "off" | "no" | "false" => Ok(false),
+            _ => self.fail("on, off, yes, no, true or false"),
+        }
+    }
+
+    fn keyword(&self, options: &[&'static str], what: &str) -> Result<&'static str, Diagnostic> {
+        let word = self.text.to_ascii_lowercase();
+        if let Some(k) = options.iter().find(|o| **o == word) {
+            return Ok(k);
+        }
+        let hint = match closest(&word, options.iter().copied()) {
+            Some(s) => format!("; did you mean `{s}`?"),
+            None => String::new(),
+        };
+        Err(Diagnostic::new(
+            self.pos,
+            format!(
+                "unknown {what} `{}`: expected one of {}{hint}",
+                shorten(self.text),
+                options.join(", ")
+            ),
+        ))
+    }
+
+    fn name(&self) -> Result<String, Diagnostic> {
+        let t = self.text;
+        if let Some(rest) = t.strip_prefix('"') {
+            return match rest.strip_suffix('"') {
+                Some(inner) if !inner.is_empty() && !inner.contains('"') => Ok(inner.to_string()),
+                _ => self.fail("a file name, bare or in double quotes"),
+            };
+        }
+        if t.is_empty() || t.chars().any(char::is_whitespace) || t.contains('"') {
+            return self.fail("a file name (put a name with spaces in double quotes)");
+        }
+        Ok(t.to_string())
+    }
+
+    /// `<a, b, c>` with finite components.
+    fn vector(&self) -> Result<DVec3, Diagnostic> {
+        const EXPECTED: &str = "a vector like <1, 0, 0>";
+        let t = self.text;
+        let (Some(inner), true) = (t.strip_prefix('<'), t.ends_with('>')) else {
+            return self.fail(EXPECTED);
+        };
+        let inner = &inner[..inner.len() - 1];
+        let parts: Vec<&str> = inner.split(',').collect();
+        if parts.len() != 3 {
+            return Err(Diagnostic::new(
+                self.pos,
+                format!(
+                    "`{}`: expected {EXPECTED} with three components, found {}",
+                    self.key,
+                    parts.len()
+                ),
+            ));
+        }
+        let mut v = [0.0; 3];
+        let mut offset = 1; // past '<', in characters
+        for (i, part) in parts.iter().enumerate() {
+            let lead = part.chars().take_while(|c| c.is_whitespace()).count();
+            match parse_f64(part.trim()) {
+                Some(x) => v[i] = x,
+                None => {
+                    return Err(self.at(
+                        offset + lead,
+                        format!(
+                            "`{}`: component {} of the vector: expected a number, found `{}`",
+                            self.key,
+                            i + 1,
+                            shorten(part.trim())
+                        ),
+                    ));
+                }
+            }
+            offset += part.chars().count() + 1;
+        }
+        Ok(DVec3::from_array(v))
+    }
+
+    /// A colour: one number `c` (meaning `<c, c, c>`) or a vector, components ≥ 0.
+    fn color(&self) -> Result<Color, Diagnostic> {
+        let c = if self.text.starts_with('<') {
+            self.vector()?
+        } else {
+            match parse_f64(self.text) {
+                Some(x) => Color::splat(x),
+                None => {
+                    return self.fail("a colour: a number or a vector like <1, 0.5, 0>");
+                }
+            }
+        };
+        if c.min_element() < 0.0 {
+            return self.fail("a colour with components ≥ 0");
+        }
+        Ok(c)
+    }
+
+    fn transform_op(&self, key: &str) -> Result<TransformOp, Diagnostic> {
+        match key {
+            "scale" => {
+                let s = if self.text.starts_with('<') {
+                    self.vector()?
+                } else {
+                    match parse_f64(self.text) {
+                        Some(x) => DVec3::splat(x),
+                        None => return self.fail("a number or a vector like <1, 2, 1>"),
+                    }
+                };
+                if s.x == 0.0 || s.y == 0.0 || s.z == 0.0 {
+                    return self.fail("a scale with no zero component");
+                }
+                Ok(TransformOp::Scale(s))
+            }
+            "rotate" => Ok(TransformOp::Rotate(self.vector()?)),
+            _ => Ok(TransformOp::Translate(self.vector()?)),
+        }
+    }
+}
+
+/// A finite decimal number. Rust's parser also takes `inf`, `NaN` and `infinity`; the
+/// format does not.
+fn parse_f64(s: &str) -> Option<f64> {
+    if !s
+        .chars()
+        .all(|c| c.is_ascii_digit() || matches!(c, '+' | '-' | '.' | 'e' | 'E'))
+    {
+        return None;
+    }
+    s.parse::<f64>().ok().filter(|x| x.is_finite())
+}
+
+/// At most 40 characters of user text for an error message.
+fn shorten(s: &str) -> String {
+    if s.chars().count() <= 40 {
+        s.to_string()
+    } else {
+        let mut out: String = s.chars().take(37).collect();
+        out.push_str("...");
+        out
+    }
+}

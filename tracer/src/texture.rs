@@ -1,0 +1,350 @@
+//! Texture images: decoding PPM (P3/P6) and PNG files under memory limits, and bilinear
+//! lookup in linear light.
+//!
+//! Texture files are read as sRGB-encoded 8-bit RGB (16-bit and grey images are converted;
+//! alpha is dropped). Texels stay encoded in memory (3 bytes each) and are decoded through a
+//! 256-entry table at lookup, so a large texture costs what its file says, not four times
+//! that. Where texture bytes come from is [`AssetSource`]'s business, not this module's.
+
+use std::collections::HashMap;
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use glam::DVec2;
+
+use crate::math::Color;
+use crate::shape::{SurfaceUv, Wrap};
+use crate::srgb;
+
+/// Caps on texture decoding, so a small file cannot expand into a huge allocation
+/// (a "decompression bomb").
+#[derive(Debug, Clone, PartialEq)]
+pub struct TextureLimits {
+    /// Largest width or height in texels.
+    pub max_dimension: u32,
+    /// Largest width × height.
+    pub max_pixels: u64,
+}
+
+impl Default for TextureLimits {
+    fn default() -> Self {
+        TextureLimits {
+            max_dimension: 16_384,
+            max_pixels: 64 * 1024 * 1024,
+        }
+    }
+}
+
+/// Why a texture could not be used.
+#[derive(Debug, thiserror::Error)]
+pub enum TextureError {
+    #[error("cannot read texture file `{name}`: {reason}")]
+    Missing { name: String, reason: String },
+    #[error("texture `{name}` is not a PNG or PPM (P3/P6) image")]
+    UnknownFormat { name: String },
+    #[error("texture `{name}` is {width}×{height} texels; the limit is {limit}")]
+    TooLarge {
+        name: String,
+        width: u32,
+        height: u32,
+        limit: String,
+    },
+    #[error("texture `{name}` cannot be decoded: {reason}")]
+    Decode { name: String, reason: String },
+}
+
+/// Where a scene's texture files come from.
+pub trait AssetSource {
+    /// The bytes of the asset the scene calls `name`.
+    fn load(&self, name: &str) -> Result<Vec<u8>, TextureError>;
+}
+
+/// Assets held in memory by name (uploaded with a job, or fetched by a worker). Only these
+/// names resolve; nothing touches the file system.
+#[derive(Debug, Clone, Default)]
+pub struct MemoryAssets {
+    files: HashMap<String, Vec<u8>>,
+}
+
+impl MemoryAssets {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub fn insert(&mut self, name: impl Into<String>, bytes: Vec<u8>) {
+        self.files.insert(name.into(), bytes);
+    }
+
+    pub fn contains(&self, name: &str) -> bool {
+        self.files.contains_key(name)
+    }
+}
+
+impl AssetSource for MemoryAssets {
+    fn load(&self, name: &str) -> Result<Vec<u8>, TextureError> {
+        self.files
+            .get(name)
+            .cloned()
+            .ok_or_else(|| TextureError::Missing {
+                name: name.to_string(),
+                reason: "no asset with that name was provided".into(),
+            })
+    }
+}
+
+/// Assets read from files relative to a directory (the scene file's, for the local CLI).
+#[derive(Debug, Clone)]
+pub struct DirAssets {
+    root: PathBuf,
+}
+
+impl DirAssets {
+    pub fn new(root: impl Into<PathBuf>) -> Self {
+        DirAssets { root: root.into() }
+    }
+}
+
+impl AssetSource for DirAssets {
+    fn load(&self, name: &str) -> Result<Vec<u8>, TextureError> {
+        let path = self.root.join(Path::new(name));
+        std::fs::read(&path).map_err(|e| TextureError::Missing {
+            name: name.to_string(),
+            reason: format!("{}: {e}", path.display()),
+        })
+    }
+}
+
+/// A decoded texture: sRGB-encoded RGB8 texels, row 0 at the top.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Texture {
+    width: u32,
+    height: u32,
+    texels: Vec<[u8; 3]>,
+}
+
+fn decode_lut() -> &'static [f32; 256] {
+    static LUT: OnceLock<[f32; 256]> = OnceLock::new();
+    LUT.get_or_init(srgb::decode_table)
+}
+
+impl Texture {
+    /// Decodes PNG or PPM bytes, refusing images beyond `limits` before allocating them.
+    pub fn decode(
+        name: &str,
+        bytes: &[u8],
+        limits: &TextureLimits,
+    ) -> Result<Texture, TextureError> {
+        let mut reader = image::ImageReader::new(Cursor::new(bytes))
+            .with_guessed_format()
+            .map_err(|e| TextureError::Decode {
+                name: name.to_string(),
+                reason: e.to_string(),
+            })?;
+        match reader.format() {
+            Some(image::ImageFormat::Png | image::ImageFormat::Pnm) => {}
+            _ => {
+                return Err(TextureError::UnknownFormat {
+                    name: name.to_string(),
+                });
+            }
+        }
+        let mut decoder_limits = image::Limits::default();
+        decoder_limits.max_image_width = Some(limits.max_dimension);
+        decoder_limits.max_image_height = Some(limits.max_dimension);
+        // Room for the decoded image at 16-bit RGBA plus the decoder's own buffers.
+        decoder_limits.max_alloc =
+            Some(limits.max_pixels.saturating_mul(8).saturating_add(1 << 20));
+        reader.limits(decoder_limits);
+        let too_large = |w: u32, h: u32| TextureError::TooLarge {
+            name: name.to_string(),
+            width: w,
+            height: h,
+            limit: format!(
+                "{} texels a side and {} in all",
+                limits.max_dimension, limits.max_pixels
+            ),
+        };
+        let img = reader.decode().map_err(|e| match e {
+            image::ImageError::Limits(_) => too_large(0, 0),
+            other => TextureError::Decode {
+                name: name.to_string(),
+                reason: other.to_string(),
+            },
+        })?;
+        let (w, h) = (img.width(), img.height());
+        if w == 0 || h == 0 || u64::from(w) * u64::from(h) > limits.max_pixels {
+            return Err(too_large(w, h));
+        }
+        let rgb = img.into_rgb8();
+        let texels = rgb.pixels().map(|p| p.0).collect();
+        Ok(Texture {
+            width: w,
+            height: h,
+            texels,
+        })
+    }
+
+    /// A texture from encoded texels, row-major from the top row.
+    pub fn from_texels(width: u32, height: u32, texels: Vec<[u8; 3]>) -> Option<Texture> {
+        (width > 0 && height > 0 && texels.len() == width as usize * height as usize).then_some(
+            Texture {
+                width,
+                height,
+                texels,
+            },
+        )
+    }
+
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    fn texel(&self, x: i64, y: i64) -> Color {
+        let lut = decode_lut();
+        // Callers pass coordinates already wrapped or clamped into range.
+        let t = self.texels[y as usize * self.width as usize + x as usize];
+        Color::new(
+            f64::from(lut[t[0] as usize]),
+            f64::from(lut[t[1] as usize]),
+            f64::from(lut[t[2] as usize]),
+        )
+    }
+
+    /// Bilinear lookup in linear light. `v = 0` is the bottom row of the image, `v = 1` the
+    /// top; texel centres sit at half-integer coordinates.
+    pub fn sample(&self, at: SurfaceUv) -> Color {
+        let DVec2 { x: u, y: v } = at.uv;
+        // A NaN coordinate (from a degenerate hit) reads the first texel rather than
+        // poisoning the pixel.
+        let (u, v) = (
+            if u.is_finite() { u } else { 0.0 },
+            if v.is_finite() { v } else { 0.0 },
+        );
+        let fx = u * f64::from(self.width) - 0.5;
+        let fy = (1.0 - v) * f64::from(self.height) - 0.5;
+        let (x0, y0) = (fx.floor(), fy.floor());
+        let (ax, ay) = (fx - x0, fy - y0);
+        let xs = [
+            wrap(x0 as i64, self.width, at.wrap_u),
+            wrap((x0 as i64).saturating_add(1), self.width, at.wrap_u),
+        ];
+        let ys = [
+            wrap(y0 as i64, self.height, at.wrap_v),
+            wrap((y0 as i64).saturating_add(1), self.height, at.wrap_v),
+        ];
+        let top = self.texel(xs[0], ys[0]) * (1.0 - ax) + self.texel(xs[1], ys[0]) * ax;
+        let bottom = self.texel(xs[0], ys[1]) * (1.0 - ax) + self.texel(xs[1], ys[1]) * ax;
+        top * (1.0 - ay) + bottom * ay
+    }
+}
+
+/// Brings a texel index into `0..n` by the wrap mode. Non-finite coordinates cast to
+/// `i64::MIN`/`MAX`/0 and still land in range.
+fn wrap(i: i64, n: u32, mode: Wrap) -> i64 {
+    let n = i64::from(n);
+    match mode {
+        Wrap::Repeat => i.rem_euclid(n),
+        Wrap::Clamp => i.clamp(0, n - 1),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn uv(u: f64, v: f64) -> SurfaceUv {
+        SurfaceUv {
+            uv: DVec2::new(u, v),
+            wrap_u: Wrap::Repeat,
+            wrap_v: Wrap::Clamp,
+        }
+    }
+
+    #[test]
+    fn decodes_ascii_and_binary_ppm_and_png_alike() {
+        let p3 = b"P3\n# a comment\n2 1\n255\n255 0 0  0 0 255\n";
+        let mut p6 = b"P6\n2 1\n255\n".to_vec();
+        p6.extend_from_slice(&[255, 0, 0, 0, 0, 255]);
+        let mut png = Vec::new();
+        {
+            let mut enc = png::Encoder::new(&mut png, 2, 1);
+            enc.set_color(png::ColorType::Rgb);
+            enc.set_depth(png::BitDepth::Eight);
+            let mut w = enc.write_header().expect("in-memory write");
+            w.write_image_data(&[255, 0, 0, 0, 0, 255])
+                .expect("in-memory write");
+        }
+        let l = TextureLimits::default();
+        let a = Texture::decode("a.ppm", p3, &l).expect("P3");
+        let b = Texture::decode("b.ppm", &p6, &l).expect("P6");
+        let c = Texture::decode("c.png", &png, &l).expect("PNG");
+        assert_eq!(a, b);
+        assert_eq!(b, c);
+        assert_eq!(a.texels, vec![[255, 0, 0], [0, 0, 255]]);
+    }
+
+    #[test]
+    fn refuses_unknown_formats_and_oversized_images() {
+        let l = TextureLimits {
+            max_dimension: 4,
+            max_pixels: 16,
+        };
+        assert!(matches!(
+            Texture::decode("x.gif", b"GIF89a....", &l),
+            Err(TextureError::UnknownFormat { .. })
+        ));
+        // A header that claims 100000×100000 with no data behind it.
+        let bomb = b"P6\n100000 100000\n255\n";
+        assert!(matches!(
+            Texture::decode("bomb.ppm", bomb, &l),
+            Err(TextureError::TooLarge { .. } | TextureError::Decode { .. })
+        ));
+        let big = b"P3\n5 1\n255\n0 0 0 0 0 0 0 0 0 0 0 0 0 0 0\n";
+        assert!(matches!(
+            Texture::decode("big.ppm", big, &l),
+            Err(TextureError::TooLarge { .. })
+        ));
+    }
+
+    #[test]
+    fn bilinear_lookup_hits_texel_centres_and_blends_between() {
+        let t = Texture::from_texels(2, 1, vec![[255, 255, 255], [0, 0, 0]]).expect("2×1");
+        assert!((t.sample(uv(0.25, 0.5)) - Color::ONE).length() < 1e-6);
+        assert!(t.sample(uv(0.75, 0.5)).length() < 1e-6);
+        let mid = t.sample(uv(0.5, 0.5));
+        assert!((mid - Color::splat(0.5)).length() < 1e-6);
+        // Repeat in u: just past the right edge blends back towards the first (white) texel.
+        assert!((t.sample(uv(1.0, 0.5)) - Color::splat(0.5)).length() < 1e-6);
+    }
+
+    #[test]
+    fn lookups_are_linear_light() {
+        // sRGB code 188 is about 0.5 in linear light.
+        let t = Texture::from_texels(1, 1, vec![[188, 188, 188]]).expect("1×1");
+        let c = t.sample(uv(0.3, 0.3));
+        assert!((c.x - 0.5).abs() < 0.005, "{c:?}");
+    }
+
+    #[test]
+    fn non_finite_coordinates_stay_in_range() {
+        let t = Texture::from_texels(2, 2, vec![[1, 2, 3]; 4]).expect("2×2");
+        for x in [f64::NAN, f64::INFINITY, -f64::INFINITY, 1e300] {
+            let c = t.sample(uv(x, x));
+            assert!(c.is_finite());
+        }
+    }
+
+    #[test]
+    fn memory_assets_resolve_only_their_own_names() {
+        let mut a = MemoryAssets::new();
+        a.insert("wood.png", vec![1, 2, 3]);
+        assert_eq!(a.load("wood.png").expect("present"), vec![1, 2, 3]);
+        assert!(a.load("../etc/passwd").is_err());
+        assert!(a.load("/wood.png").is_err());
+    }
+}

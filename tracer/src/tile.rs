@@ -1,0 +1,90 @@
+//! Rectangles of the image (tiles) and how an image is cut into them.
+//!
+//! A tile is only a unit of work: every pixel's value depends on the scene and the pixel's
+//! coordinates alone, never on the tile it was rendered in (see [`crate::sampler`]).
+
+/// A rectangle of pixels: columns `x..x + width`, rows `y..y + height` (row 0 at the top).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Rect {
+    pub x: u32,
+    pub y: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Rect {
+    pub const fn new(x: u32, y: u32, width: u32, height: u32) -> Rect {
+        Rect {
+            x,
+            y,
+            width,
+            height,
+        }
+    }
+
+    /// The whole image.
+    pub const fn full(width: u32, height: u32) -> Rect {
+        Rect::new(0, 0, width, height)
+    }
+
+    pub fn pixel_count(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// Whether the rectangle is non-empty and lies inside a `width × height` image.
+    pub fn fits_in(&self, width: u32, height: u32) -> bool {
+        self.width > 0
+            && self.height > 0
+            && u64::from(self.x) + u64::from(self.width) <= u64::from(width)
+            && u64::from(self.y) + u64::from(self.height) <= u64::from(height)
+    }
+}
+
+/// Cuts a `width × height` image into tiles of at most `tile × tile` pixels, row by row from
+/// the top left; the last column and row of tiles take what is left.
+pub fn tiles(width: u32, height: u32, tile: u32) -> Vec<Rect> {
+    let tile = tile.max(1);
+    let mut out = Vec::new();
+    let mut y = 0;
+    while y < height {
+        let h = tile.min(height - y);
+        let mut x = 0;
+        while x < width {
+            let w = tile.min(width - x);
+            out.push(Rect::new(x, y, w, h));
+            x += w;
+        }
+        y += h;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiles_cover_the_image_exactly_once() {
+        for (w, h, t) in [(10, 7, 3), (64, 64, 64), (1, 1, 16), (100, 3, 7)] {
+            let mut seen = vec![0u8; (w * h) as usize];
+            for r in tiles(w, h, t) {
+                assert!(r.fits_in(w, h));
+                assert!(r.width <= t && r.height <= t);
+                for y in r.y..r.y + r.height {
+                    for x in r.x..r.x + r.width {
+                        seen[(y * w + x) as usize] += 1;
+                    }
+                }
+            }
+            assert!(seen.iter().all(|&c| c == 1), "{w}×{h} by {t}");
+        }
+    }
+
+    #[test]
+    fn fits_in_refuses_empty_and_overhanging_rects() {
+        assert!(!Rect::new(0, 0, 0, 5).fits_in(10, 10));
+        assert!(!Rect::new(8, 0, 3, 5).fits_in(10, 10));
+        assert!(!Rect::new(u32::MAX, 0, 2, 1).fits_in(10, 10));
+        assert!(Rect::new(7, 5, 3, 5).fits_in(10, 10));
+    }
+}
