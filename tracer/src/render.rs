@@ -24,6 +24,7 @@ use rayon::prelude::*;
 
 use crate::math::{Color, Ray, offset_ray_origin};
 use crate::sampler::Sample;
+use crate::shape::LocalHit;
 use crate::srgb;
 use crate::tile::{Rect, tiles};
 use crate::world::{Hit, Object, Scene};
@@ -70,23 +71,26 @@ impl Counters {
     }
 }
 
-/// Where a secondary ray starts: the hit point lifted off the surface.
-struct SurfacePoint {
-    p: DVec3,
-    /// Per-axis bound on what the offset must clear (hit-point error, plus the rounding of
-    /// carrying a nearby point back into this object's space).
-    err: DVec3,
+/// A hit point ready to spawn secondary rays: its world position, the bound its origin
+/// must clear, and the normal facing the ray that arrived.
+#[derive(Debug, Clone, Copy)]
+pub struct SurfacePoint {
+    pub p: DVec3,
+    /// Per-axis bound the offset must clear: the hit point's own error plus the rounding of
+    /// carrying a point near it back into this object's space for the next intersection test.
+    pub err: DVec3,
     /// Unit normal facing the incoming ray.
-    n: DVec3,
+    pub n: DVec3,
     /// Whether the incoming ray arrived from the outside of the solid.
-    outside: bool,
+    pub outside: bool,
 }
 
 impl SurfacePoint {
-    fn new(obj: &Object, hit: &Hit, ray: &Ray) -> SurfacePoint {
-        let (p, p_err) = obj.transform.point_to_world(hit.local.p, hit.local.p_err);
-        let outward = obj.transform.normal_to_world(hit.local.n).normalize();
-        let outside = outward.dot(ray.dir) <= 0.0;
+    /// The world-space surface point of `hit` on `obj`, for a ray arriving along `incoming`.
+    pub fn new(obj: &Object, hit: &LocalHit, incoming: DVec3) -> SurfacePoint {
+        let (p, p_err) = obj.transform.point_to_world(hit.p, hit.p_err);
+        let outward = obj.transform.normal_to_world(hit.n).normalize();
+        let outside = outward.dot(incoming) <= 0.0;
         let n = if outside { outward } else { -outward };
         // The factor 2 leaves room for the intersection routine's own rounding when it
         // classifies the new origin as off the surface (a few ulps of the unit shape).
@@ -94,8 +98,8 @@ impl SurfacePoint {
         SurfacePoint { p, err, n, outside }
     }
 
-    /// Origin for a ray leaving towards `dir`.
-    fn origin_towards(&self, dir: DVec3) -> DVec3 {
+    /// Origin for a secondary ray leaving towards `dir`: off the surface, on `dir`'s side.
+    pub fn origin_towards(&self, dir: DVec3) -> DVec3 {
         offset_ray_origin(self.p, self.err, self.n, dir)
     }
 }
@@ -133,7 +137,7 @@ impl Scene {
         };
         let obj = &self.objects[hit.object as usize];
         let m = &obj.material;
-        let sp = SurfacePoint::new(obj, &hit, ray);
+        let sp = SurfacePoint::new(obj, &hit.local, ray.dir);
         let self_skip = obj.shape.cannot_rehit(sp.outside).then_some(hit.object);
 
         let mut color = Color::ZERO;

@@ -85,15 +85,19 @@ impl Transform {
         )
     }
 
-    /// True when every matrix entry is finite and the linear part is invertible with a
-    /// finite inverse (a scale of 1e200 twice overflows; such a transform is refused).
+    /// True when every matrix entry is finite and the two matrices are inverses of each other
+    /// to within rounding: a zero or overflowing scale (1e200 twice gives ∞, its inverse 0)
+    /// breaks that, and such a transform is refused.
     pub fn is_valid(&self) -> bool {
         let finite = |a: &DAffine3| a.matrix3.is_finite() && a.translation.is_finite();
         if !finite(&self.to_world) || !finite(&self.to_object) {
             return false;
         }
-        let det = self.to_world.matrix3.determinant();
-        det.is_finite() && det != 0.0 && self.to_object.matrix3.determinant().is_finite()
+        let product = self.to_world.matrix3 * self.to_object.matrix3;
+        (product - DMat3::IDENTITY)
+            .to_cols_array()
+            .iter()
+            .all(|e| e.abs() < 1e-9)
     }
 
     pub fn to_world(&self) -> &DAffine3 {
@@ -287,11 +291,15 @@ mod tests {
 
     #[test]
     fn overflowing_transforms_are_invalid() {
-        let t = chain(&[
-            TransformOp::Scale(DVec3::splat(1e200)),
-            TransformOp::Scale(DVec3::splat(1e200)),
-        ]);
-        assert!(!t.is_valid());
+        let big = chain(&[TransformOp::Scale(DVec3::splat(1e200))]);
+        assert!(big.is_valid(), "large but representable");
+        for s in [1e200, 1e-200] {
+            let t = chain(&[
+                TransformOp::Scale(DVec3::splat(s)),
+                TransformOp::Scale(DVec3::splat(s)),
+            ]);
+            assert!(!t.is_valid(), "scale {s} twice");
+        }
     }
 
     #[test]

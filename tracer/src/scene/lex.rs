@@ -8,6 +8,9 @@ use crate::diag::{Diagnostic, Pos};
 pub(crate) enum Item {
     /// `[NAME]` (open) or `[/NAME]` (close); the name is lower-cased.
     Tag { name: String, close: bool, pos: Pos },
+    /// A line that could not be read (its diagnostic is in the error list). Kept so the
+    /// parser knows the enclosing block is incomplete and does not pile on follow-up errors.
+    Broken,
     /// `key = value`; the key is lower-cased, the value is kept as written (trimmed).
     Entry {
         key: String,
@@ -41,7 +44,10 @@ pub(crate) fn lex(source: &str) -> (Vec<Item>, Vec<Diagnostic>) {
         if body[0] == '[' {
             match lex_tag(body) {
                 Ok((name, close)) => items.push(Item::Tag { name, close, pos }),
-                Err(msg) => errors.push(Diagnostic::new(pos, msg)),
+                Err(msg) => {
+                    errors.push(Diagnostic::new(pos, msg));
+                    items.push(Item::Broken);
+                }
             }
             continue;
         }
@@ -50,6 +56,7 @@ pub(crate) fn lex(source: &str) -> (Vec<Item>, Vec<Diagnostic>) {
                 pos,
                 "expected `key = value` or a tag such as [OBJECT]",
             ));
+            items.push(Item::Broken);
             continue;
         };
         let key: String = body[..eq]
@@ -59,6 +66,7 @@ pub(crate) fn lex(source: &str) -> (Vec<Item>, Vec<Diagnostic>) {
             .to_ascii_lowercase();
         if key.is_empty() {
             errors.push(Diagnostic::new(pos, "expected a key before `=`"));
+            items.push(Item::Broken);
             continue;
         }
         if let Some(bad) = key
@@ -69,6 +77,7 @@ pub(crate) fn lex(source: &str) -> (Vec<Item>, Vec<Diagnostic>) {
                 pos,
                 format!("a key is letters, digits and `_`; found `{bad}` in `{key}`"),
             ));
+            items.push(Item::Broken);
             continue;
         }
         let rest = &body[eq + 1..];
@@ -170,7 +179,7 @@ mod tests {
     fn columns_count_characters_not_bytes() {
         let (items, _) = lex("# é\n  é = 1\n");
         // `é` is not a valid key character, so the line is an error at column 3.
-        assert!(items.is_empty());
+        assert_eq!(items, vec![Item::Broken]);
         let (_, errors) = lex("  é = 1\n");
         assert_eq!(errors[0].pos, Pos::new(1, 3));
         let (items, _) = lex("ambient = 0.5 # é\n");

@@ -99,6 +99,9 @@ struct Block {
     pos: Pos,
     entries: Vec<Entry>,
     children: Vec<Block>,
+    /// Something inside could not be read (a malformed line, an unclosed child): checks for
+    /// missing keys or children would only echo that error, so they are skipped.
+    broken: bool,
 }
 
 impl Block {
@@ -108,6 +111,7 @@ impl Block {
             pos,
             entries: Vec::new(),
             children: Vec::new(),
+            broken: false,
         }
     }
 
@@ -190,9 +194,17 @@ fn build_tree(items: Vec<Item>, errors: &mut Vec<Diagnostic>) -> Block {
                     let Some(open) = stack.pop() else { break };
                     errors.push(unclosed(&open, Some(pos)));
                     attach(&mut stack, open);
+                    if let Some(parent) = stack.last_mut() {
+                        parent.broken = true;
+                    }
                 }
                 if let Some(done) = stack.pop() {
                     attach(&mut stack, done);
+                }
+            }
+            Item::Broken => {
+                if let Some(top) = stack.last_mut() {
+                    top.broken = true;
                 }
             }
             Item::Entry {
@@ -597,7 +609,7 @@ impl Parser<'_> {
                 _ => {}
             }
         }
-        if position.is_none() && !b.entries.iter().any(|e| e.key == "position") {
+        if position.is_none() && !b.broken && !b.entries.iter().any(|e| e.key == "position") {
             self.err(b.pos, "[LIGHT] needs `position = <x, y, z>`");
         }
         Some(Light {
@@ -631,6 +643,7 @@ impl Parser<'_> {
 
         // The shape first: which own keys apply depends on it.
         let kind = match entries.iter().find(|e| e.key == "type") {
+            None if b.broken => None,
             None => {
                 self.err(
                     b.pos,
@@ -789,7 +802,7 @@ impl Parser<'_> {
                 }
             }
         }
-        if !b.entries.iter().any(|e| e.key == "op") {
+        if !b.broken && !b.entries.iter().any(|e| e.key == "op") {
             self.err(
                 b.pos,
                 "[CSG] needs `op = union`, `op = intersection` or `op = difference`",
@@ -805,7 +818,7 @@ impl Parser<'_> {
                 }
             }
         }
-        if child_blocks < 2 {
+        if child_blocks < 2 && !b.broken {
             self.err(
                 b.pos,
                 format!(

@@ -1,0 +1,338 @@
+//! The tracer at the places where textbook numerics fail: tiny spheres far away, scenes far
+//! from the origin or scaled up, self-shadowing ("acne"), grazing and parallel rays, and a
+//! checker on the plane y = 0. Each test also shows, where it can, that the naive method
+//! fails on the same input, so the test is known to sit at the failure case.
+
+mod common;
+
+use common::{RefPlane, RefSphere, Reference, compare_with_reference, scene};
+use glam::DVec3;
+use tessera_tracer::Rect;
+use tessera_tracer::math::Ray;
+use tessera_tracer::render::SurfacePoint;
+
+/// A sphere of radius 0.1 seen from 1e7 away, framed to fill the image: every pixel centre is
+/// hit or missed exactly as the geometry says, and lit with the right cosine.
+#[test]
+fn small_sphere_from_ten_million_away() {
+    let (w, h) = (41u32, 41u32);
+    let distance = 1e7;
+    // Half the image height spans 0.2 at the sphere: tan(fov/2) = 0.2 / 1e7.
+    let fov = 2.0 * (0.2f64 / distance).atan().to_degrees();
+    let src = format!(
+        "[GLOBALS]\nwidth = {w}\nheight = {h}\nambient = 0.1\nbackground = <0, 0, 1>\n[/GLOBALS]\n\
+         [CAMERA]\neye = <0, 0, {distance}>\nfov = {fov:e}\n[/CAMERA]\n\
+         [LIGHT]\nposition = <0, 0, {distance}>\n[/LIGHT]\n\
+         [OBJECT]\ntype = sphere\nradius = 0.1\ncolor1 = 0.5\n[/OBJECT]\n"
+    );
+    let (linear, _) = scene(&src).render_rect_linear(Rect::full(w, h));
+    let th = 0.2 / distance;
+    let (mut hits, mut misses) = (0, 0);
+    for j in 0..h {
+        for i in 0..w {
+            // Where the centre ray crosses z = 0 (the image plane through the sphere).
+            let nx = (2.0 * (f64::from(i) + 0.5) / f64::from(w) - 1.0) * th;
+            let ny = (1.0 - 2.0 * (f64::from(j) + 0.5) / f64::from(h)) * th;
+            let rho = distance * nx.hypot(ny);
+            let got = linear[(j * w + i) as usize];
+            if (rho - 0.1).abs() < 1e-6 {
+                continue;
+            }
+            if rho < 0.1 {
+                hits += 1;
+                // The ray is parallel to z to within 1e-8, and so is the light direction.
+                let cos = (1.0 - (rho / 0.1).powi(2)).sqrt();
+                let expected = 0.5 * (0.1 + cos);
+                assert!(
+                    (got - DVec3::splat(expected)).abs().max_element() < 1e-6,
+                    "({i}, {j}) at ρ = {rho}: {got:?} vs {expected}"
+                );
+            } else {
+                misses += 1;
+                assert_eq!(got, DVec3::new(0.0, 0.0, 1.0), "({i}, {j}) at ρ = {rho}");
+            }
+        }
+    }
+    assert!(hits > 300 && misses > 1000, "{hits} hits, {misses} misses");
+}
+
+/// A scene with everything the tracer does: checker plane, mirror, shadows, a rotated and
+/// non-uniformly scaled object, several lights. `k` scales the whole world and `offset` then
+/// moves it.
+fn world_scene(k: f64, offset: DVec3) -> String {
+    let p = |v: DVec3| {
+        let w = v * k + offset;
+        format!("<{:e}, {:e}, {:e}>", w.x, w.y, w.z)
+    };
+    let place = format!("scale = {k:e}\ntranslate = {}\n", p(DVec3::ZERO));
+    format!(
+        "[GLOBALS]\nwidth = 96\nheight = 72\nshadow = 0.8\nbackground = <0.1, 0.2, 0.3>\n[/GLOBALS]\n\
+         [CAMERA]\neye = {}\nlook_at = {}\nfov = 45\n[/CAMERA]\n\
+         [LIGHT]\nposition = {}\n[/LIGHT]\n\
+         [LIGHT]\nposition = {}\ncolor = 0.3\n[/LIGHT]\n\
+         [OBJECT]\ntype = plane\ncolor1 = 1\ncolor2 = 0.1\n{place}[/OBJECT]\n\
+         [OBJECT]\ntype = sphere\nradius = 2\ntranslate = <-3, 2, 0>\nmirror = 0.5\n{place}[/OBJECT]\n\
+         [OBJECT]\ntype = sphere\nradius = 1.5\nscale = <1, 2, 1>\nrotate = <0, 0, 30>\n\
+         translate = <3, 3, 0>\ncolor1 = <0.9, 0.4, 0.2>\ncolor2 = <0.2, 0.4, 0.9>\n{place}[/OBJECT]\n",
+        p(DVec3::new(3.0, 6.0, 20.0)),
+        p(DVec3::new(0.0, 1.0, 0.0)),
+        p(DVec3::new(10.0, 20.0, 10.0)),
+        p(DVec3::new(-10.0, 5.0, 5.0)),
+    )
+}
+
+/// Byte differences between two RGB8 images: (pixels that differ, largest channel difference).
+fn diff(a: &[u8], b: &[u8]) -> (usize, u8) {
+    let mut pixels = 0;
+    let mut max = 0;
+    for (pa, pb) in a.chunks_exact(3).zip(b.chunks_exact(3)) {
+        let d = pa
+            .iter()
+            .zip(pb)
+            .map(|(x, y)| x.abs_diff(*y))
+            .max()
+            .unwrap_or(0);
+        if d > 0 {
+            pixels += 1;
+            max = max.max(d);
+        }
+    }
+    (pixels, max)
+}
+
+/// Moving the whole scene by (1e5, 1e5, 1e5), or scaling it by 1e4, renders the same image.
+///
+/// Tolerance: at most one pixel in a thousand may differ, by at most one 8-bit step. Why: at
+/// 1e5 every coordinate carries an absolute rounding error near 1e5 · 2⁻⁵³ ≈ 1e-11 (relative
+/// error 2⁻⁵³ after scaling), so a pixel can only change where its sample lands within
+/// ~1e-11 of a silhouette or checker line, or its value within ~1e-11 of an 8-bit rounding
+/// threshold: chances near 1e-9 per pixel. In practice the images come out identical.
+#[test]
+fn far_from_the_origin_or_scaled_up_renders_the_same_image() {
+    let base = scene(&world_scene(1.0, DVec3::ZERO));
+    let image = base.render_rect(Rect::full(96, 72));
+    for (k, offset) in [
+        (1.0, DVec3::splat(1e5)),
+        (1e4, DVec3::ZERO),
+        (1e4, DVec3::new(-3e5, 2e5, 1e5)),
+    ] {
+        let moved = scene(&world_scene(k, offset)).render_rect(Rect::full(96, 72));
+        let (pixels, max) = diff(&image, &moved);
+        assert!(
+            pixels <= 96 * 72 / 1000 && max <= 1,
+            "scale {k}, offset {offset:?}: {pixels} pixels differ, by up to {max}"
+        );
+    }
+    // The same comparison does catch real changes: a light moved by 1 %.
+    let nudged = world_scene(1.0, DVec3::ZERO).replace("<1e1, 2e1, 1e1>", "<1.01e1, 2e1, 1e1>");
+    let (pixels, _) = diff(&image, &scene(&nudged).render_rect(Rect::full(96, 72)));
+    assert!(pixels > 100, "the comparison is not sensitive: {pixels}");
+}
+
+/// Seen from inside, a sphere lit by a light inside it must be lit everywhere: every shadow
+/// ray starts on the sphere and must not meet it again at t ≈ 0. The secondary-ray origins are
+/// what prevent that, near the origin and 1e5 away alike.
+#[test]
+fn no_self_shadowing_inside_a_lit_sphere_near_and_far() {
+    for offset in [DVec3::ZERO, DVec3::splat(1e5), DVec3::new(-7e5, 3e5, 1e6)] {
+        let o = |v: DVec3| {
+            let w = v + offset;
+            format!("<{:e}, {:e}, {:e}>", w.x, w.y, w.z)
+        };
+        let src = format!(
+            "[GLOBALS]\nwidth = 40\nheight = 30\nambient = 0.05\n[/GLOBALS]\n\
+             [CAMERA]\neye = {}\nlook_at = {}\nfov = 90\n[/CAMERA]\n\
+             [LIGHT]\nposition = {}\n[/LIGHT]\n\
+             [OBJECT]\ntype = sphere\nradius = 50\ncolor1 = 0.7\ntranslate = {}\n[/OBJECT]\n",
+            o(DVec3::new(0.0, 0.0, 20.0)),
+            o(DVec3::new(5.0, -3.0, 0.0)),
+            o(DVec3::new(10.0, 20.0, 5.0)),
+            o(DVec3::ZERO),
+        );
+        let s = scene(&src);
+        let (linear, stats) = s.render_rect_linear(Rect::full(40, 30));
+        assert_eq!(stats.shadow, 40 * 30, "every pixel tests its light");
+        let mut r = Reference::new(40, 30);
+        r.eye = DVec3::new(0.0, 0.0, 20.0);
+        r.look_at = DVec3::new(5.0, -3.0, 0.0);
+        r.fov = 90.0;
+        r.ambient = DVec3::splat(0.05);
+        r.lights = vec![(DVec3::new(10.0, 20.0, 5.0), DVec3::ONE)];
+        r.spheres = vec![RefSphere {
+            centre: DVec3::ZERO,
+            radius: 50.0,
+            color: DVec3::splat(0.7),
+            mirror: 0.0,
+        }];
+        let compared = compare_with_reference(&linear, &r, false, 1e-6);
+        assert_eq!(compared, 40 * 30, "offset {offset:?}");
+    }
+}
+
+/// The same inside view of a rotated, non-uniformly scaled sphere (an ellipsoid) far from the
+/// origin: no pixel may show the shadowed value `c · ambient`.
+#[test]
+fn no_self_shadowing_inside_a_far_ellipsoid() {
+    let src = "[GLOBALS]\nwidth = 64\nheight = 48\nambient = 0.05\nshadow = 1\n[/GLOBALS]\n\
+               [CAMERA]\neye = <100000, 100000, 100020>\nlook_at = <100003, 99997, 100000>\nfov = 100\n[/CAMERA]\n\
+               [LIGHT]\nposition = <100010, 100020, 100005>\n[/LIGHT]\n\
+               [OBJECT]\ntype = sphere\nradius = 50\nscale = <1, 0.6, 1.7>\nrotate = <20, 35, -10>\n\
+               translate = <100000, 100000, 100000>\ncolor1 = 1\n[/OBJECT]\n";
+    let (linear, stats) = scene(src).render_rect_linear(Rect::full(64, 48));
+    assert_eq!(stats.shadow, 64 * 48);
+    let dark = linear.iter().filter(|c| c.x <= 0.05 + 1e-12).count();
+    assert_eq!(dark, 0, "{dark} self-shadowed pixels");
+}
+
+/// Spawning shadow rays from the raw hit point (no offset) does self-intersect: the failure
+/// the offsets exist for. From the lifted origin, the same rays never meet the surface again
+/// near t = 0.
+#[test]
+fn offsets_prevent_the_self_hits_that_raw_hit_points_make() {
+    let src = "[OBJECT]\ntype = sphere\nradius = 3\nscale = <1, 0.3, 2>\nrotate = <10, 20, 30>\n\
+               translate = <123456.7, -98765.4, 55555.5>\n[/OBJECT]\n";
+    let s = scene(src);
+    let obj = &s.objects[0];
+    let centre = DVec3::new(123456.7, -98765.4, 55555.5);
+    let (mut raw_self_hits, mut lifted_self_hits, mut tested) = (0, 0, 0);
+    for i in 0..2000u32 {
+        // Rays from points on a large shell around the object, aimed at points inside it.
+        let a = f64::from(i) * 2.399_963;
+        let z = 1.0 - 2.0 * (f64::from(i) + 0.5) / 2000.0;
+        let dir_out = DVec3::new(
+            (1.0 - z * z).sqrt() * a.cos(),
+            z,
+            (1.0 - z * z).sqrt() * a.sin(),
+        );
+        let from = centre + dir_out * 50.0;
+        let aim = centre + DVec3::new((a * 3.1).sin(), (a * 1.7).cos(), (a * 0.3).sin()) * 0.5;
+        let ray = Ray::new(from, aim - from);
+        let local = obj.transform.ray_to_object(&ray);
+        let Some(hit) = obj.shape.intersect(&local, f64::INFINITY) else {
+            continue;
+        };
+        let sp = SurfacePoint::new(obj, &hit, ray.dir);
+        // Leave towards a direction in the outer hemisphere, as a shadow ray does.
+        let out = (sp.n + DVec3::new(a.cos(), a.sin(), (2.0 * a).cos()) * 0.9).normalize();
+        if out.dot(sp.n) <= 0.01 {
+            continue;
+        }
+        tested += 1;
+        let self_hit = |origin: DVec3| {
+            let r = obj.transform.ray_to_object(&Ray::new(origin, out));
+            obj.shape.intersect(&r, f64::INFINITY).is_some()
+        };
+        raw_self_hits += usize::from(self_hit(sp.p));
+        lifted_self_hits += usize::from(self_hit(sp.origin_towards(out)));
+    }
+    assert!(tested > 1000, "{tested}");
+    assert_eq!(lifted_self_hits, 0);
+    assert!(
+        raw_self_hits > tested / 10,
+        "raw origins self-hit only {raw_self_hits} of {tested}"
+    );
+}
+
+/// A camera zoomed onto a sphere's limb: hundreds of rays graze it. Every pixel is finite and
+/// equals the reference (hit and lit, or background) except the few within 1e-7 of tangency.
+#[test]
+fn grazing_rays_at_the_limb_give_no_speckles_or_nan() {
+    let src = "[GLOBALS]\nwidth = 64\nheight = 64\nbackground = <0, 0, 1>\n[/GLOBALS]\n\
+               [CAMERA]\neye = <0.99995, 0.01, 10>\nlook_at = <0.99995, 0.01, 0>\nfov = 0.002\n[/CAMERA]\n\
+               [LIGHT]\nposition = <20, 3, 1>\n[/LIGHT]\n\
+               [OBJECT]\ntype = sphere\ncolor1 = <1, 0.5, 0.25>\n[/OBJECT]\n\
+               [OBJECT]\ntype = sphere\nradius = 0.5\ntranslate = <-3, 0, -3>\n[/OBJECT]\n";
+    let (linear, _) = scene(src).render_rect_linear(Rect::full(64, 64));
+    let mut r = Reference::new(64, 64);
+    r.eye = DVec3::new(0.99995, 0.01, 10.0);
+    r.look_at = DVec3::new(0.99995, 0.01, 0.0);
+    r.fov = 0.002;
+    r.background = DVec3::new(0.0, 0.0, 1.0);
+    r.lights = vec![(DVec3::new(20.0, 3.0, 1.0), DVec3::ONE)];
+    r.spheres = vec![
+        RefSphere {
+            centre: DVec3::ZERO,
+            radius: 1.0,
+            color: DVec3::new(1.0, 0.5, 0.25),
+            mirror: 0.0,
+        },
+        RefSphere {
+            centre: DVec3::new(-3.0, 0.0, -3.0),
+            radius: 0.5,
+            color: DVec3::ONE,
+            mirror: 0.0,
+        },
+    ];
+    let compared = compare_with_reference(&linear, &r, false, 1e-6);
+    let hit = linear.iter().filter(|c| c.z < 1.0).count();
+    assert!(compared > 64 * 60, "{compared}");
+    assert!(
+        hit > 500 && hit < 64 * 64 - 500,
+        "the limb is not in view: {hit} hits"
+    );
+}
+
+/// A camera 1e-3 above the plane y = 0, looking along it: rays nearly parallel to the plane
+/// hit it up to ~1e6 away or not at all. No NaN, no value that is neither plane nor sky.
+#[test]
+fn rays_parallel_to_a_plane_give_no_speckles_or_nan() {
+    let src = "[GLOBALS]\nwidth = 64\nheight = 48\nbackground = <0, 0, 1>\nlight = <3, 10, -4>\n[/GLOBALS]\n\
+               [CAMERA]\neye = <0.3, 0.001, 0.7>\nlook_at = <0.3, 0.001, -100>\nfov = 20\n[/CAMERA]\n\
+               [OBJECT]\ntype = plane\ncolor1 = 0.9\ncolor2 = 0.2\n[/OBJECT]\n";
+    let (linear, _) = scene(src).render_rect_linear(Rect::full(64, 48));
+    let mut r = Reference::new(64, 48);
+    r.eye = DVec3::new(0.3, 0.001, 0.7);
+    r.look_at = DVec3::new(0.3, 0.001, -100.0);
+    r.fov = 20.0;
+    r.background = DVec3::new(0.0, 0.0, 1.0);
+    r.lights = vec![(DVec3::new(3.0, 10.0, -4.0), DVec3::ONE)];
+    r.plane = Some(RefPlane {
+        y: 0.0,
+        color1: DVec3::splat(0.9),
+        color2: Some(DVec3::splat(0.2)),
+        mirror: 0.0,
+    });
+    let compared = compare_with_reference(&linear, &r, false, 1e-9);
+    assert!(compared > 64 * 46, "{compared}");
+}
+
+/// A checkered plane at y = 0 seen obliquely: every pixel is exactly one of the two checker
+/// shades the reference predicts from the cell of the hit point. A solid checker evaluated at
+/// the computed hit point `o + t·d` would see y = ±1e-17 instead of 0 and flip cells.
+#[test]
+fn a_checkered_plane_at_y_zero_has_no_noise_along_its_cells() {
+    let src = "[GLOBALS]\nwidth = 80\nheight = 60\nambient = 0.2\nlight = <0, 50, 0>\n[/GLOBALS]\n\
+               [CAMERA]\neye = <0.37, 3.3, 7.9>\nlook_at = <0.1, 0, -0.2>\nfov = 50\n[/CAMERA]\n\
+               [OBJECT]\ntype = plane\ncolor1 = 1\ncolor2 = 0.05\n[/OBJECT]\n";
+    let (linear, _) = scene(src).render_rect_linear(Rect::full(80, 60));
+    let mut r = Reference::new(80, 60);
+    r.eye = DVec3::new(0.37, 3.3, 7.9);
+    r.look_at = DVec3::new(0.1, 0.0, -0.2);
+    r.fov = 50.0;
+    r.ambient = DVec3::splat(0.2);
+    r.lights = vec![(DVec3::new(0.0, 50.0, 0.0), DVec3::ONE)];
+    r.plane = Some(RefPlane {
+        y: 0.0,
+        color1: DVec3::ONE,
+        color2: Some(DVec3::splat(0.05)),
+        mirror: 0.0,
+    });
+    let compared = compare_with_reference(&linear, &r, false, 1e-9);
+    assert!(compared > 80 * 58, "{compared}");
+
+    // The naive solid checker's failure on the same rays: computed y is often not 0.
+    let mut flips = 0;
+    for j in 0..60 {
+        for i in 0..80 {
+            let (o, d) = r.primary(f64::from(i) + 0.5, f64::from(j) + 0.5);
+            let t = -o.y / d.y;
+            if t > 0.0 && (o + d * t).y < 0.0 {
+                flips += 1; // floor(y) = -1: the solid checker's parity flips here
+            }
+        }
+    }
+    assert!(
+        flips > 100,
+        "the naive checker would flip in only {flips} pixels"
+    );
+}

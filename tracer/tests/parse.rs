@@ -1,0 +1,585 @@
+//! The `.ray` parser at its edges: thesis files unchanged, every kind of error with its
+//! position and message, several errors reported together, and the limits.
+
+use glam::DVec3;
+use tessera_tracer::scene::{CsgOp, Node};
+use tessera_tracer::shape::Shape;
+use tessera_tracer::{Limits, Pos, Sampler, SceneDesc, SceneError, parse};
+
+fn ok(src: &str) -> SceneDesc {
+    match parse(src, &Limits::default()) {
+        Ok(d) => d,
+        Err(e) => panic!("unexpected errors:\n{e}"),
+    }
+}
+
+fn errors(src: &str) -> Vec<(u32, u32, String)> {
+    errors_with(src, &Limits::default())
+}
+
+fn errors_with(src: &str, limits: &Limits) -> Vec<(u32, u32, String)> {
+    match parse(src, limits) {
+        Ok(_) => panic!("expected an error for:\n{src}"),
+        Err(e) => e
+            .diagnostics()
+            .iter()
+            .map(|d| (d.pos.line, d.pos.column, d.message.clone()))
+            .collect(),
+    }
+}
+
+/// Asserts exactly one error, at `line:col`, whose message contains every fragment.
+#[track_caller]
+fn one_error(src: &str, line: u32, col: u32, fragments: &[&str]) {
+    let errs = errors(src);
+    assert_eq!(errs.len(), 1, "expected one error, got {errs:?}");
+    let (l, c, msg) = &errs[0];
+    assert_eq!((*l, *c), (line, col), "position of {msg:?}");
+    for f in fragments {
+        assert!(msg.contains(f), "{msg:?} lacks {f:?}");
+    }
+}
+
+#[test]
+fn a_thesis_file_parses_unchanged() {
+    let src = "\
+[rayfile]
+[GLOBAL]
+light=<50,50,100>
+[/GLOBAL]
+[OBJECT]
+type=sphere
+radius=5.25
+color1=<1,0,0>
+color2=<0,0,1>
+reflection=0.5
+scale=<1,1,1>
+rotate=<0,0,0>
+translate=<10,-10,10>
+[/OBJECT]
+[/rayfile]
+";
+    let d = ok(src);
+    assert_eq!(d.lights.len(), 1);
+    assert_eq!(d.lights[0].position, DVec3::new(50.0, 50.0, 100.0));
+    assert_eq!(d.lights[0].color, DVec3::ONE);
+    let Node::Object(o) = &d.objects[0] else {
+        panic!("an object")
+    };
+    assert_eq!(o.shape, Shape::Sphere);
+    assert_eq!(o.own_scale, DVec3::splat(5.25));
+    assert_eq!(o.material.mirror, 0.5);
+    assert_eq!(o.material.color2, Some(DVec3::new(0.0, 0.0, 1.0)));
+    // The unit sphere's top ends up at (10, -10 + 5.25, 10).
+    let top = o.transform.to_world().transform_point3(DVec3::Y);
+    assert!((top - DVec3::new(10.0, -4.75, 10.0)).length() < 1e-12);
+}
+
+#[test]
+fn defaults_are_those_of_the_format() {
+    let d = ok("");
+    assert_eq!((d.width, d.height), (640, 480));
+    assert_eq!(d.ambient, DVec3::splat(0.1));
+    assert_eq!(d.shadow, 1.0);
+    assert_eq!(d.background, DVec3::ZERO);
+    assert_eq!(d.max_depth, 5);
+    assert_eq!(d.sampler, Sampler::Center);
+    assert_eq!(d.camera.eye, DVec3::new(0.0, 0.0, 100.0));
+    assert_eq!(d.camera.look_at, DVec3::ZERO);
+    assert_eq!(d.camera.up, DVec3::Y);
+    assert_eq!(d.camera.fov_degrees, 30.0);
+    assert!(d.lights.is_empty() && d.objects.is_empty());
+}
+
+#[test]
+fn tags_keys_and_flags_are_case_insensitive_and_spacing_is_free() {
+    let d = ok(
+        "[Globals]\n  WIDTH=10\nHeight   =   20\nAntiAlias = YES\n[/GLOBALS]\n\
+                [object]\nTYPE = Plane\n[/Object]\n",
+    );
+    assert_eq!((d.width, d.height), (10, 20));
+    assert_eq!(d.sampler, Sampler::Thesis);
+    assert!(matches!(&d.objects[0], Node::Object(o) if o.shape == Shape::Plane));
+}
+
+#[test]
+fn every_key_of_the_format_is_accepted() {
+    let d = ok("\
+[GLOBALS]
+width = 32
+height = 24
+ambient = <0.1, 0.2, 0.3>
+shadow = 0.5
+background = 0.25
+max_depth = 3
+sampler = adaptive
+samples = 6
+threshold = 0.1
+light = <0, 10, 0>
+[/GLOBALS]
+[CAMERA]
+eye = <1, 2, 3>
+look_at = <0, 1, 0>
+up = <0, 0, 1>
+fov = 45
+[/CAMERA]
+[LIGHT]
+position = <1, 1, 1>
+color = <2, 2, 2>
+[/LIGHT]
+[OBJECT]
+type = plane
+color1 = 0.5
+texture = \"wood floor.png\"
+mirror = 0.25
+diffuse = 0.75
+[/OBJECT]
+");
+    assert_eq!(d.ambient, DVec3::new(0.1, 0.2, 0.3));
+    assert_eq!(d.shadow, 0.5);
+    assert_eq!(d.background, DVec3::splat(0.25));
+    assert_eq!(d.max_depth, 3);
+    assert_eq!(
+        d.sampler,
+        Sampler::Adaptive {
+            max: 6,
+            threshold: 0.1
+        }
+    );
+    assert_eq!(d.lights.len(), 2, "the globals' light and the [LIGHT]");
+    assert_eq!(d.lights[1].color, DVec3::splat(2.0));
+    assert_eq!(d.camera.fov_degrees, 45.0);
+    assert_eq!(
+        d.texture_names(),
+        vec![("wood floor.png", Pos::new(26, 11))]
+    );
+    let Node::Object(o) = &d.objects[0] else {
+        panic!("an object")
+    };
+    assert_eq!((o.material.mirror, o.material.diffuse), (0.25, 0.75));
+}
+
+#[test]
+fn transforms_apply_in_written_order_after_the_radius() {
+    let d =
+        ok("[OBJECT]\ntype = sphere\ntranslate = <10, 0, 0>\nradius = 2\nscale = 3\n[/OBJECT]\n");
+    let Node::Object(o) = &d.objects[0] else {
+        panic!("an object")
+    };
+    // radius 2 first (whatever its line), then translate, then scale: x = (1·2 + 10)·3.
+    let p = o.transform.to_world().transform_point3(DVec3::X);
+    assert!((p - DVec3::new(36.0, 0.0, 0.0)).length() < 1e-12, "{p:?}");
+}
+
+#[test]
+fn comments_and_quoted_names_with_hashes() {
+    let d = ok("[OBJECT] # a comment\ntype = plane # another\ntexture = \"a#b.ppm\"\n[/OBJECT]\n");
+    assert_eq!(d.texture_names()[0].0, "a#b.ppm");
+}
+
+#[test]
+fn unknown_tag_suggests_the_closest() {
+    one_error(
+        "[OBJCT]\ntype = sphere\n[/OBJCT]\n",
+        1,
+        1,
+        &["unknown tag", "[OBJECT]"],
+    );
+}
+
+#[test]
+fn unknown_key_suggests_the_closest() {
+    one_error(
+        "[OBJECT]\ntype = sphere\ncolour1 = 1\n[/OBJECT]\n",
+        3,
+        1,
+        &["colour1", "did you mean `color1`"],
+    );
+    one_error(
+        "[GLOBALS]\n  widht = 3\n[/GLOBALS]\n",
+        2,
+        3,
+        &["did you mean `width`"],
+    );
+}
+
+#[test]
+fn a_key_in_the_wrong_block_says_where_it_belongs() {
+    one_error(
+        "[OBJECT]\ntype = sphere\nfov = 40\n[/OBJECT]\n",
+        3,
+        1,
+        &["fov", "[CAMERA]"],
+    );
+    one_error("width = 3\n", 1, 1, &["outside every block", "[GLOBALS]"]);
+}
+
+#[test]
+fn duplicated_keys_are_errors_but_transforms_may_repeat() {
+    one_error(
+        "[OBJECT]\ntype = sphere\nradius = 1\nradius = 2\n[/OBJECT]\n",
+        4,
+        1,
+        &["twice", "line 3"],
+    );
+    // `reflection` is the thesis's name for `mirror`: both at once is a duplicate.
+    one_error(
+        "[OBJECT]\ntype = sphere\nmirror = 0.5\nreflection = 0.5\n[/OBJECT]\n",
+        4,
+        1,
+        &["twice"],
+    );
+    ok(
+        "[OBJECT]\ntype = sphere\nscale = 2\nscale = 3\nrotate = <0,0,1>\nrotate = <1,0,0>\n[/OBJECT]\n",
+    );
+}
+
+#[test]
+fn wrong_value_types_name_what_was_expected() {
+    one_error(
+        "[GLOBALS]\nwidth = wide\n[/GLOBALS]\n",
+        2,
+        9,
+        &["expected a whole number"],
+    );
+    one_error(
+        "[LIGHT]\nposition = 1, 2, 3\n[/LIGHT]\n",
+        2,
+        12,
+        &["expected a vector like <1, 0, 0>"],
+    );
+    one_error(
+        "[OBJECT]\ntype = sphere\ncolor1 = red\n[/OBJECT]\n",
+        3,
+        10,
+        &["expected a colour"],
+    );
+    one_error(
+        "[GLOBALS]\nantialias = maybe\n[/GLOBALS]\n",
+        2,
+        13,
+        &["on, off, yes, no, true or false"],
+    );
+    one_error(
+        "[OBJECT]\ntype = blob\n[/OBJECT]\n",
+        2,
+        8,
+        &["unknown type `blob`", "sphere"],
+    );
+    one_error(
+        "[OBJECT]\ntype = sphear\n[/OBJECT]\n",
+        2,
+        8,
+        &["did you mean `sphere`"],
+    );
+}
+
+#[test]
+fn a_bad_vector_component_is_pointed_at() {
+    //                       col 12 is '<'; the second component starts at col 16.
+    one_error(
+        "[LIGHT]\nposition = <1, x, 3>\n[/LIGHT]\n",
+        2,
+        16,
+        &["component 2"],
+    );
+    one_error(
+        "[LIGHT]\nposition = <1, 2>\n[/LIGHT]\n",
+        2,
+        12,
+        &["three components"],
+    );
+}
+
+#[test]
+fn non_finite_numbers_are_refused() {
+    for bad in ["inf", "NaN", "infinity", "1e400", "-1e999"] {
+        let errs = errors(&format!("[GLOBALS]\nshadow = {bad}\n[/GLOBALS]\n"));
+        assert_eq!(errs.len(), 1, "{bad}");
+        assert!(errs[0].2.contains("expected a number"), "{bad}: {errs:?}");
+    }
+}
+
+#[test]
+fn values_out_of_range_are_errors() {
+    let cases = [
+        ("[GLOBALS]\nshadow = 1.5\n[/GLOBALS]\n", "from 0 to 1"),
+        ("[GLOBALS]\nwidth = 0\n[/GLOBALS]\n", "whole number from 1"),
+        (
+            "[GLOBALS]\nmax_depth = -1\n[/GLOBALS]\n",
+            "whole number from 0",
+        ),
+        (
+            "[GLOBALS]\nambient = <0.1, -0.1, 0>\n[/GLOBALS]\n",
+            "components ≥ 0",
+        ),
+        ("[CAMERA]\nfov = 180\n[/CAMERA]\n", "between 0 and 180"),
+        (
+            "[OBJECT]\ntype = sphere\nradius = 0\n[/OBJECT]\n",
+            "greater than 0",
+        ),
+        (
+            "[OBJECT]\ntype = sphere\nmirror = 2\n[/OBJECT]\n",
+            "from 0 to 1",
+        ),
+        ("[OBJECT]\ntype = sphere\ndiffuse = -1\n[/OBJECT]\n", "≥ 0"),
+        (
+            "[OBJECT]\ntype = sphere\nscale = <1, 0, 1>\n[/OBJECT]\n",
+            "no zero component",
+        ),
+        (
+            "[GLOBALS]\nsamples = 0\nsampler = grid\n[/GLOBALS]\n",
+            "whole number from 1",
+        ),
+    ];
+    for (src, fragment) in cases {
+        let errs = errors(src);
+        assert_eq!(errs.len(), 1, "{src}: {errs:?}");
+        assert!(errs[0].2.contains(fragment), "{src}: {:?}", errs[0].2);
+    }
+}
+
+#[test]
+fn missing_required_keys_point_at_the_block() {
+    one_error(
+        "\n[OBJECT]\ncolor1 = 1\n[/OBJECT]\n",
+        2,
+        1,
+        &["needs `type"],
+    );
+    one_error("[LIGHT]\ncolor = 1\n[/LIGHT]\n", 1, 1, &["needs `position"]);
+    let errs = errors("[CSG]\n[OBJECT]\ntype = sphere\n[/OBJECT]\n[/CSG]\n");
+    assert!(errs.iter().any(|e| e.2.contains("needs `op")), "{errs:?}");
+    assert!(errs.iter().any(|e| e.2.contains("two or more")), "{errs:?}");
+}
+
+#[test]
+fn keys_that_do_not_apply_to_the_shape_are_errors() {
+    one_error(
+        "[OBJECT]\ntype = plane\nradius = 2\n[/OBJECT]\n",
+        3,
+        1,
+        &["`radius` does not apply to a plane"],
+    );
+    one_error(
+        "[OBJECT]\ntype = sphere\nmajor = 2\n[/OBJECT]\n",
+        3,
+        1,
+        &["`major` does not apply to a sphere"],
+    );
+}
+
+#[test]
+fn conflicting_keys_are_errors() {
+    one_error(
+        "[OBJECT]\ntype = sphere\ncolor2 = 1\ntexture = a.png\n[/OBJECT]\n",
+        3,
+        1,
+        &["color2", "texture"],
+    );
+    one_error(
+        "[GLOBALS]\nantialias = on\nsampler = grid\n[/GLOBALS]\n",
+        2,
+        1,
+        &["keep one"],
+    );
+    one_error(
+        "[GLOBALS]\nsamples = 4\n[/GLOBALS]\n",
+        2,
+        1,
+        &["`samples` applies to"],
+    );
+    one_error(
+        "[GLOBALS]\nsampler = jitter\nthreshold = 0.1\n[/GLOBALS]\n",
+        3,
+        1,
+        &["adaptive only"],
+    );
+}
+
+#[test]
+fn tag_structure_errors() {
+    one_error(
+        "[OBJECT]\ntype = sphere\n",
+        1,
+        1,
+        &["not closed", "end of the file"],
+    );
+    one_error("[/OBJECT]\n", 1, 1, &["closes nothing"]);
+    one_error(
+        "[LIGHT]\nposition = <0,0,0>\n[OBJECT]\ntype = sphere\n[/OBJECT]\n[/LIGHT]\n",
+        3,
+        1,
+        &["cannot appear inside [LIGHT]"],
+    );
+    let errs = errors("[GLOBALS]\n[/GLOBALS]\n[GLOBAL]\n[/GLOBAL]\n");
+    assert_eq!(errs.len(), 1);
+    assert!(errs[0].2.contains("second globals"), "{errs:?}");
+    let errs = errors("[CAMERA]\n[/CAMERA]\n[CAMERA]\n[/CAMERA]\n");
+    assert!(errs[0].2.contains("second [CAMERA]"), "{errs:?}");
+    one_error(
+        "[GLOBALS]\n[/GLOBALS]\n[rayfile]\n[/rayfile]\n",
+        3,
+        1,
+        &["[rayfile] may only wrap"],
+    );
+    // A close tag for an outer block reports the inner block left open.
+    one_error(
+        "[CSG]\nop = union\n[OBJECT]\ntype = sphere\n[/CSG]\n",
+        3,
+        1,
+        &["[OBJECT] is not closed", "before line 5"],
+    );
+}
+
+#[test]
+fn lines_that_are_neither_tag_nor_entry() {
+    one_error(
+        "[OBJECT]\ntype sphere\n[/OBJECT]\n",
+        2,
+        1,
+        &["expected `key = value`"],
+    );
+    one_error("[OBJECT]\n= sphere\n[/OBJECT]\n", 2, 1, &["expected a key"]);
+    one_error("[OB JECT]\n", 1, 1, &["is not a tag"]);
+}
+
+#[test]
+fn degenerate_cameras_and_transforms_are_errors() {
+    one_error(
+        "[CAMERA]\neye = <1, 2, 3>\nlook_at = <1, 2, 3>\n[/CAMERA]\n",
+        1,
+        1,
+        &["same point"],
+    );
+    one_error(
+        "[CAMERA]\neye = <0, 10, 0>\nlook_at = <0, 0, 0>\nup = <0, 2, 0>\n[/CAMERA]\n",
+        4,
+        6,
+        &["parallel"],
+    );
+    one_error(
+        "[OBJECT]\ntype = sphere\nscale = 1e200\nscale = 1e200\n[/OBJECT]\n",
+        4,
+        1,
+        &["singular or non-finite"],
+    );
+}
+
+#[test]
+fn several_independent_errors_are_reported_together_in_order() {
+    let src = "\
+[GLOBALS]
+width = -3
+hieght = 4
+[/GLOBALS]
+[OBJECT]
+type = sphere
+radius = big
+[/OBJECT]
+[LIGHT]
+[/LIGHT]
+";
+    let errs = errors(src);
+    let at: Vec<(u32, u32)> = errs.iter().map(|e| (e.0, e.1)).collect();
+    assert_eq!(at, vec![(2, 9), (3, 1), (7, 10), (9, 1)], "{errs:?}");
+}
+
+#[test]
+fn errors_format_as_file_line_col_message() {
+    let err: SceneError =
+        parse("[OBJECT]\ntype = cubee\n[/OBJECT]\n", &Limits::default()).expect_err("a bad type");
+    let text = err.with_file("scene.ray").to_string();
+    assert!(text.starts_with("scene.ray:2:8: "), "{text}");
+}
+
+#[test]
+fn limits_are_enforced() {
+    let limits = Limits {
+        max_dimension: 100,
+        max_pixels: 5_000,
+        max_objects: 2,
+        max_csg_depth: 1,
+        max_lights: 1,
+        max_textures: 1,
+        max_bounces: 8,
+        max_samples: 4,
+    };
+    let check = |src: &str, fragment: &str| {
+        let errs = errors_with(src, &limits);
+        assert!(
+            errs.iter().any(|e| e.2.contains(fragment)),
+            "{src}: {errs:?} lacks {fragment}"
+        );
+    };
+    check("[GLOBALS]\nwidth = 101\n[/GLOBALS]\n", "from 1 to 100");
+    check(
+        "[GLOBALS]\nwidth = 100\nheight = 51\n[/GLOBALS]\n",
+        "the limit is 5000",
+    );
+    let sphere = "[OBJECT]\ntype = sphere\n[/OBJECT]\n";
+    check(&sphere.repeat(3), "too many objects");
+    check(
+        "[LIGHT]\nposition = <0,0,0>\n[/LIGHT]\n[LIGHT]\nposition = <0,0,0>\n[/LIGHT]\n",
+        "2 lights",
+    );
+    check(
+        "[OBJECT]\ntype = plane\ntexture = a.png\n[/OBJECT]\n\
+         [OBJECT]\ntype = plane\ntexture = b.png\n[/OBJECT]\n",
+        "too many texture",
+    );
+    check("[GLOBALS]\nmax_depth = 9\n[/GLOBALS]\n", "from 0 to 8");
+    check(
+        "[GLOBALS]\nsampler = grid\nsamples = 5\n[/GLOBALS]\n",
+        "from 1 to 4",
+    );
+    let nested = "[CSG]\nop = union\n[CSG]\nop = union\n[OBJECT]\ntype = sphere\n[/OBJECT]\n\
+                  [OBJECT]\ntype = sphere\n[/OBJECT]\n[/CSG]\n[OBJECT]\ntype = sphere\n[/OBJECT]\n[/CSG]\n";
+    check(nested, "nested too deeply");
+}
+
+#[test]
+fn csg_blocks_parse_with_their_children_and_transforms() {
+    let d = ok("\
+[CSG]
+op = difference
+translate = <0, 1, 0>
+[OBJECT]
+type = sphere
+[/OBJECT]
+[CSG]
+op = intersection
+[OBJECT]
+type = sphere
+[/OBJECT]
+[OBJECT]
+type = plane
+[/OBJECT]
+[/CSG]
+[/CSG]
+");
+    let Node::Csg(c) = &d.objects[0] else {
+        panic!("a CSG")
+    };
+    assert_eq!(c.op, CsgOp::Difference);
+    assert_eq!(c.children.len(), 2);
+    assert!(matches!(&c.children[1], Node::Csg(inner) if inner.op == CsgOp::Intersection));
+    assert_eq!(d.primitive_count(), 3);
+    one_error(
+        "[CSG]\nop = union\ncolor1 = 1\n[OBJECT]\ntype = sphere\n[/OBJECT]\n[OBJECT]\ntype = sphere\n[/OBJECT]\n[/CSG]\n",
+        3,
+        1,
+        &["material of its [OBJECT] children"],
+    );
+}
+
+#[test]
+fn hostile_input_is_refused_quickly_and_without_panic() {
+    // Long lines, odd bytes and deep nesting: errors, not crashes.
+    let long_key = format!("[GLOBALS]\n{} = 1\n[/GLOBALS]\n", "w".repeat(100_000));
+    assert!(parse(&long_key, &Limits::default()).is_err());
+    let opens = "[CSG]\n".repeat(10_000);
+    assert!(parse(&opens, &Limits::default()).is_err());
+    let junk = "\u{0}\u{feff}[\u{1F600}]\n=\n[/]\n<<<>>>\n";
+    assert!(parse(junk, &Limits::default()).is_err());
+}
