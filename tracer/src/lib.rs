@@ -26,6 +26,7 @@
 
 pub mod camera;
 pub mod diag;
+pub mod exact;
 pub mod math;
 pub mod png_out;
 pub mod render;

@@ -23,7 +23,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use crate::math::{Color, Ray, offset_ray_origin};
-use crate::sampler::Sample;
+use crate::sampler::{Sample, Sampler};
 use crate::shape::LocalHit;
 use crate::srgb;
 use crate::tile::{Rect, tiles};
@@ -191,10 +191,28 @@ impl Scene {
 
     /// Linear pixel values of a rectangle, row-major, with the rays it took.
     pub fn render_rect_linear(&self, rect: Rect) -> (Vec<Color>, RayStats) {
+        self.render_rect_linear_with(rect, &self.sampler)
+    }
+
+    /// [`Self::render_rect_linear`] with another sampler than the scene's.
+    pub fn render_rect_linear_with(&self, rect: Rect, sampler: &Sampler) -> (Vec<Color>, RayStats) {
         let counters = Counters::default();
         let mut out = vec![Color::ZERO; rect.pixel_count()];
-        self.sampler
-            .render_rect(rect, |x, y| self.primary(x, y, &counters), &mut out);
+        sampler.render_rect(rect, |x, y| self.primary(x, y, &counters), &mut out);
+        (out, counters.stats())
+    }
+
+    /// A high-rate estimate of the exact image over `rect` (`n × n` stratified samples per
+    /// pixel, see [`crate::sampler::reference_pixel`]).
+    pub fn reference_rect(&self, rect: Rect, n: u32) -> (Vec<Color>, RayStats) {
+        let counters = Counters::default();
+        let trace = |x: f64, y: f64| self.primary(x, y, &counters);
+        let mut out = Vec::with_capacity(rect.pixel_count());
+        for y in rect.y..rect.y + rect.height {
+            for x in rect.x..rect.x + rect.width {
+                out.push(crate::sampler::reference_pixel(x, y, n, &trace));
+            }
+        }
         (out, counters.stats())
     }
 

@@ -152,6 +152,14 @@ impl Sample {
 const SEED_JITTER: u64 = 0x9e37_79b9_7f4a_7c15;
 const SEED_FIRST: u64 = 0xc2b2_ae3d_27d4_eb4f;
 const SEED_REFINE: u64 = 0x1656_67b1_9e37_79f9;
+const SEED_REFERENCE: u64 = 0x27d4_eb2f_1656_67c5;
+
+/// A high-rate stratified estimate of one pixel's exact value (`n × n` jittered samples with a
+/// seed of its own, so it is statistically independent of every user-facing sampler). This
+/// is the yardstick the samplers are measured against (see `tessera-bench`).
+pub fn reference_pixel<F: Fn(f64, f64) -> Sample>(x: u32, y: u32, n: u32, trace: &F) -> Color {
+    stratified(x, y, n, Some(SEED_REFERENCE), trace)
+}
 
 /// `n × n` samples, one per cell of a regular grid: at the cell centre (`seed = None`) or at
 /// a hashed position inside the cell.
@@ -268,8 +276,12 @@ fn adaptive<F: Fn(f64, f64) -> Sample>(
                     || (n.mean - centre.mean).abs().max_element() > threshold;
             }
             out[i] = if refine {
+                // The first pass's 4 samples are kept: both sets are unbiased estimates of the
+                // pixel, so their count-weighted mean is too, and it costs nothing.
                 let (x, y) = (rect.x + rx as u32, rect.y + ry as u32);
-                stratified(x, y, max, Some(SEED_REFINE), trace)
+                let n2 = f64::from(max * max);
+                let refined = stratified(x, y, max, Some(SEED_REFINE), trace);
+                (centre.mean * 4.0 + refined * n2) / (4.0 + n2)
             } else {
                 centre.mean
             };
