@@ -90,22 +90,12 @@ fn reference_estimate_matches_quadrature_on_smooth_shading() {
         color: DVec3::splat(0.7),
         mirror: 0.0,
     }];
-    // Gauss–Legendre nodes and weights on [0, 1], 8 points.
-    let nodes = [
-        (0.019855071751231856, 0.05061426814518813),
-        (0.10166676129318664, 0.11119051722668724),
-        (0.2372337950418355, 0.15685332293894363),
-        (0.4082826787521751, 0.18134189168918100),
-        (0.5917173212478249, 0.18134189168918100),
-        (0.7627662049581645, 0.15685332293894363),
-        (0.8983332387068134, 0.11119051722668724),
-        (0.9801449282487681, 0.05061426814518813),
-    ];
+    let nodes = gauss_legendre_unit(8);
     let mut checked = 0;
     for (i, j) in [(10, 10), (12, 9), (9, 13), (14, 14), (11, 12)] {
         let mut q = DVec3::ZERO;
-        for (x, wx) in nodes {
-            for (y, wy) in nodes {
+        for &(x, wx) in &nodes {
+            for &(y, wy) in &nodes {
                 let (o, d) = r.primary(f64::from(i) + x, f64::from(j) + y);
                 let (l, tie) = r.radiance(o, d, 0);
                 assert!(!tie);
@@ -121,6 +111,36 @@ fn reference_estimate_matches_quadrature_on_smooth_shading() {
         checked += 1;
     }
     assert_eq!(checked, 5);
+}
+
+/// Gauss–Legendre nodes and weights on [0, 1]: roots of the Legendre polynomial P_n found by
+/// Newton's method from Chebyshev guesses, weights 2 / ((1 − x²) P_n'(x)²), mapped from [−1, 1].
+fn gauss_legendre_unit(n: usize) -> Vec<(f64, f64)> {
+    let nf = n as f64;
+    (0..n)
+        .map(|i| {
+            let mut x = (std::f64::consts::PI * (i as f64 + 0.75) / (nf + 0.5)).cos();
+            let mut dp = 0.0;
+            for _ in 0..100 {
+                // P_n(x) and P_n'(x) by the three-term recurrence.
+                let (mut p0, mut p1) = (1.0, x);
+                for k in 2..=n {
+                    let kf = k as f64;
+                    let p2 = ((2.0 * kf - 1.0) * x * p1 - (kf - 1.0) * p0) / kf;
+                    p0 = p1;
+                    p1 = p2;
+                }
+                dp = nf * (x * p1 - p0) / (x * x - 1.0);
+                let step = p1 / dp;
+                x -= step;
+                if step.abs() < 1e-16 {
+                    break;
+                }
+            }
+            let w = 2.0 / ((1.0 - x * x) * dp * dp);
+            ((1.0 - x) / 2.0, w / 2.0)
+        })
+        .collect()
 }
 
 /// Average of the ±1 square wave `s(x) = (−1)^⌊x⌋` over `[a, b]`, through its integral, the
