@@ -24,8 +24,9 @@ pub enum Sampler {
     Grid { n: u32 },
     /// `n × n` stratified rays, one placed by hash in each cell of the grid.
     Jitter { n: u32 },
-    /// A 2 × 2 jittered first pass; where it or a neighbour's first pass varies by more than
-    /// `threshold` or meets another object, `max × max` jittered rays instead.
+    /// A first pass of one jittered ray per pixel quadrant; where it varies by more than
+    /// `threshold`, or it or a neighbour's first pass meets more than one object, `max × max`
+    /// stratified rays (the first pass's included when `max` is even).
     Adaptive { max: u32, threshold: f64 },
 }
 
@@ -93,6 +94,7 @@ impl Sampler {
             Sampler::Center => 1,
             Sampler::Thesis => 5,
             Sampler::Grid { n } | Sampler::Jitter { n } => n * n,
+            Sampler::Adaptive { max, .. } if max.is_multiple_of(2) => max * max,
             Sampler::Adaptive { max, .. } => 4 + max * max,
         }
     }
@@ -131,7 +133,11 @@ impl Sampler {
             }
             Sampler::Grid { n } => stratified(x, y, n, None, trace),
             Sampler::Jitter { n } => stratified(x, y, n, Some(SEED_JITTER), trace),
-            Sampler::Adaptive { max, .. } => stratified(x, y, max, Some(SEED_REFINE), trace),
+            Sampler::Adaptive { max, threshold } => {
+                let mut one = [Color::ZERO];
+                adaptive(Rect::new(x, y, 1, 1), max, threshold, trace, &mut one);
+                one[0]
+            }
         }
     }
 }
@@ -209,31 +215,65 @@ fn mix(mut z: u64) -> u64 {
 /// First-pass result of one pixel for the adaptive sampler.
 #[derive(Clone, Copy)]
 struct FirstPass {
-    mean: Color,
+    sum: Color,
     min: Color,
     max: Color,
     object: u32,
     mixed: bool,
+    /// For even `n`, the cells of the `n × n` grid the four samples took (see
+    /// [`first_position`]), so refinement does not trace them again.
+    cells: [u32; 4],
 }
 
-fn first_pass<F: Fn(f64, f64) -> Sample>(x: i64, y: i64, trace: &F) -> FirstPass {
+/// Where first-pass sample `k` (quadrant `k`) of pixel `(x, y)` goes, as an offset inside the
+/// pixel, and the cell of the final `n × n` grid it stands for.
+///
+/// For even `n`, each quadrant of the pixel is `n/2 × n/2` cells of the final grid; the sample
+/// picks one of them by hash and sits at that cell's own jittered position. It is then exactly
+/// the sample refinement would trace in that cell, so a refined pixel is a plain `n × n`
+/// stratified estimate that reuses the first pass, and the first pass alone is still one
+/// uniform sample per quadrant. For odd `n` the quadrants do not align with the grid, and the
+/// first pass is an independent 2 × 2 jittered set.
+fn first_position(x: i64, y: i64, k: u32, n: u32) -> (f64, f64, u32) {
+    let (qx, qy) = (k % 2, k / 2);
+    // Border pixels left of or above the image have negative coordinates; their hash input
+    // wraps, which is as good a seed as any and the same in every tile.
+    let (hx, hy) = (x as u32, y as u32);
+    if n.is_multiple_of(2) {
+        let h = n / 2;
+        let (a, b) = unit_pair(hx, hy, k, SEED_FIRST);
+        let ci = qx * h + ((a * f64::from(h)) as u32).min(h - 1);
+        let cj = qy * h + ((b * f64::from(h)) as u32).min(h - 1);
+        let cell = cj * n + ci;
+        let (ox, oy) = unit_pair(hx, hy, cell, SEED_REFINE);
+        let inv = 1.0 / f64::from(n);
+        ((f64::from(ci) + ox) * inv, (f64::from(cj) + oy) * inv, cell)
+    } else {
+        let (ox, oy) = unit_pair(hx, hy, k, SEED_FIRST);
+        (
+            (f64::from(qx) + ox) * 0.5,
+            (f64::from(qy) + oy) * 0.5,
+            u32::MAX,
+        )
+    }
+}
+
+fn first_pass<F: Fn(f64, f64) -> Sample>(x: i64, y: i64, n: u32, trace: &F) -> FirstPass {
     let mut fp = FirstPass {
-        mean: Color::ZERO,
+        sum: Color::ZERO,
         min: Color::splat(f64::INFINITY),
         max: Color::splat(f64::NEG_INFINITY),
         object: 0,
         mixed: false,
+        cells: [u32::MAX; 4],
     };
     for k in 0..4u32 {
-        // Border pixels left of or above the image have negative coordinates; their hash
-        // input wraps, which is as good a seed as any and the same in every tile.
-        let (ox, oy) = unit_pair(x as u32, y as u32, k, SEED_FIRST);
-        let sx = x as f64 + (f64::from(k % 2) + ox) * 0.5;
-        let sy = y as f64 + (f64::from(k / 2) + oy) * 0.5;
-        let s = trace(sx, sy);
-        fp.mean += s.color * 0.25;
+        let (ox, oy, cell) = first_position(x, y, k, n);
+        let s = trace(x as f64 + ox, y as f64 + oy);
+        fp.sum += s.color;
         fp.min = fp.min.min(s.color);
         fp.max = fp.max.max(s.color);
+        fp.cells[k as usize] = cell;
         if k == 0 {
             fp.object = s.object;
         } else if s.object != fp.object {
@@ -241,6 +281,29 @@ fn first_pass<F: Fn(f64, f64) -> Sample>(x: i64, y: i64, trace: &F) -> FirstPass
         }
     }
     fp
+}
+
+/// The `n × n` estimate of a pixel whose first pass asked for refinement.
+fn refine<F: Fn(f64, f64) -> Sample>(x: u32, y: u32, n: u32, fp: &FirstPass, trace: &F) -> Color {
+    if n.is_multiple_of(2) {
+        let inv = 1.0 / f64::from(n);
+        let mut sum = fp.sum;
+        for cell in 0..n * n {
+            if fp.cells.contains(&cell) {
+                continue;
+            }
+            let (ci, cj) = (cell % n, cell / n);
+            let (ox, oy) = unit_pair(x, y, cell, SEED_REFINE);
+            let sx = f64::from(x) + (f64::from(ci) + ox) * inv;
+            let sy = f64::from(y) + (f64::from(cj) + oy) * inv;
+            sum += trace(sx, sy).color;
+        }
+        sum / f64::from(n * n)
+    } else {
+        // Both sets are unbiased estimates of the pixel, so their count-weighted mean is too.
+        let n2 = f64::from(n * n);
+        (fp.sum + stratified(x, y, n, Some(SEED_REFINE), trace) * n2) / (4.0 + n2)
+    }
 }
 
 fn adaptive<F: Fn(f64, f64) -> Sample>(
@@ -260,7 +323,7 @@ fn adaptive<F: Fn(f64, f64) -> Sample>(
         for bx in 0..bw {
             let px = i64::from(rect.x) - 1 + bx as i64;
             let py = i64::from(rect.y) - 1 + by as i64;
-            border.push(first_pass(px, py, trace));
+            border.push(first_pass(px, py, max, trace));
         }
     }
     let mut i = 0;
@@ -268,22 +331,24 @@ fn adaptive<F: Fn(f64, f64) -> Sample>(
         for rx in 0..rect.width as usize {
             let (bx, by) = (rx + 1, ry + 1);
             let centre = border[by * bw + bx];
-            let mut refine = centre.mixed || (centre.max - centre.min).max_element() > threshold;
+            // Refine where the pixel's own samples disagree (contrast or a second object), or
+            // where a neighbour saw an edge, a different object or a different mean: an edge or
+            // a thin feature there may reach into this pixel between its own samples, and four
+            // samples that happen to agree inside fine texture (a checker near the horizon)
+            // still disagree with their neighbours'.
+            let mut refine_here =
+                centre.mixed || (centre.max - centre.min).max_element() > threshold;
             for (nx, ny) in [(bx - 1, by), (bx + 1, by), (bx, by - 1), (bx, by + 1)] {
-                let n = border[ny * bw + nx];
-                refine |= n.mixed
+                let n = &border[ny * bw + nx];
+                refine_here |= n.mixed
                     || n.object != centre.object
-                    || (n.mean - centre.mean).abs().max_element() > threshold;
+                    || ((n.sum - centre.sum) * 0.25).abs().max_element() > threshold;
             }
-            out[i] = if refine {
-                // The first pass's 4 samples are kept: both sets are unbiased estimates of the
-                // pixel, so their count-weighted mean is too, and it costs nothing.
-                let (x, y) = (rect.x + rx as u32, rect.y + ry as u32);
-                let n2 = f64::from(max * max);
-                let refined = stratified(x, y, max, Some(SEED_REFINE), trace);
-                (centre.mean * 4.0 + refined * n2) / (4.0 + n2)
+            let (x, y) = (rect.x + rx as u32, rect.y + ry as u32);
+            out[i] = if refine_here {
+                refine(x, y, max, &centre, trace)
             } else {
-                centre.mean
+                centre.sum * 0.25
             };
             i += 1;
         }
@@ -419,12 +484,13 @@ mod tests {
         let mut out = vec![Color::ZERO; 20];
         s.render_rect(Rect::new(0, 0, 20, 1), counting, &mut out);
         // Each column holds three first passes (rows -1, 0, 1) of 4 samples; a refined pixel
-        // adds 16. Only pixels at the edge (x = 10.3) and next to it may refine, and the two
-        // that the edge's first pass separates (9 is white, 10 is mixed or black) must.
+        // adds the 12 cells of its 4 × 4 grid that the first pass did not take. Only pixels
+        // at the edge (x = 10.3) and next to it may refine, and the two that the edge's first
+        // pass separates (9 is white, 10 is mixed or black) must.
         let counts = per_pixel.into_inner();
         for (i, &c) in counts.iter().enumerate() {
             let x = i as i64 - 1;
-            let refined = c == 12 + 16;
+            let refined = c == 12 + 12;
             assert!(c == 12 || refined, "column {x}: {c} samples");
             assert!(!refined || (9..=11).contains(&x), "column {x} refined");
             if x == 9 || x == 10 {

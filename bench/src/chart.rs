@@ -1,0 +1,387 @@
+//! Speed against accuracy: every sampler over a range of sample counts and thresholds, on
+//! scenes that stress sampling, measured against a high-rate reference of the exact image.
+//!
+//! For each scene and configuration the chart records the median render time of repeated
+//! single-threaded runs (the image rendered in 32-pixel tiles, as the CLI does), the primary
+//! and total rays per pixel, and the RMS and worst-pixel error in linear RGB. The reference is
+//! `n × n` stratified samples per pixel; it is also computed at `n/2`, and since its RMS
+//! error falls as `n^-3/2` (see `tessera_tracer::exact`), the difference between the two,
+//! divided by `2^1.5 − 1`, estimates the reference's own error, which is printed so that
+//! errors near it are read with care.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use rayon::prelude::*;
+use tessera_tracer::exact::error;
+use tessera_tracer::math::Color;
+use tessera_tracer::{DirAssets, Limits, Rect, Sampler, Scene, TextureLimits, parse, tiles};
+
+use crate::svg::{Panel, Series};
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// A short run (small images, fewer settings, one repeat): for CI, so the benchmark
+    /// cannot rot.
+    #[arg(long)]
+    quick: bool,
+    /// Where the CSV and SVG go.
+    #[arg(long, default_value = "bench/results")]
+    out: PathBuf,
+    /// Scenes to measure (`.ray` files or directories of them).
+    #[arg(long, default_value = "bench/scenes")]
+    scenes: Vec<PathBuf>,
+    /// Timed runs per configuration; the median is reported.
+    #[arg(long)]
+    repeats: Option<usize>,
+}
+
+/// One sampler setting, and the family (line on the chart) it belongs to.
+#[derive(Debug, Clone)]
+struct Config {
+    family: String,
+    label: String,
+    sampler: Sampler,
+}
+
+fn configs(quick: bool) -> Vec<Config> {
+    let ns: &[u32] = if quick { &[2, 4] } else { &[2, 3, 4, 6, 8] };
+    let thresholds: &[f64] = if quick { &[0.05] } else { &[0.1, 0.03, 0.01] };
+    let mut out = vec![
+        Config {
+            family: "center".into(),
+            label: "center".into(),
+            sampler: Sampler::Center,
+        },
+        Config {
+            family: "thesis".into(),
+            label: "thesis".into(),
+            sampler: Sampler::Thesis,
+        },
+    ];
+    for &n in ns {
+        out.push(Config {
+            family: "grid".into(),
+            label: format!("grid {n}x{n}"),
+            sampler: Sampler::Grid { n },
+        });
+        out.push(Config {
+            family: "jitter".into(),
+            label: format!("jitter {n}x{n}"),
+            sampler: Sampler::Jitter { n },
+        });
+        for &t in thresholds {
+            out.push(Config {
+                family: format!("adaptive t={t}"),
+                label: format!("adaptive {n}x{n} t={t}"),
+                sampler: Sampler::Adaptive {
+                    max: n,
+                    threshold: t,
+                },
+            });
+        }
+    }
+    out
+}
+
+/// One measured point.
+#[derive(Debug, Clone)]
+struct Point {
+    scene: String,
+    family: String,
+    label: String,
+    primary_per_px: f64,
+    rays_per_px: f64,
+    time_ms: f64,
+    rmse: f64,
+    worst: f64,
+    pareto: bool,
+}
+
+/// `.ray` files named directly or found in the given directories, sorted.
+pub fn scene_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    for p in paths {
+        if p.is_dir() {
+            for e in std::fs::read_dir(p).with_context(|| format!("cannot list {}", p.display()))? {
+                let path = e?.path();
+                if path.extension().is_some_and(|x| x == "ray") {
+                    files.push(path);
+                }
+            }
+        } else {
+            files.push(p.clone());
+        }
+    }
+    files.sort();
+    anyhow::ensure!(!files.is_empty(), "no .ray scenes found in {paths:?}");
+    Ok(files)
+}
+
+/// Loads a scene, optionally at reduced resolution (the camera keeps its field of view).
+pub fn load(path: &Path, shrink: u32) -> Result<Scene> {
+    let src =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let mut desc = parse(&src, &Limits::default())
+        .map_err(|e| anyhow::anyhow!("{}", e.with_file(&path.display().to_string())))?;
+    desc.width = (desc.width / shrink).max(1);
+    desc.height = (desc.height / shrink).max(1);
+    let dir = path.parent().unwrap_or(Path::new("."));
+    Scene::build(&desc, &DirAssets::new(dir), &TextureLimits::default())
+        .map_err(|e| anyhow::anyhow!("{}", e.with_file(&path.display().to_string())))
+}
+
+/// Renders the whole image with `sampler` on this thread, tile by tile; returns the pixels,
+/// the seconds taken, and the primary and total rays.
+fn render_timed(scene: &Scene, sampler: &Sampler) -> (Vec<Color>, f64, u64, u64) {
+    let (w, h) = (scene.width, scene.height);
+    let mut image = vec![Color::ZERO; (w * h) as usize];
+    let (mut primary, mut total) = (0, 0);
+    let start = Instant::now();
+    for r in tiles(w, h, 32) {
+        let (px, stats) = scene.render_rect_linear_with(r, sampler);
+        primary += stats.primary;
+        total += stats.total();
+        for row in 0..r.height {
+            let dst = ((r.y + row) * w + r.x) as usize;
+            let src = (row * r.width) as usize;
+            image[dst..dst + r.width as usize].copy_from_slice(&px[src..src + r.width as usize]);
+        }
+    }
+    (image, start.elapsed().as_secs_f64(), primary, total)
+}
+
+/// The reference image at `n × n` samples per pixel, on all cores.
+fn reference(scene: &Scene, n: u32) -> Vec<Color> {
+    (0..scene.height)
+        .into_par_iter()
+        .flat_map_iter(|y| scene.reference_rect(Rect::new(0, y, scene.width, 1), n).0)
+        .collect()
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Marks the points no other point beats in both time and error.
+fn mark_pareto(points: &mut [Point]) {
+    for i in 0..points.len() {
+        let (t, e) = (points[i].time_ms, points[i].rmse);
+        points[i].pareto = !points
+            .iter()
+            .any(|q| q.time_ms <= t && q.rmse <= e && (q.time_ms < t || q.rmse < e));
+    }
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    let quick = args.quick;
+    let (shrink, n_ref, repeats) = if quick { (2, 16, 1) } else { (1, 48, 3) };
+    let repeats = args.repeats.unwrap_or(repeats).max(1);
+    let files = scene_files(&args.scenes)?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+
+    let mut all: Vec<Point> = Vec::new();
+    let mut panels = Vec::new();
+    let mut summary = String::new();
+    for path in &files {
+        let name = path
+            .file_stem()
+            .map_or("scene".into(), |s| s.to_string_lossy().to_string());
+        let scene = load(path, shrink)?;
+        let started = Instant::now();
+        let exact = reference(&scene, n_ref);
+        let half = reference(&scene, n_ref / 2);
+        let (diff, _) = error(&exact, &half);
+        let ref_err = diff / (2f64.powf(1.5) - 1.0);
+        println!(
+            "{name}: {}×{}, reference {n_ref}×{n_ref} in {:.1} s, its RMS error ≈ {ref_err:.2e}",
+            scene.width,
+            scene.height,
+            started.elapsed().as_secs_f64()
+        );
+        let pixels = f64::from(scene.width * scene.height);
+        let mut points = Vec::new();
+        for c in configs(quick) {
+            let mut times = Vec::new();
+            let mut result = None;
+            for _ in 0..repeats {
+                let (img, secs, primary, total) = render_timed(&scene, &c.sampler);
+                times.push(secs * 1e3);
+                result = Some((img, primary, total));
+            }
+            let Some((img, primary, total)) = result else {
+                continue;
+            };
+            let (rmse, worst) = error(&img, &exact);
+            points.push(Point {
+                scene: name.clone(),
+                family: c.family,
+                label: c.label,
+                primary_per_px: primary as f64 / pixels,
+                rays_per_px: total as f64 / pixels,
+                time_ms: median(times),
+                rmse,
+                worst,
+                pareto: false,
+            });
+        }
+        mark_pareto(&mut points);
+        let line = adaptive_vs_jitter16(&points);
+        println!("  {line}");
+        let _ = writeln!(summary, "{name}: {line}");
+        for p in &points {
+            println!(
+                "  {:<26} {:>7.2} spp {:>8.2} rays/px {:>9.2} ms  RMSE {:.2e}  worst {:.3}{}",
+                p.label,
+                p.primary_per_px,
+                p.rays_per_px,
+                p.time_ms,
+                p.rmse,
+                p.worst,
+                if p.pareto { "  *" } else { "" }
+            );
+        }
+        panels.push(panel(&name, &points, ref_err));
+        all.extend(points);
+    }
+
+    let csv = args.out.join("chart.csv");
+    std::fs::write(&csv, to_csv(&all))
+        .with_context(|| format!("cannot write {}", csv.display()))?;
+    let svg_path = args.out.join("chart.svg");
+    std::fs::write(&svg_path, crate::svg::render(&panels))
+        .with_context(|| format!("cannot write {}", svg_path.display()))?;
+    println!(
+        "\n{summary}wrote {} and {}",
+        csv.display(),
+        svg_path.display()
+    );
+    Ok(())
+}
+
+/// How much faster the cheapest adaptive setting reaches 16-sample jitter's error.
+fn adaptive_vs_jitter16(points: &[Point]) -> String {
+    let Some(j16) = points.iter().find(|p| p.label == "jitter 4x4") else {
+        return "no jitter 4x4 point".into();
+    };
+    let best = points
+        .iter()
+        .filter(|p| p.family.starts_with("adaptive") && p.rmse <= j16.rmse)
+        .min_by(|a, b| a.time_ms.total_cmp(&b.time_ms));
+    match best {
+        Some(a) => format!(
+            "jitter 4x4 RMSE {:.2e} in {:.1} ms; {} reaches {:.2e} in {:.1} ms: {:.2}× faster",
+            j16.rmse,
+            j16.time_ms,
+            a.label,
+            a.rmse,
+            a.time_ms,
+            j16.time_ms / a.time_ms
+        ),
+        None => format!(
+            "jitter 4x4 RMSE {:.2e} in {:.1} ms; no adaptive setting reaches it",
+            j16.rmse, j16.time_ms
+        ),
+    }
+}
+
+fn to_csv(points: &[Point]) -> String {
+    let mut s =
+        String::from("scene,family,config,primary_per_px,rays_per_px,time_ms,rmse,worst,pareto\n");
+    for p in points {
+        let _ = writeln!(
+            s,
+            "{},{},{},{:.4},{:.4},{:.4},{:.6e},{:.6},{}",
+            p.scene,
+            p.family,
+            p.label,
+            p.primary_per_px,
+            p.rays_per_px,
+            p.time_ms,
+            p.rmse,
+            p.worst,
+            p.pareto
+        );
+    }
+    s
+}
+
+fn panel(name: &str, points: &[Point], ref_err: f64) -> Panel {
+    let mut families: Vec<String> = Vec::new();
+    for p in points {
+        if !families.contains(&p.family) {
+            families.push(p.family.clone());
+        }
+    }
+    let series = families
+        .iter()
+        .map(|f| {
+            let mut pts: Vec<(f64, f64)> = points
+                .iter()
+                .filter(|p| &p.family == f)
+                .map(|p| (p.time_ms, p.rmse))
+                .collect();
+            pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+            Series {
+                name: f.clone(),
+                points: pts,
+            }
+        })
+        .collect();
+    let mut front: Vec<(f64, f64)> = points
+        .iter()
+        .filter(|p| p.pareto)
+        .map(|p| (p.time_ms, p.rmse))
+        .collect();
+    front.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Panel {
+        title: name.to_string(),
+        series,
+        front,
+        floor: ref_err,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn p(time_ms: f64, rmse: f64) -> Point {
+        Point {
+            scene: "s".into(),
+            family: "f".into(),
+            label: "l".into(),
+            primary_per_px: 1.0,
+            rays_per_px: 1.0,
+            time_ms,
+            rmse,
+            worst: 0.0,
+            pareto: false,
+        }
+    }
+
+    #[test]
+    fn pareto_front_keeps_only_undominated_points() {
+        let mut pts = vec![
+            p(1.0, 0.5),
+            p(2.0, 0.2),
+            p(3.0, 0.3),
+            p(4.0, 0.1),
+            p(2.0, 0.2),
+        ];
+        mark_pareto(&mut pts);
+        let front: Vec<bool> = pts.iter().map(|p| p.pareto).collect();
+        // (3, 0.3) is beaten by (2, 0.2); the two equal points both stay.
+        assert_eq!(front, vec![true, true, false, true, true]);
+    }
+
+    #[test]
+    fn median_of_odd_and_even_counts() {
+        assert_eq!(median(vec![3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(vec![4.0, 1.0, 3.0, 2.0]), 3.0);
+    }
+}

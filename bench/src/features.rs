@@ -1,0 +1,126 @@
+//! What a scene pays for each feature: the same scene with and without shadows, mirrors,
+//! textures, more lights and more objects, in rays per pixel and time. The point it makes:
+//! a feature a scene does not use costs no rays, and the adaptive sampler spends samples only
+//! where the image varies.
+
+use std::time::Instant;
+
+use anyhow::Result;
+use tessera_tracer::{Limits, MemoryAssets, Scene, TextureLimits, tiles};
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Smaller images and one repeat (for CI).
+    #[arg(long)]
+    quick: bool,
+}
+
+/// A scene from parts: the sphere's extra keys, whether a floor plane is present, the number
+/// of lights and the globals' extra keys.
+fn scene_text(size: (u32, u32), sphere: &str, floor: bool, lights: u32, globals: &str) -> String {
+    let mut s = format!(
+        "[GLOBALS]\nwidth = {}\nheight = {}\nambient = 0.1\nbackground = <0.3, 0.4, 0.6>\n{globals}\n[/GLOBALS]\n\
+         [CAMERA]\neye = <0, 3, 12>\nlook_at = <0, 1, 0>\nfov = 45\n[/CAMERA]\n",
+        size.0, size.1
+    );
+    for i in 0..lights {
+        let a = f64::from(i) * 1.7;
+        s += &format!(
+            "[LIGHT]\nposition = <{:.2}, 12, {:.2}>\ncolor = {:.3}\n[/LIGHT]\n",
+            8.0 * a.cos(),
+            8.0 * a.sin(),
+            1.0 / f64::from(lights)
+        );
+    }
+    s += &format!(
+        "[OBJECT]\ntype = sphere\nradius = 1.5\ntranslate = <0, 1.5, 0>\n{sphere}\n[/OBJECT]\n"
+    );
+    if floor {
+        s += "[OBJECT]\ntype = plane\ncolor1 = 0.8\ncolor2 = 0.3\n[/OBJECT]\n";
+    }
+    s
+}
+
+fn texture() -> MemoryAssets {
+    let mut ppm = b"P6\n64 32\n255\n".to_vec();
+    for y in 0..32u32 {
+        for x in 0..64u32 {
+            ppm.extend_from_slice(&[(x * 4) as u8, (y * 8) as u8, ((x ^ y) * 4) as u8]);
+        }
+    }
+    let mut a = MemoryAssets::new();
+    a.insert("t.ppm", ppm);
+    a
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    let (size, repeats) = if args.quick {
+        ((80, 60), 1)
+    } else {
+        ((320, 240), 3)
+    };
+    let variants: Vec<(&str, String)> = vec![
+        ("one sphere, one light", scene_text(size, "", false, 1, "")),
+        (
+            "+ floor (shadows possible)",
+            scene_text(size, "", true, 1, ""),
+        ),
+        (
+            "+ floor, shadow = 0",
+            scene_text(size, "", true, 1, "shadow = 0"),
+        ),
+        ("+ floor, 4 lights", scene_text(size, "", true, 4, "")),
+        (
+            "+ floor, mirror 0.5 sphere",
+            scene_text(size, "mirror = 0.5", true, 1, ""),
+        ),
+        (
+            "+ floor, mirror 0 (written)",
+            scene_text(size, "mirror = 0", true, 1, ""),
+        ),
+        (
+            "+ floor, textured sphere",
+            scene_text(size, "texture = t.ppm", true, 1, ""),
+        ),
+        (
+            "+ floor, jitter 4x4",
+            scene_text(size, "", true, 1, "sampler = jitter\nsamples = 4"),
+        ),
+        (
+            "+ floor, adaptive 4x4",
+            scene_text(size, "", true, 1, "sampler = adaptive\nsamples = 4"),
+        ),
+    ];
+    let assets = texture();
+    println!(
+        "{:<30} {:>9} {:>9} {:>9} {:>10}",
+        "scene", "primary", "shadow", "mirror", "time (ms)"
+    );
+    for (name, src) in variants {
+        let scene =
+            Scene::from_source(&src, &Limits::default(), &assets, &TextureLimits::default())
+                .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+        let px = f64::from(scene.width * scene.height);
+        let mut times = Vec::new();
+        let mut stats = tessera_tracer::RayStats::default();
+        for _ in 0..repeats {
+            stats = tessera_tracer::RayStats::default();
+            let start = Instant::now();
+            for r in tiles(scene.width, scene.height, 32) {
+                let (_, s) = scene.render_rect_linear_with(r, &scene.sampler);
+                stats.add(&s);
+            }
+            times.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+        times.sort_by(f64::total_cmp);
+        println!(
+            "{name:<30} {:>9.2} {:>9.2} {:>9.2} {:>10.2}",
+            stats.primary as f64 / px,
+            stats.shadow as f64 / px,
+            stats.mirror as f64 / px,
+            times[times.len() / 2]
+        );
+    }
+    println!("(rays per pixel; time is one thread, median of {repeats})");
+    Ok(())
+}

@@ -1,0 +1,37 @@
+//! `tessera-bench`: Tessera's benchmark programs. Each prints its figures and writes its
+//! results; none of them asserts a speed (that would make tests flaky); the numbers go into
+//! the README with the machine they came from.
+//!
+//! - `chart`: speed against accuracy. Every sampler at a range of settings on scenes that
+//!   stress sampling, against a high-rate reference of the exact image; a CSV and an SVG
+//!   chart (error against time, log-log, Pareto front marked).
+//! - `features`: what each feature of a scene costs in rays and time, and that unused
+//!   features cost nothing.
+
+mod chart;
+mod features;
+mod svg;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Debug, Parser)]
+#[command(name = "tessera-bench", version, about = "Tessera's benchmarks")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Speed against accuracy for every sampler: CSV, SVG chart and a summary.
+    Chart(chart::Args),
+    /// Rays and time for scenes with and without each feature.
+    Features(features::Args),
+}
+
+fn main() -> anyhow::Result<()> {
+    match Cli::parse().command {
+        Command::Chart(args) => chart::run(&args),
+        Command::Features(args) => features::run(&args),
+    }
+}
