@@ -7,9 +7,11 @@
 //!   chart (error against time, log-log, Pareto front marked).
 //! - `features`: what each feature of a scene costs in rays and time, and that unused
 //!   features cost nothing.
+//! - `povray`: trace time and image difference against POV-Ray 3.7 on the same scenes.
 
 mod chart;
 mod features;
+mod povray;
 mod svg;
 
 use clap::{Parser, Subcommand};
@@ -27,11 +29,14 @@ enum Command {
     Chart(chart::Args),
     /// Rays and time for scenes with and without each feature.
     Features(features::Args),
+    /// Trace time and image difference against POV-Ray 3.7 on the same scenes.
+    Povray(povray::Args),
 }
 
 fn main() -> anyhow::Result<()> {
     match Cli::parse().command {
         Command::Chart(args) => chart::run(&args),
         Command::Features(args) => features::run(&args),
+        Command::Povray(args) => povray::run(&args),
     }
 }

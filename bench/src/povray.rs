@@ -1,0 +1,359 @@
+//! Side by side with POV-Ray 3.7: the same scene, resolution, samples (one ray per pixel) and
+//! threads (one), POV-Ray's own reported trace time against ours, and the two images'
+//! difference, so the comparison is known to be about the same picture.
+//!
+//! The translation (`to_pov`) maps the `.ray` model onto POV-Ray's:
+//! - coordinates: POV-Ray is left-handed, so z is negated everywhere; every matrix becomes
+//!   `F·M·F` with `F = diag(1, 1, −1)`, and pattern space gets the same flip so a checker's
+//!   cells keep their parity;
+//! - camera: POV-Ray's `angle` is the horizontal field of view, derived from ours (vertical);
+//! - lights: POV-Ray's shadows are all-or-nothing, so a light with `shadow = s` becomes a
+//!   shadowless light of `(1 − s)·colour` plus a shadowed one of `s·colour`, which sums to
+//!   exactly our `V = 1 − s` where blocked;
+//! - finishes: `L = (1 − m)·local + m·reflected` becomes `ambient (1 − m)`, `diffuse k(1 − m)`,
+//!   `reflection m` with the scene's ambient as POV-Ray's `ambient_light`; `max_depth` bounces
+//!   are `max_trace_level = max_depth + 1`, and `adc_bailout 0` so POV-Ray stops no ray early;
+//! - the plane's checker is offset half a cell in y so POV-Ray's solid checker never evaluates
+//!   at y = 0 exactly (its `floor(±0)` would be noise, the failure our own plane avoids).
+//!
+//! Textures are not translated (their u,v conventions differ); scenes using them are skipped.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use glam::{DAffine3, DVec3};
+use tessera_tracer::scene::{Light, MaterialDesc, Node, ObjectDesc, SceneDesc};
+use tessera_tracer::shape::Shape;
+use tessera_tracer::transform::Transform;
+use tessera_tracer::{Limits, MemoryAssets, Rect, Sampler, Scene, TextureLimits, parse};
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Scenes to compare (`.ray` files or directories of them).
+    #[arg(long, default_value = "bench/scenes")]
+    scenes: Vec<PathBuf>,
+    /// Smaller images (for CI).
+    #[arg(long)]
+    quick: bool,
+    /// The POV-Ray executable.
+    #[arg(long, default_value = "povray")]
+    povray: String,
+    /// Timed runs of each renderer; the median is reported.
+    #[arg(long, default_value_t = 3)]
+    repeats: usize,
+}
+
+fn flip(v: DVec3) -> DVec3 {
+    DVec3::new(v.x, v.y, -v.z)
+}
+
+fn vec(v: DVec3) -> String {
+    format!("<{:.17e}, {:.17e}, {:.17e}>", v.x, v.y, v.z)
+}
+
+/// `F·M·F` as POV-Ray's `matrix` (row-vector convention: `p' = p·A + t`).
+fn matrix(t: &Transform) -> String {
+    let m: &DAffine3 = t.to_world();
+    let f = |v: DVec3| flip(v);
+    // Columns of F·L·F are F·(L·(F·e_i)): the images of the flipped basis, flipped back.
+    let cx = f(m.matrix3 * f(DVec3::X));
+    let cy = f(m.matrix3 * f(DVec3::Y));
+    let cz = f(m.matrix3 * f(DVec3::Z));
+    let tr = f(m.translation);
+    // POV-Ray's rows are the images of the basis vectors: our columns.
+    format!(
+        "matrix <{:.17e}, {:.17e}, {:.17e}, {:.17e}, {:.17e}, {:.17e}, {:.17e}, {:.17e}, {:.17e}, {:.17e}, {:.17e}, {:.17e}>",
+        cx.x, cx.y, cx.z, cy.x, cy.y, cy.z, cz.x, cz.y, cz.z, tr.x, tr.y, tr.z
+    )
+}
+
+fn finish(m: &MaterialDesc) -> String {
+    let keep = 1.0 - m.mirror;
+    let mut s = format!(
+        "finish {{ ambient {keep:.17e} diffuse {:.17e}",
+        m.diffuse * keep
+    );
+    if m.mirror > 0.0 {
+        let _ = write!(s, " reflection {{ {:.17e} }}", m.mirror);
+    }
+    s.push_str(" }");
+    s
+}
+
+fn pigment(o: &ObjectDesc) -> Result<String> {
+    let m = &o.material;
+    if m.texture.is_some() {
+        bail!("textures are not translated to POV-Ray");
+    }
+    let c1 = m.color1;
+    let Some(c2) = m.color2 else {
+        return Ok(format!("pigment {{ rgb {} }}", vec(c1)));
+    };
+    // Cells are unit cubes of the own space: in the unit shape's space they are 1/own_scale;
+    // z flipped so POV-Ray's object space (z-negated) sees our parity.
+    let s = o.own_scale;
+    let mut p = format!(
+        "pigment {{ checker rgb {}, rgb {} scale <{:.17e}, {:.17e}, {:.17e}>",
+        vec(c1),
+        vec(c2),
+        1.0 / s.x,
+        1.0 / s.y,
+        -1.0 / s.z
+    );
+    if o.shape == Shape::Plane {
+        p.push_str(" translate <0, -0.5, 0>");
+    }
+    p.push_str(" }");
+    Ok(p)
+}
+
+fn object(o: &ObjectDesc) -> Result<String> {
+    let body = match o.shape {
+        Shape::Sphere => "sphere { 0, 1".to_string(),
+        Shape::Plane => "plane { y, 0".to_string(),
+    };
+    Ok(format!(
+        "{body} {} {} {} }}\n",
+        pigment(o)?,
+        finish(&o.material),
+        matrix(&o.transform)
+    ))
+}
+
+fn light(l: &Light, shadow: f64) -> String {
+    let p = vec(flip(l.position));
+    let c = l.color;
+    match shadow {
+        s if s >= 1.0 => format!("light_source {{ {p} rgb {} }}\n", vec(c)),
+        s if s <= 0.0 => format!("light_source {{ {p} rgb {} shadowless }}\n", vec(c)),
+        s => format!(
+            "light_source {{ {p} rgb {} shadowless }}\nlight_source {{ {p} rgb {} }}\n",
+            vec(c * (1.0 - s)),
+            vec(c * s)
+        ),
+    }
+}
+
+/// The scene in POV-Ray 3.7's language.
+pub fn to_pov(d: &SceneDesc) -> Result<String> {
+    let aspect = f64::from(d.width) / f64::from(d.height);
+    let h_fov = 2.0 * ((d.camera.fov_degrees.to_radians() / 2.0).tan() * aspect).atan();
+    let mut s = String::from("#version 3.7;\n");
+    let _ = writeln!(
+        s,
+        "global_settings {{ assumed_gamma 1.0 max_trace_level {} adc_bailout 0 ambient_light rgb {} }}",
+        d.max_depth + 1,
+        vec(d.ambient)
+    );
+    let _ = writeln!(
+        s,
+        "camera {{ perspective location {} look_at {} sky {} right x*{aspect:.17e} up y angle {:.17e} }}",
+        vec(flip(d.camera.eye)),
+        vec(flip(d.camera.look_at)),
+        vec(flip(d.camera.up)),
+        h_fov.to_degrees()
+    );
+    let _ = writeln!(s, "background {{ rgb {} }}", vec(d.background));
+    for l in &d.lights {
+        s.push_str(&light(l, d.shadow));
+    }
+    for n in &d.objects {
+        match n {
+            Node::Object(o) => s.push_str(&object(o)?),
+            Node::Csg(_) => bail!("CSG is not translated to POV-Ray"),
+        }
+    }
+    Ok(s)
+}
+
+/// POV-Ray's reported trace time, in seconds, from its statistics output.
+fn trace_seconds(output: &str) -> Option<f64> {
+    let line = output
+        .lines()
+        .find(|l| l.trim_start().starts_with("Trace Time:"))?;
+    let open = line.rfind('(')?;
+    let secs = line[open + 1..].split_whitespace().next()?;
+    secs.parse().ok()
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Mean absolute difference (8-bit steps) and share of pixels differing by more than 2 steps.
+fn image_difference(a: &[u8], b: &[u8]) -> (f64, f64) {
+    let mut sum = 0u64;
+    let mut off = 0usize;
+    for (p, q) in a.chunks_exact(3).zip(b.chunks_exact(3)) {
+        let d = p
+            .iter()
+            .zip(q)
+            .map(|(x, y)| x.abs_diff(*y))
+            .max()
+            .unwrap_or(0);
+        sum += u64::from(d);
+        off += usize::from(d > 2);
+    }
+    let n = (a.len() / 3).max(1) as f64;
+    (sum as f64 / n, off as f64 / n)
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    let files = crate::chart::scene_files(&args.scenes)?;
+    let probe = Command::new(&args.povray).arg("--version").output();
+    if probe.is_err() {
+        println!(
+            "povray not found ({}): the comparison is skipped",
+            args.povray
+        );
+        return Ok(());
+    }
+    let dir = std::env::temp_dir().join(format!("tessera-povray-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    println!(
+        "{:<22} {:>9} {:>12} {:>12} {:>8} {:>10} {:>9}",
+        "scene", "size", "tessera ms", "povray ms", "ratio", "mean |Δ|", "Δ>2 px"
+    );
+    for path in files {
+        let name = path
+            .file_stem()
+            .map_or("scene".into(), |s| s.to_string_lossy().to_string());
+        let src = std::fs::read_to_string(&path)?;
+        let mut desc = parse(&src, &Limits::default())
+            .map_err(|e| anyhow::anyhow!("{}", e.with_file(&path.display().to_string())))?;
+        if args.quick {
+            desc.width = (desc.width / 2).max(1);
+            desc.height = (desc.height / 2).max(1);
+        }
+        desc.sampler = Sampler::Center;
+        let pov = match to_pov(&desc) {
+            Ok(p) => p,
+            Err(e) => {
+                println!("{name:<22} skipped: {e}");
+                continue;
+            }
+        };
+        let scene = Scene::build(&desc, &MemoryAssets::new(), &TextureLimits::default())
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        let (ours_ms, ours) = time_tessera(&scene, args.repeats);
+        let (pov_ms, theirs) = time_povray(&args.povray, &dir, &name, &pov, &desc, args.repeats)
+            .with_context(|| format!("POV-Ray on {name}"))?;
+        let (mean, off) = image_difference(&ours, &theirs);
+        println!(
+            "{name:<22} {:>9} {ours_ms:>12.1} {pov_ms:>12.1} {:>7.2}× {mean:>10.2} {:>8.2}%",
+            format!("{}×{}", desc.width, desc.height),
+            pov_ms / ours_ms,
+            off * 100.0
+        );
+    }
+    println!("(one thread, one ray per pixel; ratio = POV-Ray trace time / Tessera trace time)");
+    Ok(())
+}
+
+fn time_tessera(scene: &Scene, repeats: usize) -> (f64, Vec<u8>) {
+    let mut times = Vec::new();
+    let mut rgb = Vec::new();
+    for _ in 0..repeats.max(1) {
+        let start = Instant::now();
+        rgb = scene.render_rect(Rect::full(scene.width, scene.height));
+        times.push(start.elapsed().as_secs_f64() * 1e3);
+    }
+    (median(times), rgb)
+}
+
+fn time_povray(
+    povray: &str,
+    dir: &Path,
+    name: &str,
+    pov: &str,
+    desc: &SceneDesc,
+    repeats: usize,
+) -> Result<(f64, Vec<u8>)> {
+    let input = dir.join(format!("{name}.pov"));
+    let output = dir.join(format!("{name}.png"));
+    std::fs::write(&input, pov)?;
+    let mut times = Vec::new();
+    for _ in 0..repeats.max(1) {
+        let out = Command::new(povray)
+            .arg(format!("+I{}", input.display()))
+            .arg(format!("+O{}", output.display()))
+            .arg(format!("+W{}", desc.width))
+            .arg(format!("+H{}", desc.height))
+            .args(["-A", "+WT1", "-D", "-P", "+FN8", "File_Gamma=sRGB"])
+            .output()
+            .context("cannot run povray")?;
+        let text = String::from_utf8_lossy(&out.stderr).to_string()
+            + &String::from_utf8_lossy(&out.stdout);
+        if !out.status.success() {
+            bail!(
+                "povray failed: {}",
+                text.lines().rev().take(5).collect::<Vec<_>>().join(" | ")
+            );
+        }
+        let secs = trace_seconds(&text).context("no \"Trace Time\" in POV-Ray's output")?;
+        times.push(secs * 1e3);
+    }
+    let img = image::open(&output)
+        .with_context(|| format!("cannot read {}", output.display()))?
+        .into_rgb8();
+    Ok((median(times), img.into_raw()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_povray_trace_time() {
+        let text = "Render Time:\n  Photon Time:      No photons\n  Trace Time:       0 hours  0 minutes  1 seconds (1.234 seconds)\n";
+        assert_eq!(trace_seconds(text), Some(1.234));
+        assert_eq!(trace_seconds("nothing here"), None);
+    }
+
+    #[test]
+    fn partial_shadow_splits_a_light_in_two() {
+        let l = Light {
+            position: DVec3::new(1.0, 2.0, 3.0),
+            color: DVec3::ONE,
+        };
+        let s = light(&l, 0.25);
+        assert_eq!(s.matches("light_source").count(), 2);
+        assert!(s.contains("shadowless"));
+        assert!(
+            light(&l, 1.0).matches("light_source").count() == 1
+                && !light(&l, 1.0).contains("shadowless")
+        );
+        assert!(s.contains("-3.0"), "z is flipped: {s}");
+    }
+
+    #[test]
+    fn matrix_flips_handedness_consistently() {
+        // A rotation about y by 90° maps +z to +x in our right-handed world; in POV-Ray's
+        // left-handed one, -z (our +z) must go to +x.
+        let t = Transform::from_op(tessera_tracer::transform::TransformOp::Rotate(DVec3::new(
+            0.0, 90.0, 0.0,
+        )));
+        let m = matrix(&t);
+        let nums: Vec<f64> = m
+            .trim_start_matches("matrix <")
+            .trim_end_matches('>')
+            .split(',')
+            .map(|x| x.trim().parse().expect("a number"))
+            .collect();
+        // POV row for the z basis vector is the image of +z (POV) = image of our -z = -x.
+        assert_eq!(&nums[6..9], &[-1.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn translates_every_example_without_textures_or_csg() {
+        let src = "[GLOBALS]\nshadow = 0.5\nlight = <1, 2, 3>\n[/GLOBALS]\n[OBJECT]\ntype = sphere\nradius = 2\ncolor2 = 0.1\nmirror = 0.5\n[/OBJECT]\n[OBJECT]\ntype = plane\n[/OBJECT]\n";
+        let pov = to_pov(&parse(src, &Limits::default()).expect("valid")).expect("translatable");
+        assert!(pov.contains("sphere { 0, 1") && pov.contains("plane { y, 0"));
+        assert!(pov.contains("checker") && pov.contains("reflection"));
+        assert!(pov.contains("max_trace_level 6"));
+    }
+}
