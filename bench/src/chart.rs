@@ -178,7 +178,7 @@ fn mark_pareto(points: &mut [Point]) {
 
 pub fn run(args: &Args) -> Result<()> {
     let quick = args.quick;
-    let (shrink, n_ref, repeats) = if quick { (2, 16, 1) } else { (1, 48, 3) };
+    let (shrink, n_ref, repeats) = if quick { (4, 16, 1) } else { (1, 48, 3) };
     let repeats = args.repeats.unwrap_or(repeats).max(1);
     let files = scene_files(&args.scenes)?;
     std::fs::create_dir_all(&args.out)

@@ -1,0 +1,110 @@
+//! The benchmarks run in their short modes, so they cannot rot: each produces its outputs and
+//! its figures are sane (finite, positive, one row per scene and setting).
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn bench() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_tessera-bench"));
+    c.current_dir(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(".."));
+    c
+}
+
+fn out_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("tessera-bench-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).expect("temp dir");
+    d
+}
+
+#[test]
+fn chart_quick_writes_a_csv_and_an_svg() {
+    let out = out_dir("chart");
+    let run = bench()
+        .args(["chart", "--quick", "--out"])
+        .arg(&out)
+        .output()
+        .expect("tessera-bench runs");
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let csv = std::fs::read_to_string(out.join("chart.csv")).expect("chart.csv");
+    let rows: Vec<&str> = csv.lines().skip(1).collect();
+    let scenes = std::fs::read_dir(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes"))
+        .expect("bench/scenes")
+        .count();
+    // center, thesis, and for n in {2, 4}: grid, jitter, adaptive.
+    assert_eq!(rows.len(), scenes * 8, "{csv}");
+    for row in rows {
+        let f: Vec<&str> = row.split(',').collect();
+        let nums: Vec<f64> = f[3..8]
+            .iter()
+            .map(|x| x.parse().expect("a number"))
+            .collect();
+        assert!(nums.iter().all(|x| x.is_finite() && *x >= 0.0), "{row}");
+        assert!(nums[0] >= 1.0 && nums[2] > 0.0 && nums[3] > 0.0, "{row}");
+    }
+    assert!(csv.lines().any(|l| l.ends_with(",true")), "no Pareto point");
+    let svg = std::fs::read_to_string(out.join("chart.svg")).expect("chart.svg");
+    assert!(svg.starts_with("<svg") && svg.contains("Pareto front"));
+    assert!(stdout.contains("jitter 4x4 RMSE"), "{stdout}");
+}
+
+#[test]
+fn features_quick_shows_unused_features_cost_nothing() {
+    let run = bench()
+        .args(["features", "--quick"])
+        .output()
+        .expect("runs");
+    assert!(run.status.success());
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    let row = |name: &str| -> Vec<f64> {
+        let line = stdout
+            .lines()
+            .find(|l| l.starts_with(name))
+            .unwrap_or_else(|| panic!("no row {name} in\n{stdout}"));
+        line[name.len()..]
+            .split_whitespace()
+            .map(|x| x.parse().expect("a number"))
+            .collect()
+    };
+    // Columns: primary, shadow, mirror rays per pixel, time.
+    assert_eq!(row("one sphere, one light")[1], 0.0);
+    assert!(row("+ floor (shadows possible)")[1] > 0.0);
+    assert_eq!(row("+ floor, shadow = 0")[1], 0.0);
+    assert_eq!(row("+ floor, mirror 0 (written)")[2], 0.0);
+    assert!(row("+ floor, mirror 0.5 sphere")[2] > 0.0);
+    assert!(row("+ floor, adaptive 4x4")[0] < row("+ floor, jitter 4x4")[0]);
+}
+
+#[test]
+fn povray_comparison_runs_or_says_why_not() {
+    let run = bench()
+        .args(["povray", "--quick", "--repeats", "1"])
+        .output()
+        .expect("runs");
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    if stdout.contains("povray not found") {
+        return;
+    }
+    // Same picture: the images agree closely on every scene that was translated.
+    for line in stdout
+        .lines()
+        .skip(1)
+        .filter(|l| l.contains('×') && !l.contains("skipped"))
+    {
+        let cols: Vec<&str> = line.split_whitespace().collect();
+        let off: f64 = cols[cols.len() - 1]
+            .trim_end_matches('%')
+            .parse()
+            .expect("a share");
+        assert!(off < 1.0, "images differ: {line}");
+    }
+}
