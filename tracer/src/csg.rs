@@ -725,6 +725,31 @@ mod tests {
         }
     }
 
+    /// A face shared by both children of an intersection is shown (the solid begins there),
+    /// and it belongs to the first child written, whichever copy rounding puts first.
+    #[test]
+    fn shared_face_of_an_intersection_belongs_to_the_first_child() {
+        let s = scene(
+            "[CSG]\nop = intersection\nrotate = <31, 17, 73>\n\
+             [OBJECT]\ntype = cube\n[/OBJECT]\n\
+             [OBJECT]\ntype = cube\nscale = <0.35, 2, 2>\ntranslate = <0.65, 0, 0>\n[/OBJECT]\n[/CSG]",
+        );
+        let w = s.objects[0].transform;
+        let mut rng = Rng::new(37);
+        for _ in 0..1000 {
+            let from = DVec3::new(4.0, rng.range(-2.0, 2.0), rng.range(-2.0, 2.0));
+            let to = DVec3::new(1.0, rng.range(-0.95, 0.95), rng.range(-0.95, 0.95));
+            let (o, e) = (
+                w.to_world().transform_point3(from),
+                w.to_world().transform_point3(to),
+            );
+            let h = s
+                .intersect(&Ray::new(o, e - o), f64::INFINITY, None)
+                .expect("the shared face");
+            assert_eq!((h.object, h.local.p.x, h.local.n), (0, 1.0, DVec3::X));
+        }
+    }
+
     /// A shadow ray against a difference sees its hole: a cube with a cylinder drilled along
     /// y blocks the light except straight through the hole.
     #[test]

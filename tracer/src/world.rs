@@ -625,6 +625,26 @@ mod tests {
         assert!(green_rows.len() > 50, "{}", green_rows.len());
     }
 
+    /// The example scenes build, with their textures, and show objects mid-image.
+    #[test]
+    fn examples_build_and_render() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples");
+        for name in ["shapes.ray", "csg.ray"] {
+            let src = std::fs::read_to_string(dir.join(name))
+                .unwrap_or_else(|e| panic!("examples/{name}: {e}"));
+            let s = Scene::from_source(
+                &src,
+                &Limits::default(),
+                &crate::DirAssets::new(&dir),
+                &TextureLimits::default(),
+            )
+            .unwrap_or_else(|e| panic!("examples/{name}: {e}"));
+            let rect = Rect::new(s.width / 2 - 20, s.height / 2 - 20, 40, 40);
+            let (px, _) = s.render_rect_linear(rect);
+            assert!(px.iter().any(|c| *c != s.background), "examples/{name}");
+        }
+    }
+
     #[test]
     fn random_csg_rays_are_finite_and_within_t_max() {
         let s = scene(
