@@ -33,7 +33,7 @@ pub enum Shape {
     Sphere,
     /// The plane y = 0, normal +y; as a solid (for CSG) the half-space y ≤ 0.
     Plane,
-    /// The cube [-1, 1]³. Faces: see [`cube`](self::cube) (`face = 2·axis + (side > 0)`).
+    /// The cube [-1, 1]³. Faces: `2·axis + (side > 0)`, so 0 = −x, 1 = +x, … 5 = +z.
     Cube,
     /// The cylinder of radius 1 around the y axis, y in [-1, 1], with both caps.
     /// Faces: 0 side, 1 bottom cap (y = -1), 2 top cap (y = 1).
