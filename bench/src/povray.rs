@@ -16,7 +16,9 @@
 //! - the plane's checker is offset half a cell in y so POV-Ray's solid checker never evaluates
 //!   at y = 0 exactly (its `floor(±0)` would be noise, the failure our own plane avoids).
 //!
-//! Textures are not translated (their u,v conventions differ); scenes using them are skipped.
+//! Shapes and CSG map one to one (POV-Ray's `difference` is also the first child minus the
+//! rest). Textures are not translated (their u,v conventions differ); scenes using them are
+//! skipped.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -25,7 +27,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use glam::{DAffine3, DVec3};
-use tessera_tracer::scene::{Light, MaterialDesc, Node, ObjectDesc, SceneDesc};
+use tessera_tracer::scene::{CsgOp, Light, MaterialDesc, Node, ObjectDesc, SceneDesc};
 use tessera_tracer::shape::Shape;
 use tessera_tracer::transform::Transform;
 use tessera_tracer::{Limits, MemoryAssets, Rect, Sampler, Scene, TextureLimits, parse};
@@ -111,9 +113,14 @@ fn pigment(o: &ObjectDesc) -> Result<String> {
 }
 
 fn object(o: &ObjectDesc) -> Result<String> {
+    // The unit shapes are the same in both languages; the radius is in the matrix.
     let body = match o.shape {
         Shape::Sphere => "sphere { 0, 1".to_string(),
         Shape::Plane => "plane { y, 0".to_string(),
+        Shape::Cube => "box { -1, 1".to_string(),
+        Shape::Cylinder => "cylinder { <0, -1, 0>, <0, 1, 0>, 1".to_string(),
+        Shape::Cone => "cone { <0, -1, 0>, 1, <0, 1, 0>, 0".to_string(),
+        Shape::Torus { major, minor } => format!("torus {{ {major:.17e}, {minor:.17e}"),
     };
     Ok(format!(
         "{body} {} {} {} }}\n",
@@ -121,6 +128,25 @@ fn object(o: &ObjectDesc) -> Result<String> {
         finish(&o.material),
         matrix(&o.transform)
     ))
+}
+
+fn node(n: &Node) -> Result<String> {
+    match n {
+        Node::Object(o) => object(o),
+        Node::Csg(c) => {
+            let op = match c.op {
+                CsgOp::Union => "union",
+                CsgOp::Intersection => "intersection",
+                CsgOp::Difference => "difference",
+            };
+            let mut s = format!("{op} {{\n");
+            for child in &c.children {
+                s.push_str(&node(child)?);
+            }
+            let _ = writeln!(s, "{} }}", matrix(&c.transform));
+            Ok(s)
+        }
+    }
 }
 
 fn light(l: &Light, shadow: f64) -> String {
@@ -161,10 +187,7 @@ pub fn to_pov(d: &SceneDesc) -> Result<String> {
         s.push_str(&light(l, d.shadow));
     }
     for n in &d.objects {
-        match n {
-            Node::Object(o) => s.push_str(&object(o)?),
-            Node::Csg(_) => bail!("CSG is not translated to POV-Ray"),
-        }
+        s.push_str(&node(n)?);
     }
     Ok(s)
 }
@@ -349,11 +372,15 @@ mod tests {
     }
 
     #[test]
-    fn translates_every_example_without_textures_or_csg() {
-        let src = "[GLOBALS]\nshadow = 0.5\nlight = <1, 2, 3>\n[/GLOBALS]\n[OBJECT]\ntype = sphere\nradius = 2\ncolor2 = 0.1\nmirror = 0.5\n[/OBJECT]\n[OBJECT]\ntype = plane\n[/OBJECT]\n";
+    fn translates_shapes_lights_and_finishes() {
+        let src = "[GLOBALS]\nshadow = 0.5\nlight = <1, 2, 3>\n[/GLOBALS]\n[OBJECT]\ntype = sphere\nradius = 2\ncolor2 = 0.1\nmirror = 0.5\n[/OBJECT]\n[OBJECT]\ntype = plane\n[/OBJECT]\n\
+                   [CSG]\nop = difference\n[OBJECT]\ntype = cube\n[/OBJECT]\n[OBJECT]\ntype = torus\n[/OBJECT]\n[/CSG]\n";
         let pov = to_pov(&parse(src, &Limits::default()).expect("valid")).expect("translatable");
         assert!(pov.contains("sphere { 0, 1") && pov.contains("plane { y, 0"));
         assert!(pov.contains("checker") && pov.contains("reflection"));
         assert!(pov.contains("max_trace_level 6"));
+        assert!(
+            pov.contains("difference {") && pov.contains("box { -1, 1") && pov.contains("torus {")
+        );
     }
 }

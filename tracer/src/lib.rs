@@ -25,6 +25,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod camera;
+pub mod csg;
 pub mod diag;
 pub mod exact;
 pub mod math;

@@ -138,7 +138,7 @@ impl Scene {
         let obj = &self.objects[hit.object as usize];
         let m = &obj.material;
         let sp = SurfacePoint::new(obj, &hit.local, ray.dir);
-        let self_skip = obj.shape.cannot_rehit(sp.outside).then_some(hit.object);
+        let self_skip = self.self_skip(&hit, sp.outside);
 
         let mut color = Color::ZERO;
         if m.mirror < 1.0 {

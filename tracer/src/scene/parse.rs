@@ -730,8 +730,33 @@ impl Parser<'_> {
         let (shape, own_scale) = match kind? {
             "sphere" => (Shape::Sphere, DVec3::splat(radius.unwrap_or(1.0))),
             "plane" => (Shape::Plane, DVec3::ONE),
+            "cube" => (Shape::Cube, DVec3::ONE),
+            "cone" => (Shape::Cone, DVec3::ONE),
+            "cylinder" => {
+                let r = radius.unwrap_or(1.0);
+                (Shape::Cylinder, DVec3::new(r, 1.0, r))
+            }
+            "torus" => {
+                // The radii stay intrinsic to the shape (the tube is round whatever the ring
+                // size); only a ring torus is a solid bounded by its quartic surface.
+                let (major, minor) = (major.unwrap_or(1.0), minor.unwrap_or(0.25));
+                if !(minor < major) {
+                    let at = entries
+                        .iter()
+                        .find(|e| e.key == "minor" || e.key == "major")
+                        .map_or(b.pos, |e| e.key_pos);
+                    self.err(
+                        at,
+                        format!(
+                            "a torus needs `minor` < `major` (a ring torus); got major = {major}, \
+                             minor = {minor}"
+                        ),
+                    );
+                    return None;
+                }
+                (Shape::Torus { major, minor }, DVec3::ONE)
+            }
             other => {
-                let _ = (major, minor); // used by the torus
                 self.err(
                     b.pos,
                     format!("type `{other}` is not supported by this build of the tracer"),
