@@ -69,6 +69,21 @@ pub struct Reference {
 /// Relative closeness below which a decision counts as a near-tie.
 const TIE: f64 = 1e-7;
 
+/// Both roots of `|o + t·d − c|² = r²` for unit `d` (textbook: `t² + 2bt + c = 0`), if the
+/// line meets the sphere, and whether the line is within a near-tie of tangency.
+fn sphere_roots(o: DVec3, d: DVec3, s: &RefSphere) -> (Option<(f64, f64)>, bool) {
+    let oc = o - s.centre;
+    let b = oc.dot(d);
+    let c = oc.length_squared() - s.radius * s.radius;
+    let disc = b * b - c;
+    let tie = disc.abs() < TIE * s.radius * s.radius;
+    if disc < 0.0 {
+        return (None, tie);
+    }
+    let sq = disc.sqrt();
+    (Some((-b - sq, -b + sq)), tie)
+}
+
 impl Reference {
     pub fn new(width: u32, height: u32) -> Self {
         Reference {
@@ -106,19 +121,10 @@ impl Reference {
         let mut best: Option<(f64, DVec3, DVec3, DVec3, f64, bool)> = None;
         let mut tie = false;
         for s in &self.spheres {
-            // |o + t d − c|² = r² with |d| = 1: t² + 2 b t + c = 0.
-            let oc = o - s.centre;
-            let b = oc.dot(d);
-            let c = oc.length_squared() - s.radius * s.radius;
-            let disc = b * b - c;
-            if disc.abs() < TIE * s.radius * s.radius {
-                tie = true;
-            }
-            if disc < 0.0 {
-                continue;
-            }
-            let sq = disc.sqrt();
-            let t = if -b - sq > 1e-9 { -b - sq } else { -b + sq };
+            let (roots, near) = sphere_roots(o, d, s);
+            tie |= near;
+            let Some((t0, t1)) = roots else { continue };
+            let t = if t0 > 1e-9 { t0 } else { t1 };
             if t > 1e-9 && best.is_none_or(|h| t < h.0) {
                 let p = o + d * t;
                 best = Some((t, p, (p - s.centre) / s.radius, s.color, s.mirror, false));
@@ -155,18 +161,10 @@ impl Reference {
         let d = seg / len;
         let mut tie = false;
         for s in &self.spheres {
-            let oc = p - s.centre;
-            let b = oc.dot(d);
-            let c = oc.length_squared() - s.radius * s.radius;
-            let disc = b * b - c;
-            if disc.abs() < TIE * s.radius * s.radius {
-                tie = true;
-            }
-            if disc < 0.0 {
-                continue;
-            }
-            let sq = disc.sqrt();
-            for t in [-b - sq, -b + sq] {
+            let (roots, near) = sphere_roots(p, d, s);
+            tie |= near;
+            let Some((t0, t1)) = roots else { continue };
+            for t in [t0, t1] {
                 // A root at t ≈ 0 is the point itself, on this sphere; one near the light
                 // end is a sphere touching the light: a tie.
                 if (t - len).abs() < 1e-6 * len {
