@@ -1,1 +1,448 @@
+//! The Tessera render worker: a stateless loop that claims tiles from a service over HTTP,
+//! traces them with the tracer crate and posts their pixels back.
+//!
+//! A worker holds nothing the service cannot lose: its only state is a small cache of parsed
+//! scenes. It runs one claim-render-post loop per thread ("slot"), backs off with jitter when
+//! there is no work or the service is unreachable, renews its lease while a tile renders, and
+//! on shutdown finishes the tiles it holds (or, past a grace period, gives them back).
+//!
+//! It knows nothing of SQL or axum; the service runs the same loop in-process for its
+//! `--local-workers`, over the same HTTP protocol.
 
+pub mod client;
+pub mod protocol;
+
+use std::future::Future;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use tessera_tracer::{Limits, MemoryAssets, Rect, Sampler, Scene, TextureLimits, srgb};
+use tokio::sync::{Mutex, watch};
+use tracing::{debug, info, warn};
+
+use client::{Client, ClientError, Posted};
+use protocol::{Claim, encode_tile};
+
+/// How a worker runs.
+#[derive(Debug, Clone)]
+pub struct WorkerConfig {
+    /// The service's base URL, e.g. `http://127.0.0.1:8080`.
+    pub server: String,
+    /// Bearer token for the worker routes, when the service requires one.
+    pub token: Option<String>,
+    /// Tiles rendered at once (one per core is the default).
+    pub threads: usize,
+    /// This worker's name as the service sees it.
+    pub name: String,
+    /// Skip tracing and post black tiles: for measuring the queue, never for images.
+    pub noop: bool,
+    /// Longest pause between claims when there is no work.
+    pub idle_max: Duration,
+    /// After a shutdown request, how long to keep rendering held tiles before giving them back.
+    pub grace: Duration,
+}
+
+impl WorkerConfig {
+    pub fn new(server: impl Into<String>) -> WorkerConfig {
+        WorkerConfig {
+            server: server.into(),
+            token: None,
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            name: default_name(),
+            noop: false,
+            idle_max: Duration::from_millis(1000),
+            grace: Duration::from_secs(30),
+        }
+    }
+}
+
+/// `host-pid-nnnn`: unique among the workers of one farm, readable in `/workers`.
+pub fn default_name() -> String {
+    let host = std::env::var("HOSTNAME")
+        .ok()
+        .or_else(|| std::fs::read_to_string("/etc/hostname").ok())
+        .map(|h| h.trim().to_string())
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "worker".into());
+    let salt = seed() % 10_000;
+    format!("{host}-{}-{salt:04}", std::process::id())
+}
+
+/// Why a worker stopped before it was asked to.
+#[derive(Debug, thiserror::Error)]
+pub enum WorkerError {
+    #[error(transparent)]
+    Client(#[from] ClientError),
+    #[error("worker must have at least one thread")]
+    NoThreads,
+}
+
+/// What a worker did, reported when it stops.
+#[derive(Debug, Default, Clone, PartialEq)]
+pub struct Summary {
+    pub tiles: u64,
+    pub released: u64,
+    pub failed: u64,
+}
+
+/// A job's scene, built once per worker and shared by its slots.
+struct Prepared {
+    scene: Scene,
+    sampler: Sampler,
+}
+
+/// Why a claimed tile could not be rendered here.
+enum Unusable {
+    /// The job is gone (deleted or cancelled): drop the tile.
+    Gone,
+    /// The scene does not build on this worker: report a failure.
+    Invalid(String),
+    /// The service could not be asked: give up on this tile for now.
+    Client(ClientError),
+}
+
+struct Shared {
+    cfg: WorkerConfig,
+    client: Client,
+    /// Recently used scenes, most recent last. Guarded by an async mutex that is held while a
+    /// missing scene is fetched, so slots do not fetch the same scene at once.
+    cache: Mutex<Vec<(String, Arc<Prepared>)>>,
+    tiles: AtomicU64,
+    released: AtomicU64,
+    failed: AtomicU64,
+}
+
+const CACHE_SCENES: usize = 4;
+
+/// Runs the worker until `shutdown` completes (then finishes or gives back what it holds) or
+/// a refusal that retrying cannot fix (a wrong token).
+pub async fn run(
+    cfg: WorkerConfig,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<Summary, WorkerError> {
+    if cfg.threads == 0 {
+        return Err(WorkerError::NoThreads);
+    }
+    let client = Client::new(&cfg.server, cfg.token.clone())?;
+    let (stop_tx, stop_rx) = watch::channel(false);
+    tokio::spawn(async move {
+        shutdown.await;
+        let _ = stop_tx.send(true);
+    });
+    info!(
+        name = %cfg.name, server = %cfg.server, threads = cfg.threads,
+        "worker started"
+    );
+    let shared = Arc::new(Shared {
+        client,
+        cache: Mutex::new(Vec::new()),
+        tiles: AtomicU64::new(0),
+        released: AtomicU64::new(0),
+        failed: AtomicU64::new(0),
+        cfg,
+    });
+    let mut slots = Vec::new();
+    for i in 0..shared.cfg.threads {
+        slots.push(tokio::spawn(slot(shared.clone(), i, stop_rx.clone())));
+    }
+    let mut first_err = None;
+    for s in slots {
+        match s.await {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => {
+                first_err.get_or_insert(e);
+            }
+            Err(e) => warn!("worker slot ended abnormally: {e}"),
+        }
+    }
+    let summary = Summary {
+        tiles: shared.tiles.load(Ordering::Relaxed),
+        released: shared.released.load(Ordering::Relaxed),
+        failed: shared.failed.load(Ordering::Relaxed),
+    };
+    info!(
+        tiles = summary.tiles,
+        released = summary.released,
+        "worker stopped"
+    );
+    match first_err {
+        Some(e) => Err(e.into()),
+        None => Ok(summary),
+    }
+}
+
+/// Waits `d`, or less if a shutdown is requested. Returns whether shutdown was requested.
+async fn pause(d: Duration, stop: &mut watch::Receiver<bool>) -> bool {
+    if *stop.borrow() {
+        return true;
+    }
+    tokio::select! {
+        _ = tokio::time::sleep(d) => *stop.borrow(),
+        _ = stop.changed() => true,
+    }
+}
+
+/// Exponential back-off from 25 ms up to `max`, with ±50% jitter so that many idle workers
+/// do not poll in step.
+fn backoff(streak: u32, max: Duration, rng: &mut u64) -> Duration {
+    let base = 25u64.saturating_mul(1u64 << streak.min(16));
+    let capped = base.min(max.as_millis() as u64).max(1);
+    // xorshift64: jitter needs no quality, only spread.
+    *rng ^= *rng << 13;
+    *rng ^= *rng >> 7;
+    *rng ^= *rng << 17;
+    let jitter = 0.5 + (*rng % 1000) as f64 / 1000.0;
+    Duration::from_millis((capped as f64 * jitter) as u64)
+}
+
+fn seed() -> u64 {
+    let t = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64);
+    (t ^ (u64::from(std::process::id()) << 32)) | 1
+}
+
+async fn slot(
+    shared: Arc<Shared>,
+    index: usize,
+    mut stop: watch::Receiver<bool>,
+) -> Result<(), ClientError> {
+    let mut rng = seed().wrapping_add(index as u64 * 0x9E37_79B9_7F4A_7C15) | 1;
+    let mut idle = 0u32;
+    let mut unreachable_since: Option<Instant> = None;
+    loop {
+        if *stop.borrow() {
+            return Ok(());
+        }
+        let claimed = tokio::select! {
+            c = shared.client.claim(&shared.cfg.name) => c,
+            _ = stop.changed() => return Ok(()),
+        };
+        match claimed {
+            Ok(Some(c)) => {
+                if let Some(since) = unreachable_since.take() {
+                    info!(
+                        "service reachable again after {:.1} s",
+                        since.elapsed().as_secs_f64()
+                    );
+                }
+                idle = 0;
+                work(&shared, c, &mut stop, &mut rng).await?;
+            }
+            Ok(None) => {
+                unreachable_since = None;
+                idle = idle.saturating_add(1);
+                if pause(backoff(idle, shared.cfg.idle_max, &mut rng), &mut stop).await {
+                    return Ok(());
+                }
+            }
+            Err(e) if e.is_transient() => {
+                if unreachable_since.is_none() {
+                    warn!("{e}; retrying with back-off");
+                    unreachable_since = Some(Instant::now());
+                }
+                idle = idle.saturating_add(1);
+                let max = shared.cfg.idle_max.max(Duration::from_secs(2));
+                if pause(backoff(idle, max, &mut rng), &mut stop).await {
+                    return Ok(());
+                }
+            }
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// The scene of `job`, from the cache or fetched and built.
+async fn prepared(shared: &Shared, job: &str) -> Result<Arc<Prepared>, Unusable> {
+    let mut cache = shared.cache.lock().await;
+    if let Some(i) = cache.iter().position(|(id, _)| id == job) {
+        let entry = cache.remove(i);
+        let p = entry.1.clone();
+        cache.push(entry);
+        return Ok(p);
+    }
+    let spec = match shared.client.job(job).await {
+        Ok(s) => s,
+        Err(ClientError::Status { status: 404, .. })
+        | Err(ClientError::Status { status: 410, .. }) => {
+            return Err(Unusable::Gone);
+        }
+        Err(e) => return Err(Unusable::Client(e)),
+    };
+    let mut assets = MemoryAssets::new();
+    for name in &spec.assets {
+        let bytes = shared
+            .client
+            .asset(job, name)
+            .await
+            .map_err(Unusable::Client)?;
+        assets.insert(name.clone(), bytes);
+    }
+    let built = tokio::task::spawn_blocking(move || -> Result<Prepared, String> {
+        let limits = Limits::default();
+        let desc = tessera_tracer::parse(&spec.scene, &limits).map_err(|e| e.to_string())?;
+        let sampler = desc.sampler.with_overrides(
+            spec.sampler.as_deref(),
+            spec.samples,
+            spec.threshold,
+            limits.max_samples,
+        )?;
+        let scene =
+            Scene::build(&desc, &assets, &TextureLimits::default()).map_err(|e| e.to_string())?;
+        Ok(Prepared { scene, sampler })
+    })
+    .await
+    .map_err(|e| Unusable::Invalid(format!("building the scene panicked: {e}")))?
+    .map_err(Unusable::Invalid)?;
+    let p = Arc::new(built);
+    if cache.len() >= CACHE_SCENES {
+        cache.remove(0);
+    }
+    cache.push((job.to_string(), p.clone()));
+    Ok(p)
+}
+
+/// Renders a tile to 8-bit sRGB bytes: the same values `tessera-render` writes, since a
+/// pixel's value does not depend on its tile.
+pub fn render_tile(scene: &Scene, sampler: &Sampler, rect: Rect) -> Vec<u8> {
+    let (linear, _) = scene.render_rect_linear_with(rect, sampler);
+    let mut out = Vec::with_capacity(linear.len() * 3);
+    for c in linear {
+        out.extend_from_slice(&srgb::encode_rgb8(c));
+    }
+    out
+}
+
+/// Renders one claimed tile and posts it, renewing the lease meanwhile.
+async fn work(
+    shared: &Shared,
+    c: Claim,
+    stop: &mut watch::Receiver<bool>,
+    rng: &mut u64,
+) -> Result<(), ClientError> {
+    let client = &shared.client;
+    let rect = c.rect();
+    let render = if shared.cfg.noop {
+        let n = rect.pixel_count() * 3;
+        tokio::task::spawn_blocking(move || vec![0u8; n])
+    } else {
+        let p = match prepared(shared, &c.job).await {
+            Ok(p) => p,
+            Err(Unusable::Gone) => return Ok(()),
+            Err(Unusable::Invalid(reason)) => {
+                warn!(job = %c.job, "cannot build scene: {reason}");
+                shared.failed.fetch_add(1, Ordering::Relaxed);
+                return client
+                    .fail(&c, &shared.cfg.name, &reason)
+                    .await
+                    .or_else(ignore_transient);
+            }
+            Err(Unusable::Client(e)) if e.is_transient() => {
+                // The lease runs out and the tile goes to whoever asks next.
+                warn!(job = %c.job, "cannot fetch scene: {e}");
+                return Ok(());
+            }
+            Err(Unusable::Client(e)) => return Err(e),
+        };
+        tokio::task::spawn_blocking(move || render_tile(&p.scene, &p.sampler, rect))
+    };
+    tokio::pin!(render);
+
+    let renew_every = Duration::from_millis((c.lease_ms / 3).max(10));
+    let mut ticker =
+        tokio::time::interval_at(tokio::time::Instant::now() + renew_every, renew_every);
+    let mut deadline: Option<tokio::time::Instant> = None;
+    let started = Instant::now();
+    let rgb = loop {
+        let give_up = async {
+            match deadline {
+                Some(d) => tokio::time::sleep_until(d).await,
+                None => std::future::pending().await,
+            }
+        };
+        tokio::select! {
+            r = &mut render => break r,
+            _ = ticker.tick() => match client.renew(&c).await {
+                Ok(true) => {}
+                Ok(false) => {
+                    debug!(job = %c.job, tile = c.idx, "lease lost; dropping the tile");
+                    return Ok(());
+                }
+                // Unreachable: keep rendering; the service extends leases when it restarts.
+                Err(e) if e.is_transient() => debug!("renewal failed: {e}"),
+                Err(e) => return Err(e),
+            },
+            changed = stop.changed(), if deadline.is_none() => {
+                if changed.is_err() || *stop.borrow() {
+                    deadline = Some(tokio::time::Instant::now() + shared.cfg.grace);
+                }
+            }
+            _ = give_up => {
+                info!(job = %c.job, tile = c.idx, "shutting down: giving the tile back");
+                shared.released.fetch_add(1, Ordering::Relaxed);
+                return client.release(&c).await.or_else(ignore_transient);
+            }
+        }
+    };
+    let rgb = match rgb {
+        Ok(rgb) => rgb,
+        Err(e) => {
+            let reason = format!("rendering panicked: {e}");
+            warn!(job = %c.job, tile = c.idx, "{reason}");
+            shared.failed.fetch_add(1, Ordering::Relaxed);
+            return client
+                .fail(&c, &shared.cfg.name, &reason)
+                .await
+                .or_else(ignore_transient);
+        }
+    };
+    debug!(job = %c.job, tile = c.idx, ms = started.elapsed().as_millis() as u64, "rendered");
+    let blob = encode_tile(rect, &rgb);
+    // Post, riding through a service restart: it extends leases when it comes back.
+    let give_up_at = Instant::now() + Duration::from_millis(c.lease_ms.max(1000) * 4);
+    let mut streak = 0;
+    loop {
+        match client.post_tile(&c, blob.clone()).await {
+            Ok(Posted::Accepted { .. }) => {
+                shared.tiles.fetch_add(1, Ordering::Relaxed);
+                return Ok(());
+            }
+            Ok(Posted::Stale(why)) => {
+                debug!(job = %c.job, tile = c.idx, "result refused: {why}");
+                return Ok(());
+            }
+            Err(e) if e.is_transient() && Instant::now() < give_up_at => {
+                streak += 1;
+                // The stop flag is ignored here: finishing a rendered tile is worth the wait.
+                tokio::time::sleep(backoff(streak, Duration::from_secs(2), rng)).await;
+            }
+            Err(e) if e.is_transient() => {
+                warn!(job = %c.job, tile = c.idx, "could not post the tile: {e}");
+                return Ok(());
+            }
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+fn ignore_transient(e: ClientError) -> Result<(), ClientError> {
+    if e.is_transient() { Ok(()) } else { Err(e) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backoff_grows_to_its_cap_with_bounded_jitter() {
+        let mut rng = 12345;
+        let max = Duration::from_millis(800);
+        for streak in 0..40 {
+            let d = backoff(streak, max, &mut rng);
+            let nominal = (25u64 << streak.min(16)).min(800);
+            assert!(d.as_millis() as u64 >= nominal / 2, "{streak}: {d:?}");
+            assert!(d.as_millis() as u64 <= nominal * 3 / 2, "{streak}: {d:?}");
+        }
+    }
+}

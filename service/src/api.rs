@@ -1,0 +1,414 @@
+//! The user routes: submit a scene, list and inspect jobs, download the image, cancel or
+//! delete a job, the web page and the health check.
+//!
+//! A submitted scene is parsed and built (textures decoded) before anything is stored, so a
+//! bad scene is a `400` naming line and column and leaves no trace.
+
+use std::collections::HashMap;
+
+use axum::Json;
+use axum::body::{Body, Bytes};
+use axum::extract::{FromRequest, Multipart, Path, Query, Request, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{Html, IntoResponse, Response};
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
+use tessera_tracer::{MemoryAssets, Scene, SceneError, parse, tiles};
+
+use crate::error::{ApiError, ok_json};
+use crate::queue::{JobRow, NewJob};
+use crate::{AppState, now_ms};
+
+/// Smallest and largest tile edge a job may ask for.
+pub const MIN_TILE: u32 = 8;
+pub const MAX_TILE: u32 = 1024;
+
+/// A job as the API shows it.
+#[derive(Debug, Serialize)]
+pub struct JobView {
+    #[serde(flatten)]
+    pub row: JobRow,
+    /// Fraction of tiles done, 0 to 1.
+    pub progress: f64,
+    pub url: String,
+    pub image_url: String,
+}
+
+impl From<JobRow> for JobView {
+    fn from(row: JobRow) -> JobView {
+        let progress = if row.tiles_total > 0 {
+            row.tiles_done as f64 / row.tiles_total as f64
+        } else {
+            0.0
+        };
+        JobView {
+            url: format!("/jobs/{}", row.id),
+            image_url: format!("/jobs/{}/image.png", row.id),
+            progress,
+            row,
+        }
+    }
+}
+
+pub async fn page() -> Html<&'static str> {
+    Html(include_str!("page.html"))
+}
+
+pub async fn healthz(State(state): State<AppState>) -> Result<Json<Value>, ApiError> {
+    state.queue.ping().await?;
+    Ok(Json(json!({ "status": "ok" })))
+}
+
+/// Workers heard from in the last ten minutes.
+pub async fn workers(State(state): State<AppState>) -> Json<Value> {
+    let cutoff = now_ms() - 600_000;
+    let mut list: Vec<_> = state
+        .roster
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+        .values()
+        .filter(|w| w.last_seen >= cutoff)
+        .cloned()
+        .collect();
+    list.sort_by(|a, b| a.name.cmp(&b.name));
+    ok_json(list)
+}
+
+pub async fn list_jobs(State(state): State<AppState>) -> Result<Json<Value>, ApiError> {
+    let jobs: Vec<JobView> = state
+        .queue
+        .jobs(200)
+        .await?
+        .into_iter()
+        .map(JobView::from)
+        .collect();
+    Ok(ok_json(jobs))
+}
+
+pub async fn get_job(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<Value>, ApiError> {
+    let row = state
+        .queue
+        .job(&id)
+        .await?
+        .ok_or_else(|| ApiError::not_found(format_args!("job `{id}`")))?;
+    Ok(ok_json(JobView::from(row)))
+}
+
+/// Cancels a queued or running job (`200` with the job); deletes a finished, failed or
+/// cancelled one with everything stored for it (`204`).
+pub async fn delete_job(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let before = state.queue.cancel(&id, now_ms()).await?;
+    match before.as_deref() {
+        None => Err(ApiError::not_found(format_args!("job `{id}`"))),
+        Some("queued" | "running") => {
+            let row = state
+                .queue
+                .job(&id)
+                .await?
+                .ok_or_else(|| ApiError::not_found("job"))?;
+            Ok(ok_json(JobView::from(row)).into_response())
+        }
+        Some(_) => {
+            state.queue.delete(&id).await?;
+            Ok(StatusCode::NO_CONTENT.into_response())
+        }
+    }
+}
+
+/// The finished PNG, streamed from the database chunk by chunk.
+pub async fn image(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let row = state
+        .queue
+        .job(&id)
+        .await?
+        .ok_or_else(|| ApiError::not_found(format_args!("job `{id}`")))?;
+    if row.state != "done" {
+        let why = match row.state.as_str() {
+            "failed" => format!("job failed: {}", row.error.clone().unwrap_or_default()),
+            "cancelled" => "job was cancelled; it has no image".to_string(),
+            _ => format!(
+                "job is {}: {} of {} tiles done",
+                row.state, row.tiles_done, row.tiles_total
+            ),
+        };
+        return Err(ApiError::conflict(why)
+            .with("state", row.state.clone())
+            .with("tiles_done", row.tiles_done)
+            .with("tiles_total", row.tiles_total));
+    }
+    let chunks = state.queue.image_chunks(&id).await?;
+    let queue = state.queue.clone();
+    let stream = futures_util::stream::unfold(0u32, move |seq| {
+        let queue = queue.clone();
+        let id = id.clone();
+        async move {
+            if seq >= chunks {
+                return None;
+            }
+            let item = match queue.image_chunk(&id, seq).await {
+                Ok(Some(bytes)) => Ok(Bytes::from(bytes)),
+                Ok(None) => Err(std::io::Error::other("image chunk missing")),
+                Err(e) => Err(std::io::Error::other(e.to_string())),
+            };
+            Some((item, seq + 1))
+        }
+    });
+    let mut headers = HeaderMap::new();
+    headers.insert(header::CONTENT_TYPE, HeaderValue::from_static("image/png"));
+    if let Some(n) = row.png_bytes {
+        headers.insert(header::CONTENT_LENGTH, HeaderValue::from(n));
+    }
+    let file = row
+        .name
+        .as_deref()
+        .and_then(|n| n.rsplit('/').next())
+        .unwrap_or(&row.id);
+    let stem = file.strip_suffix(".ray").unwrap_or(file);
+    let safe: String = stem
+        .chars()
+        .filter(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+        .collect();
+    if let Ok(v) = HeaderValue::from_str(&format!("inline; filename=\"{safe}.png\"")) {
+        headers.insert(header::CONTENT_DISPOSITION, v);
+    }
+    Ok((headers, Body::from_stream(stream)).into_response())
+}
+
+/// `POST /jobs` query parameters.
+#[derive(Debug, Default, Deserialize)]
+pub struct SubmitParams {
+    pub tile: Option<u32>,
+    pub sampler: Option<String>,
+    pub samples: Option<u32>,
+    pub threshold: Option<f64>,
+    /// A name for the job (the scene file's name, shown in lists and used for the download).
+    pub name: Option<String>,
+}
+
+/// `POST /jobs`: the raw scene as the body, or multipart with a `scene` part and one part
+/// per asset named as the scene names it.
+pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Response, ApiError> {
+    let params: SubmitParams = match Query::<SubmitParams>::try_from_uri(req.uri()) {
+        Ok(Query(p)) => p,
+        Err(e) => {
+            return Err(ApiError::bad_request(format!(
+                "bad query: {}",
+                e.body_text()
+            )));
+        }
+    };
+    let is_multipart = req
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("multipart/form-data"));
+    let (scene_bytes, file_name, uploads) = if is_multipart {
+        read_multipart(req, &state).await?
+    } else {
+        let body = Bytes::from_request(req, &state)
+            .await
+            .map_err(|e| ApiError::new(e.status(), e.body_text()))?;
+        (body.to_vec(), None, Vec::new())
+    };
+    let source = String::from_utf8(scene_bytes)
+        .map_err(|e| ApiError::bad_request(format!("the scene is not UTF-8 text: {e}")))?;
+    if source.trim().is_empty() {
+        return Err(ApiError::bad_request(
+            "empty body: send the scene file (curl --data-binary @scene.ray)",
+        ));
+    }
+    let tile = params.tile.unwrap_or(state.cfg.tile);
+    if !(MIN_TILE..=MAX_TILE).contains(&tile) {
+        return Err(ApiError::bad_request(format!(
+            "tile must be from {MIN_TILE} to {MAX_TILE} pixels"
+        )));
+    }
+    let name = params.name.clone().or(file_name);
+    let job = validate(&state, source, uploads, &params, tile, name).await?;
+    let (new_job, rects, assets) = job;
+    let row = state.queue.insert_job(&new_job, &rects, &assets).await?;
+    let location = format!("/jobs/{}", row.id);
+    let mut resp = (StatusCode::CREATED, ok_json(JobView::from(row))).into_response();
+    if let Ok(v) = HeaderValue::from_str(&location) {
+        resp.headers_mut().insert(header::LOCATION, v);
+    }
+    Ok(resp)
+}
+
+type Uploads = Vec<(String, Vec<u8>)>;
+
+async fn read_multipart(
+    req: Request,
+    state: &AppState,
+) -> Result<(Vec<u8>, Option<String>, Uploads), ApiError> {
+    let mut mp = Multipart::from_request(req, state)
+        .await
+        .map_err(|e| ApiError::new(e.status(), e.body_text()))?;
+    let mut scene = None;
+    let mut file_name = None;
+    let mut uploads = Vec::new();
+    let mut seen = HashMap::new();
+    while let Some(field) = mp
+        .next_field()
+        .await
+        .map_err(|e| ApiError::new(e.status(), e.body_text()))?
+    {
+        let field_name = field.name().unwrap_or_default().to_string();
+        let fname = field.file_name().map(str::to_string);
+        let bytes = field
+            .bytes()
+            .await
+            .map_err(|e| ApiError::new(e.status(), e.body_text()))?;
+        if field_name == "scene" {
+            scene = Some(bytes.to_vec());
+            file_name = fname;
+            continue;
+        }
+        // An asset is named by its part's name, as the scene names it; a part with no
+        // name (or the generic `asset`) goes by its file name.
+        let name = if field_name.is_empty() || field_name == "asset" {
+            fname.unwrap_or_default()
+        } else {
+            field_name
+        };
+        check_asset_name(&name)?;
+        if seen.insert(name.clone(), ()).is_some() {
+            return Err(ApiError::bad_request(format!(
+                "asset `{name}` was sent twice"
+            )));
+        }
+        uploads.push((name, bytes.to_vec()));
+    }
+    let scene = scene.ok_or_else(|| {
+        ApiError::bad_request("multipart body has no `scene` part (curl -F scene=@file.ray)")
+    })?;
+    Ok((scene, file_name, uploads))
+}
+
+/// Asset names are names, not paths: relative, `/`-separated, no `.` or `..` segments, no
+/// backslashes or control characters. Nothing ever resolves them on a file system anyway.
+pub fn check_asset_name(name: &str) -> Result<(), ApiError> {
+    let bad = name.is_empty()
+        || name.len() > 255
+        || name.starts_with('/')
+        || name.contains('\\')
+        || name.chars().any(char::is_control)
+        || name
+            .split('/')
+            .any(|seg| seg.is_empty() || seg == "." || seg == "..");
+    if bad {
+        return Err(ApiError::bad_request(format!(
+            "`{name}` is not a valid asset name: use the relative file name the scene uses, \
+             without `..` or a leading `/`"
+        )));
+    }
+    Ok(())
+}
+
+fn scene_error(e: &SceneError) -> ApiError {
+    let first = e.first();
+    let all: Vec<Value> = e
+        .diagnostics()
+        .iter()
+        .map(|d| json!({ "line": d.pos.line, "column": d.pos.column, "message": d.message }))
+        .collect();
+    ApiError::bad_request(format!(
+        "{}:{}: {}",
+        first.pos.line, first.pos.column, first.message
+    ))
+    .with("line", first.pos.line)
+    .with("column", first.pos.column)
+    .with("errors", Value::Array(all))
+}
+
+/// Parses and builds the scene off the async threads; on success returns what to store.
+async fn validate(
+    state: &AppState,
+    source: String,
+    uploads: Uploads,
+    params: &SubmitParams,
+    tile: u32,
+    name: Option<String>,
+) -> Result<(NewJob, Vec<tessera_tracer::Rect>, Uploads), ApiError> {
+    let limits = state.cfg.scene_limits();
+    let texture_limits = state.cfg.texture_limits();
+    let sampler = params.sampler.clone();
+    let samples = params.samples;
+    let threshold = params.threshold;
+    let checked = tokio::task::spawn_blocking(move || {
+        let desc = parse(&source, &limits).map_err(|e| scene_error(&e))?;
+        desc.sampler
+            .with_overrides(sampler.as_deref(), samples, threshold, limits.max_samples)
+            .map_err(ApiError::bad_request)?;
+        let used: Vec<String> = desc
+            .texture_names()
+            .iter()
+            .map(|(n, _)| n.to_string())
+            .collect();
+        for (n, pos) in desc.texture_names() {
+            if check_asset_name(n).is_err() {
+                return Err(ApiError::bad_request(format!(
+                    "{}:{}: texture `{n}` must be the name of an uploaded asset, not a path",
+                    pos.line, pos.column
+                ))
+                .with("line", pos.line)
+                .with("column", pos.column));
+            }
+        }
+        let mut assets = MemoryAssets::new();
+        for (n, bytes) in &uploads {
+            if used.contains(n) {
+                assets.insert(n.clone(), bytes.clone());
+            }
+        }
+        Scene::build(&desc, &assets, &texture_limits).map_err(|e| {
+            let missing: Vec<&str> = desc
+                .texture_names()
+                .iter()
+                .map(|(n, _)| *n)
+                .filter(|n| !assets.contains(n))
+                .collect();
+            let err = scene_error(&e);
+            if missing.is_empty() {
+                err
+            } else {
+                err.with("missing_assets", missing)
+            }
+        })?;
+        // Only assets the scene uses are kept.
+        let kept: Uploads = uploads
+            .into_iter()
+            .filter(|(n, _)| used.contains(n))
+            .collect();
+        Ok::<_, ApiError>((source, desc.width, desc.height, kept))
+    })
+    .await
+    .map_err(|e| {
+        tracing::error!("scene validation panicked: {e}");
+        ApiError::bad_request("the scene could not be checked (the validator failed)")
+    })??;
+    let (source, width, height, kept) = checked;
+    let job = NewJob {
+        id: uuid::Uuid::new_v4().simple().to_string()[..16].to_string(),
+        scene: source,
+        name,
+        width,
+        height,
+        tile,
+        sampler: params.sampler.clone(),
+        samples: params.samples,
+        threshold: params.threshold,
+        created_at: now_ms(),
+    };
+    let rects = tiles(width, height, tile);
+    Ok((job, rects, kept))
+}

@@ -1,0 +1,89 @@
+//! Bearer tokens: the worker token guards the worker routes, the submit token guards job
+//! submission and deletion. Compared in constant time, so response timing reveals nothing
+//! about how much of a guess was right.
+//!
+//! This module only checks tokens; which routes need which token is decided in `lib.rs`.
+
+use axum::extract::{Request, State};
+use axum::http::{StatusCode, header};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+
+use crate::AppState;
+use crate::error::ApiError;
+
+/// Equal length and equal bytes, examining every byte whatever the first difference.
+/// (The length itself is not secret: tokens are fixed-length random strings in practice.)
+pub fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+    if a.len() != b.len() {
+        return false;
+    }
+    let mut diff = 0u8;
+    for (x, y) in a.iter().zip(b) {
+        diff |= std::hint::black_box(x ^ y);
+    }
+    diff == 0
+}
+
+fn presented(req: &Request) -> Option<&[u8]> {
+    let value = req.headers().get(header::AUTHORIZATION)?.as_bytes();
+    value.strip_prefix(b"Bearer ")
+}
+
+fn check(expected: Option<&str>, req: &Request, what: &str) -> Result<(), Response> {
+    let Some(expected) = expected else {
+        return Ok(());
+    };
+    match presented(req) {
+        Some(t) if constant_time_eq(t, expected.as_bytes()) => Ok(()),
+        _ => Err((
+            [(header::WWW_AUTHENTICATE, "Bearer")],
+            ApiError::new(
+                StatusCode::UNAUTHORIZED,
+                format!("this route needs the {what} token: `Authorization: Bearer <token>`"),
+            ),
+        )
+            .into_response()),
+    }
+}
+
+/// Middleware for the worker routes.
+pub async fn require_worker_token(
+    State(state): State<AppState>,
+    req: Request,
+    next: Next,
+) -> Response {
+    match check(state.cfg.token.as_deref(), &req, "worker") {
+        Ok(()) => next.run(req).await,
+        Err(r) => r,
+    }
+}
+
+/// Middleware for job submission and deletion.
+pub async fn require_submit_token(
+    State(state): State<AppState>,
+    req: Request,
+    next: Next,
+) -> Response {
+    if req.method() == axum::http::Method::GET {
+        return next.run(req).await;
+    }
+    match check(state.cfg.submit_token.as_deref(), &req, "submit") {
+        Ok(()) => next.run(req).await,
+        Err(r) => r,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::constant_time_eq;
+
+    #[test]
+    fn equal_only_when_every_byte_is() {
+        assert!(constant_time_eq(b"secret", b"secret"));
+        assert!(!constant_time_eq(b"secret", b"secreT"));
+        assert!(!constant_time_eq(b"secret", b"Secret"));
+        assert!(!constant_time_eq(b"secret", b"secrets"));
+        assert!(!constant_time_eq(b"", b"x"));
+    }
+}

@@ -1,0 +1,121 @@
+//! The one error type every handler returns, and the one place it becomes a response:
+//! JSON `{"error": ...}` (plus fields such as `line`/`column`) with a fitting status code.
+//!
+//! Storage failures are the service's fault, so they are logged and answered `503` (the
+//! database is busy or unavailable: retry) or `500`; nothing a user sends ends up there.
+
+use axum::Json;
+use axum::extract::Request;
+use axum::http::StatusCode;
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use serde_json::{Map, Value, json};
+
+use crate::queue::QueueError;
+
+#[derive(Debug)]
+pub struct ApiError {
+    pub status: StatusCode,
+    pub body: Map<String, Value>,
+}
+
+impl ApiError {
+    pub fn new(status: StatusCode, message: impl Into<String>) -> ApiError {
+        let mut body = Map::new();
+        body.insert("error".into(), Value::String(message.into()));
+        ApiError { status, body }
+    }
+
+    pub fn bad_request(message: impl Into<String>) -> ApiError {
+        ApiError::new(StatusCode::BAD_REQUEST, message)
+    }
+
+    pub fn not_found(what: impl std::fmt::Display) -> ApiError {
+        ApiError::new(StatusCode::NOT_FOUND, format!("no {what}"))
+    }
+
+    pub fn conflict(message: impl Into<String>) -> ApiError {
+        ApiError::new(StatusCode::CONFLICT, message)
+    }
+
+    /// Adds a field to the JSON body.
+    pub fn with(mut self, key: &str, value: impl Into<Value>) -> ApiError {
+        self.body.insert(key.into(), value.into());
+        self
+    }
+}
+
+impl From<QueueError> for ApiError {
+    fn from(e: QueueError) -> ApiError {
+        let busy = matches!(&e, QueueError::Db(sqlx::Error::PoolTimedOut))
+            || e.to_string().contains("database is locked");
+        tracing::error!("storage error: {e}");
+        if busy {
+            ApiError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the database is busy; try again",
+            )
+        } else {
+            ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal storage error")
+        }
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        (self.status, Json(Value::Object(self.body))).into_response()
+    }
+}
+
+/// JSON 404 for unknown routes.
+pub async fn no_route() -> ApiError {
+    ApiError::new(StatusCode::NOT_FOUND, "no such route; see /")
+}
+
+/// JSON 405 for known routes with the wrong method.
+pub async fn wrong_method() -> ApiError {
+    ApiError::new(
+        StatusCode::METHOD_NOT_ALLOWED,
+        "method not allowed on this route",
+    )
+}
+
+/// The body of a successful JSON answer.
+pub fn ok_json(v: impl serde::Serialize) -> Json<Value> {
+    Json(serde_json::to_value(v).unwrap_or_else(|e| json!({ "error": e.to_string() })))
+}
+
+/// The safety net behind [`ApiError`]: an error answer produced outside the handlers (an
+/// extractor's rejection of a malformed path, query or JSON body, a body over its limit) is
+/// rewritten as JSON `{"error": ...}` with its status and headers kept.
+pub async fn json_errors(req: Request, next: Next) -> Response {
+    let resp = next.run(req).await;
+    let status = resp.status();
+    if !(status.is_client_error() || status.is_server_error()) {
+        return resp;
+    }
+    let is_json = resp
+        .headers()
+        .get(axum::http::header::CONTENT_TYPE)
+        .is_some_and(|v| v.as_bytes().starts_with(b"application/json"));
+    if is_json {
+        return resp;
+    }
+    let (mut parts, body) = resp.into_parts();
+    let text = match axum::body::to_bytes(body, 64 * 1024).await {
+        Ok(b) => String::from_utf8_lossy(&b).trim().to_string(),
+        Err(_) => String::new(),
+    };
+    let message = if text.is_empty() {
+        status.canonical_reason().unwrap_or("error").to_string()
+    } else {
+        text
+    };
+    parts.headers.remove(axum::http::header::CONTENT_LENGTH);
+    parts.headers.remove(axum::http::header::CONTENT_TYPE);
+    let mut out = ApiError::new(status, message).into_response();
+    for (k, v) in parts.headers.iter() {
+        out.headers_mut().insert(k, v.clone());
+    }
+    out
+}

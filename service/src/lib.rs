@@ -1,0 +1,325 @@
+//! The Tessera render service: the HTTP API users and workers talk to, the SQLite job queue
+//! behind it, the web page, and optional in-process workers.
+//!
+//! Handlers are thin: they check what was sent and call the [`queue::Queue`], which holds
+//! every guarantee about tiles and leases in SQL. Shared state is explicit ([`AppState`]);
+//! errors become responses in one place ([`error::ApiError`]). The service does not trace
+//! rays itself: local workers are ordinary `tessera_worker` loops speaking HTTP to it.
+
+pub mod api;
+pub mod assemble;
+pub mod auth;
+pub mod config;
+pub mod error;
+pub mod queue;
+pub mod worker_api;
+
+use std::collections::HashMap;
+use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use axum::Router;
+use axum::extract::DefaultBodyLimit;
+use axum::routing::{get, post, put};
+use serde::Serialize;
+use tokio::net::TcpListener;
+use tokio::sync::watch;
+use tracing::{error, info, warn};
+
+pub use config::Config;
+use queue::{KeepAway, Queue, QueueError};
+
+/// Milliseconds since the Unix epoch: the queue's clock.
+pub fn now_ms() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as i64)
+}
+
+/// What the service knows about a worker it has heard from.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct WorkerSeen {
+    pub name: String,
+    pub last_seen: i64,
+    pub claims: u64,
+    pub tiles_done: u64,
+}
+
+/// The state every handler shares.
+#[derive(Clone)]
+pub struct AppState {
+    pub cfg: Arc<Config>,
+    pub queue: Queue,
+    /// Workers seen since start (in memory only: informational).
+    pub roster: Arc<Mutex<HashMap<String, WorkerSeen>>>,
+}
+
+impl AppState {
+    pub fn keep_away(&self) -> KeepAway {
+        KeepAway {
+            after: self.cfg.keep_away_after,
+            for_ms: (self.cfg.keep_away_secs as i64).saturating_mul(1000),
+        }
+    }
+
+    pub fn seen(&self, worker: &str, f: impl FnOnce(&mut WorkerSeen)) {
+        let mut roster = self.roster.lock().unwrap_or_else(PoisonError::into_inner);
+        let entry = roster
+            .entry(worker.to_string())
+            .or_insert_with(|| WorkerSeen {
+                name: worker.to_string(),
+                ..WorkerSeen::default()
+            });
+        entry.last_seen = now_ms();
+        f(entry);
+    }
+
+    /// Assembles a job's PNG in the background once its last tile is in.
+    pub fn spawn_assembly(&self, job: String) {
+        let queue = self.queue.clone();
+        tokio::spawn(async move {
+            if let Err(e) = assemble::assemble(&queue, &job).await {
+                error!(job = %job, "assembling the image failed: {e}");
+                let _ = queue
+                    .fail_job(&job, &format!("assembling the image failed: {e}"), now_ms())
+                    .await;
+            }
+        });
+    }
+}
+
+/// Why the service could not start or run.
+#[derive(Debug, thiserror::Error)]
+pub enum ServiceError {
+    #[error(transparent)]
+    Queue(#[from] QueueError),
+    #[error("cannot listen on {addr}: {source}")]
+    Bind {
+        addr: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{0}")]
+    Config(String),
+    #[error("server: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// All routes, with their body limits and token checks.
+pub fn router(state: AppState) -> Router {
+    // A tile blob: the 20-byte header and at most 1024 × 1024 RGB pixels.
+    let tile_limit = protocol_limit();
+    let worker_routes = Router::new()
+        .route("/worker/claim", post(worker_api::claim))
+        .route("/worker/jobs/{id}", get(worker_api::job))
+        .route("/worker/jobs/{id}/assets/{name}", get(worker_api::asset))
+        .route("/worker/jobs/{id}/tiles/{idx}", put(worker_api::result))
+        .route(
+            "/worker/jobs/{id}/tiles/{idx}/renew",
+            post(worker_api::renew),
+        )
+        .route("/worker/jobs/{id}/tiles/{idx}/fail", post(worker_api::fail))
+        .route(
+            "/worker/jobs/{id}/tiles/{idx}/release",
+            post(worker_api::release),
+        )
+        .layer(DefaultBodyLimit::max(tile_limit))
+        .route_layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            auth::require_worker_token,
+        ));
+    let job_routes = Router::new()
+        .route("/jobs", get(api::list_jobs).post(api::submit))
+        .route("/jobs/{id}", get(api::get_job).delete(api::delete_job))
+        .layer(DefaultBodyLimit::max(state.cfg.max_body_bytes))
+        .route_layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            auth::require_submit_token,
+        ));
+    Router::new()
+        .route("/", get(api::page))
+        .route("/healthz", get(api::healthz))
+        .route("/workers", get(api::workers))
+        .route("/jobs/{id}/image.png", get(api::image))
+        .merge(job_routes)
+        .merge(worker_routes)
+        .fallback(error::no_route)
+        .method_not_allowed_fallback(error::wrong_method)
+        .layer(axum::middleware::from_fn(error::json_errors))
+        .layer(tower_http::trace::TraceLayer::new_for_http())
+        .with_state(state)
+}
+
+/// Largest accepted tile blob.
+pub const fn protocol_limit() -> usize {
+    tessera_worker::protocol::TILE_HEADER_LEN + api::MAX_TILE as usize * api::MAX_TILE as usize * 3
+}
+
+/// Binds `cfg.listen` and serves until `shutdown` completes.
+pub async fn run(
+    cfg: Config,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), ServiceError> {
+    let listener = TcpListener::bind(&cfg.listen)
+        .await
+        .map_err(|source| ServiceError::Bind {
+            addr: cfg.listen.clone(),
+            source,
+        })?;
+    serve(cfg, listener, shutdown).await
+}
+
+/// Serves on `listener` until `shutdown` completes: then local workers finish (or give back)
+/// their tiles, open requests complete, and the function returns.
+pub async fn serve(
+    cfg: Config,
+    listener: TcpListener,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), ServiceError> {
+    let addr = listener.local_addr()?;
+    if !addr.ip().is_loopback() && cfg.submit_token.is_none() && !cfg.open_submit {
+        return Err(ServiceError::Config(format!(
+            "listening on {addr}, beyond this machine, without --submit-token: anyone who can \
+             reach it could submit jobs. Set --submit-token (TESSERA_SUBMIT_TOKEN), or pass \
+             --open-submit to accept that."
+        )));
+    }
+    if !(api::MIN_TILE..=api::MAX_TILE).contains(&cfg.tile) {
+        return Err(ServiceError::Config(format!(
+            "--tile must be from {} to {}",
+            api::MIN_TILE,
+            api::MAX_TILE
+        )));
+    }
+    if cfg.lease_ms < 100 || cfg.max_attempts == 0 {
+        return Err(ServiceError::Config(
+            "--lease-ms must be at least 100 and --max-attempts at least 1".into(),
+        ));
+    }
+    let queue = Queue::open(&cfg.database).await?;
+    let extended = queue.extend_leases(now_ms(), cfg.lease_ms).await?;
+    if extended > 0 {
+        info!(
+            "{extended} leases from before the restart extended by {} ms",
+            cfg.lease_ms
+        );
+    }
+    let state = AppState {
+        cfg: Arc::new(cfg),
+        queue: queue.clone(),
+        roster: Arc::default(),
+    };
+    for job in queue.unassembled().await? {
+        info!(job = %job, "all tiles were in before the restart: assembling");
+        state.spawn_assembly(job);
+    }
+
+    let (stop_tx, stop_rx) = watch::channel(false);
+    tokio::spawn(async move {
+        shutdown.await;
+        info!("shutting down: local workers finish their tiles");
+        let _ = stop_tx.send(true);
+    });
+    tokio::spawn(reaper(state.clone(), stop_rx.clone()));
+
+    let locals = spawn_local_workers(&state.cfg, addr, &stop_rx);
+    println!("tessera-service listening on http://{addr}");
+    info!(
+        "listening on http://{addr} with {} local workers, database {}",
+        locals.len(),
+        state.cfg.database
+    );
+    let mut stop_for_server = stop_rx.clone();
+    let graceful = async move {
+        let _ = stop_for_server.wait_for(|s| *s).await;
+        for w in locals {
+            let _ = w.await;
+        }
+    };
+    axum::serve(listener, router(state))
+        .with_graceful_shutdown(graceful)
+        .await?;
+    info!("stopped");
+    Ok(())
+}
+
+fn spawn_local_workers(
+    cfg: &Config,
+    addr: SocketAddr,
+    stop: &watch::Receiver<bool>,
+) -> Vec<tokio::task::JoinHandle<()>> {
+    let n = cfg
+        .local_workers
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let host = if addr.ip().is_unspecified() {
+        match addr {
+            SocketAddr::V4(_) => format!("127.0.0.1:{}", addr.port()),
+            SocketAddr::V6(_) => format!("[::1]:{}", addr.port()),
+        }
+    } else {
+        addr.to_string()
+    };
+    let base_name = tessera_worker::default_name();
+    (0..n)
+        .map(|i| {
+            let mut wc = tessera_worker::WorkerConfig::new(format!("http://{host}"));
+            wc.threads = 1;
+            wc.token = cfg.token.clone();
+            wc.name = format!("{base_name}-local{i}");
+            wc.idle_max = Duration::from_millis(500);
+            let mut stop = stop.clone();
+            tokio::spawn(async move {
+                let stopped = async move {
+                    let _ = stop.wait_for(|s| *s).await;
+                };
+                if let Err(e) = tessera_worker::run(wc, stopped).await {
+                    error!("local worker {i} stopped: {e}");
+                }
+            })
+        })
+        .collect()
+}
+
+/// Requeues expired leases a few times per lease period.
+async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
+    let every = Duration::from_millis((state.cfg.lease_ms / 4).clamp(25, 1000));
+    loop {
+        tokio::select! {
+            _ = tokio::time::sleep(every) => {}
+            _ = stop.wait_for(|s| *s) => return,
+        }
+        match state
+            .queue
+            .reap(now_ms(), state.cfg.max_attempts, state.keep_away())
+            .await
+        {
+            Ok(0) => {}
+            Ok(n) => warn!("{n} expired leases: tiles handed out again"),
+            Err(e) => warn!("reaping expired leases: {e}"),
+        }
+    }
+}
+
+/// SIGINT or SIGTERM.
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {}
+        _ = term => {}
+    }
+}

@@ -1,0 +1,704 @@
+//! The job queue on SQLite: jobs, their tiles under lease, results, failures, and the
+//! assembled image, each operation one statement or one `BEGIN IMMEDIATE` transaction.
+//!
+//! The guarantees live here, in SQL guarded by state, not in the handlers:
+//! - a claim is one `UPDATE … WHERE rowid = (SELECT … LIMIT 1) RETURNING …`, so two claimers
+//!   can never take the same queued tile (SQLite runs one writer at a time, and the update
+//!   re-checks nothing it did not select under that same write lock);
+//! - every claim gets a fresh random lease token; renewals, results, failures and releases
+//!   are applied only `WHERE lease = ?` and the tile is still leased, so a stale worker
+//!   changes nothing;
+//! - expired leases are requeued by [`Queue::reap`], counting a failure against the tile and
+//!   the worker; a tile that fails `max_attempts` times fails its job with a readable reason.
+//!
+//! Times are integer milliseconds since the Unix epoch, passed in by the caller so that the
+//! SQL stays portable and tests control the clock. This module knows nothing of HTTP.
+
+use std::str::FromStr;
+use std::time::Duration;
+
+use serde::Serialize;
+use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
+use sqlx::{Row, SqlitePool};
+use tessera_tracer::Rect;
+use tessera_worker::protocol::Claim;
+
+/// The embedded migrations of the top-level `migrations/` folder.
+static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
+
+/// Errors of the queue's storage.
+#[derive(Debug, thiserror::Error)]
+pub enum QueueError {
+    #[error("database: {0}")]
+    Db(#[from] sqlx::Error),
+    #[error("database migration: {0}")]
+    Migrate(#[from] sqlx::migrate::MigrateError),
+    #[error("bad database URL `{url}`: {reason}")]
+    Url { url: String, reason: String },
+}
+
+type Result<T> = std::result::Result<T, QueueError>;
+
+/// A job as users see it.
+#[derive(Debug, Clone, Serialize, sqlx::FromRow)]
+pub struct JobRow {
+    pub id: String,
+    pub state: String,
+    pub name: Option<String>,
+    pub width: i64,
+    pub height: i64,
+    pub tile: i64,
+    pub sampler: Option<String>,
+    pub samples: Option<i64>,
+    pub threshold: Option<f64>,
+    pub tiles_total: i64,
+    pub tiles_done: i64,
+    pub error: Option<String>,
+    pub created_at: i64,
+    pub started_at: Option<i64>,
+    pub finished_at: Option<i64>,
+    pub png_bytes: Option<i64>,
+}
+
+const JOB_COLUMNS: &str = "id, state, name, width, height, tile, sampler, samples, threshold, \
+     tiles_total, tiles_done, error, created_at, started_at, finished_at, png_bytes";
+
+/// A job about to be stored.
+#[derive(Debug, Clone)]
+pub struct NewJob {
+    pub id: String,
+    pub scene: String,
+    pub name: Option<String>,
+    pub width: u32,
+    pub height: u32,
+    pub tile: u32,
+    pub sampler: Option<String>,
+    pub samples: Option<u32>,
+    pub threshold: Option<f64>,
+    pub created_at: i64,
+}
+
+/// What a worker needs of a job.
+#[derive(Debug, Clone)]
+pub struct JobScene {
+    pub state: String,
+    pub scene: String,
+    pub sampler: Option<String>,
+    pub samples: Option<u32>,
+    pub threshold: Option<f64>,
+    pub assets: Vec<String>,
+}
+
+/// A tile's place and lease, with its job's state.
+#[derive(Debug, Clone)]
+pub struct TileInfo {
+    pub rect: Rect,
+    pub state: String,
+    pub lease: Option<String>,
+    pub worker: Option<String>,
+    pub job_state: String,
+}
+
+/// What became of a posted result.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Completion {
+    /// Stored; `last` when it was the job's last tile (the image can be assembled).
+    Stored { last: bool },
+    /// Already stored from this very lease: nothing changed.
+    Repeat,
+    /// Not this lease's to post (expired and handed out again, released, or the job ended).
+    Stale(String),
+}
+
+/// Keep-away policy for workers that fail a job.
+#[derive(Debug, Clone, Copy)]
+pub struct KeepAway {
+    /// Failures (reported or lost leases) of one worker on one job before it is kept away.
+    pub after: u32,
+    /// For how long.
+    pub for_ms: i64,
+}
+
+/// The queue over one SQLite database.
+#[derive(Debug, Clone)]
+pub struct Queue {
+    pool: SqlitePool,
+}
+
+impl Queue {
+    /// Opens (creating if missing) the database at `url` (`sqlite://path`, or
+    /// `sqlite::memory:`) and brings its schema up to date.
+    pub async fn open(url: &str) -> Result<Queue> {
+        let opts = SqliteConnectOptions::from_str(url)
+            .map_err(|e| QueueError::Url {
+                url: url.to_string(),
+                reason: e.to_string(),
+            })?
+            .create_if_missing(true)
+            // WAL: readers (job lists, downloads) never block the writer, nor it them.
+            .journal_mode(SqliteJournalMode::Wal)
+            // NORMAL in WAL mode loses at most the last commits on power loss, never
+            // consistency; FULL would fsync on every claim.
+            .synchronous(SqliteSynchronous::Normal)
+            .busy_timeout(Duration::from_secs(10))
+            .foreign_keys(true);
+        let in_memory = url.contains(":memory:");
+        let pool = SqlitePoolOptions::new()
+            // An in-memory database exists once per connection: keep exactly one.
+            .max_connections(if in_memory { 1 } else { 8 })
+            .min_connections(1)
+            .idle_timeout(None)
+            .max_lifetime(None)
+            .connect_with(opts)
+            .await?;
+        MIGRATOR.run(&pool).await?;
+        Ok(Queue { pool })
+    }
+
+    /// Answers when the database does.
+    pub async fn ping(&self) -> Result<()> {
+        sqlx::query("SELECT 1").execute(&self.pool).await?;
+        Ok(())
+    }
+
+    /// Stores a job, its tiles and its assets in one transaction.
+    pub async fn insert_job(
+        &self,
+        job: &NewJob,
+        tiles: &[Rect],
+        assets: &[(String, Vec<u8>)],
+    ) -> Result<JobRow> {
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        sqlx::query(
+            "INSERT INTO jobs (id, seq, state, scene, name, width, height, tile, sampler, samples,
+                               threshold, tiles_total, created_at)
+             VALUES (?1, (SELECT COALESCE(MAX(seq), 0) + 1 FROM jobs), 'queued', ?2, ?3, ?4, ?5,
+                     ?6, ?7, ?8, ?9, ?10, ?11)",
+        )
+        .bind(&job.id)
+        .bind(&job.scene)
+        .bind(&job.name)
+        .bind(i64::from(job.width))
+        .bind(i64::from(job.height))
+        .bind(i64::from(job.tile))
+        .bind(&job.sampler)
+        .bind(job.samples.map(i64::from))
+        .bind(job.threshold)
+        .bind(tiles.len() as i64)
+        .bind(job.created_at)
+        .execute(&mut *tx)
+        .await?;
+        for (i, r) in tiles.iter().enumerate() {
+            sqlx::query(
+                "INSERT INTO tiles (job_id, idx, x, y, w, h, state) VALUES (?1, ?2, ?3, ?4, ?5, ?6, 'queued')",
+            )
+            .bind(&job.id)
+            .bind(i as i64)
+            .bind(i64::from(r.x))
+            .bind(i64::from(r.y))
+            .bind(i64::from(r.width))
+            .bind(i64::from(r.height))
+            .execute(&mut *tx)
+            .await?;
+        }
+        for (name, bytes) in assets {
+            sqlx::query("INSERT INTO assets (job_id, name, bytes) VALUES (?1, ?2, ?3)")
+                .bind(&job.id)
+                .bind(name)
+                .bind(bytes)
+                .execute(&mut *tx)
+                .await?;
+        }
+        tx.commit().await?;
+        self.job(&job.id).await?.ok_or_else(|| {
+            QueueError::Db(sqlx::Error::Protocol("job vanished after insert".into()))
+        })
+    }
+
+    /// Jobs, newest first.
+    pub async fn jobs(&self, limit: u32) -> Result<Vec<JobRow>> {
+        let sql = format!("SELECT {JOB_COLUMNS} FROM jobs ORDER BY seq DESC LIMIT ?1");
+        Ok(sqlx::query_as(sqlx::AssertSqlSafe(sql))
+            .bind(i64::from(limit))
+            .fetch_all(&self.pool)
+            .await?)
+    }
+
+    pub async fn job(&self, id: &str) -> Result<Option<JobRow>> {
+        let sql = format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1");
+        Ok(sqlx::query_as(sqlx::AssertSqlSafe(sql))
+            .bind(id)
+            .fetch_optional(&self.pool)
+            .await?)
+    }
+
+    /// Cancels a queued or running job (its tiles are no longer handed out and results for
+    /// it are refused) and drops its partial pixels. Returns the job's state before.
+    pub async fn cancel(&self, id: &str, now: i64) -> Result<Option<String>> {
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let before: Option<String> = sqlx::query_scalar("SELECT state FROM jobs WHERE id = ?1")
+            .bind(id)
+            .fetch_optional(&mut *tx)
+            .await?;
+        if matches!(before.as_deref(), Some("queued" | "running")) {
+            sqlx::query("UPDATE jobs SET state = 'cancelled', finished_at = ?2 WHERE id = ?1")
+                .bind(id)
+                .bind(now)
+                .execute(&mut *tx)
+                .await?;
+            sqlx::query("DELETE FROM tile_pixels WHERE job_id = ?1")
+                .bind(id)
+                .execute(&mut *tx)
+                .await?;
+        }
+        tx.commit().await?;
+        Ok(before)
+    }
+
+    /// Removes a finished job and everything stored for it.
+    pub async fn delete(&self, id: &str) -> Result<bool> {
+        let r = sqlx::query("DELETE FROM jobs WHERE id = ?1")
+            .bind(id)
+            .execute(&self.pool)
+            .await?;
+        Ok(r.rows_affected() > 0)
+    }
+
+    /// Hands the first queued tile of the oldest active job to `worker` under a new lease,
+    /// unless the worker is kept away from that job. One statement: see the module comment.
+    pub async fn claim(
+        &self,
+        worker: &str,
+        now: i64,
+        lease_ms: u64,
+        max_attempts: u32,
+    ) -> Result<Option<Claim>> {
+        let lease = uuid::Uuid::new_v4().simple().to_string();
+        let row = sqlx::query(
+            "UPDATE tiles SET state = 'leased', attempt = attempt + 1, lease = ?2, worker = ?1,
+                              lease_expires = ?3
+             WHERE rowid = (
+                 SELECT t.rowid FROM jobs j
+                 JOIN tiles t ON t.job_id = j.id AND t.state = 'queued'
+                 WHERE j.state IN ('queued', 'running') AND t.failures < ?5
+                   AND NOT EXISTS (SELECT 1 FROM keep_away k
+                                   WHERE k.job_id = j.id AND k.worker = ?1 AND k.until > ?4)
+                 ORDER BY j.seq, t.idx LIMIT 1)
+             RETURNING job_id, idx, x, y, w, h",
+        )
+        .bind(worker)
+        .bind(&lease)
+        .bind(now.saturating_add(lease_ms as i64))
+        .bind(now)
+        .bind(i64::from(max_attempts))
+        .fetch_optional(&self.pool)
+        .await?;
+        let Some(row) = row else { return Ok(None) };
+        let job: String = row.try_get(0)?;
+        let claim = Claim {
+            job: job.clone(),
+            idx: row.try_get::<i64, _>(1)? as u32,
+            x: row.try_get::<i64, _>(2)? as u32,
+            y: row.try_get::<i64, _>(3)? as u32,
+            w: row.try_get::<i64, _>(4)? as u32,
+            h: row.try_get::<i64, _>(5)? as u32,
+            lease,
+            lease_ms,
+        };
+        sqlx::query(
+            "UPDATE jobs SET state = 'running', started_at = ?2 WHERE id = ?1 AND state = 'queued'",
+        )
+        .bind(&job)
+        .bind(now)
+        .execute(&self.pool)
+        .await?;
+        Ok(Some(claim))
+    }
+
+    /// Extends a lease that is still current.
+    pub async fn renew(
+        &self,
+        job: &str,
+        idx: u32,
+        lease: &str,
+        now: i64,
+        lease_ms: u64,
+    ) -> Result<bool> {
+        let r = sqlx::query(
+            "UPDATE tiles SET lease_expires = ?4
+             WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'
+               AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
+        )
+        .bind(job)
+        .bind(i64::from(idx))
+        .bind(lease)
+        .bind(now.saturating_add(lease_ms as i64))
+        .execute(&self.pool)
+        .await?;
+        Ok(r.rows_affected() == 1)
+    }
+
+    /// A tile's rectangle, state and lease, with its job's state.
+    pub async fn tile(&self, job: &str, idx: u32) -> Result<Option<TileInfo>> {
+        let row = sqlx::query(
+            "SELECT t.x, t.y, t.w, t.h, t.state, t.lease, j.state, t.worker FROM tiles t
+             JOIN jobs j ON j.id = t.job_id WHERE t.job_id = ?1 AND t.idx = ?2",
+        )
+        .bind(job)
+        .bind(i64::from(idx))
+        .fetch_optional(&self.pool)
+        .await?;
+        let Some(row) = row else { return Ok(None) };
+        let u = |i: usize| row.try_get::<i64, _>(i).map(|v| v as u32);
+        Ok(Some(TileInfo {
+            rect: Rect::new(u(0)?, u(1)?, u(2)?, u(3)?),
+            state: row.try_get(4)?,
+            lease: row.try_get(5)?,
+            job_state: row.try_get(6)?,
+            worker: row.try_get(7)?,
+        }))
+    }
+
+    /// Stores a tile's pixels if `lease` is its current lease and its job is active. The
+    /// caller has checked the pixels against the tile.
+    pub async fn complete(
+        &self,
+        job: &str,
+        idx: u32,
+        lease: &str,
+        rgb: &[u8],
+    ) -> Result<Completion> {
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let r = sqlx::query(
+            "UPDATE tiles SET state = 'done', lease_expires = NULL
+             WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'
+               AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
+        )
+        .bind(job)
+        .bind(i64::from(idx))
+        .bind(lease)
+        .execute(&mut *tx)
+        .await?;
+        if r.rows_affected() == 0 {
+            let row: Option<(String, Option<String>, String)> = sqlx::query_as(
+                "SELECT t.state, t.lease, j.state FROM tiles t JOIN jobs j ON j.id = t.job_id
+                 WHERE t.job_id = ?1 AND t.idx = ?2",
+            )
+            .bind(job)
+            .bind(i64::from(idx))
+            .fetch_optional(&mut *tx)
+            .await?;
+            tx.rollback().await?;
+            return Ok(match row {
+                Some((state, Some(l), _)) if state == "done" && l == lease => Completion::Repeat,
+                Some((_, _, job_state)) if !matches!(job_state.as_str(), "queued" | "running") => {
+                    Completion::Stale(format!("the job is {job_state}"))
+                }
+                Some(_) => Completion::Stale(
+                    "this lease is no longer current (it expired or was given back)".into(),
+                ),
+                None => Completion::Stale("no such tile".into()),
+            });
+        }
+        sqlx::query("INSERT INTO tile_pixels (job_id, idx, rgb) VALUES (?1, ?2, ?3)")
+            .bind(job)
+            .bind(i64::from(idx))
+            .bind(rgb)
+            .execute(&mut *tx)
+            .await?;
+        let (done, total): (i64, i64) = sqlx::query_as(
+            "UPDATE jobs SET tiles_done = tiles_done + 1 WHERE id = ?1 RETURNING tiles_done, tiles_total",
+        )
+        .bind(job)
+        .fetch_one(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        Ok(Completion::Stored {
+            last: done == total,
+        })
+    }
+
+    /// A worker reports that it cannot render a tile: requeue it with one more failure,
+    /// count the failure against the worker (keeping it away from the job past the policy's
+    /// limit) and fail the job if the tile is out of attempts. False when the lease is stale.
+    #[allow(clippy::too_many_arguments)]
+    pub async fn fail_tile(
+        &self,
+        job: &str,
+        idx: u32,
+        lease: &str,
+        worker: &str,
+        reason: &str,
+        now: i64,
+        max_attempts: u32,
+        keep: KeepAway,
+    ) -> Result<bool> {
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let r = sqlx::query(
+            "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL,
+                              failures = failures + 1, last_error = ?4
+             WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'",
+        )
+        .bind(job)
+        .bind(i64::from(idx))
+        .bind(lease)
+        .bind(format!("worker {worker}: {reason}"))
+        .execute(&mut *tx)
+        .await?;
+        if r.rows_affected() == 0 {
+            tx.rollback().await?;
+            return Ok(false);
+        }
+        sqlx::query(
+            "INSERT INTO keep_away (job_id, worker, failures, until) VALUES (?1, ?2, 1, 0)
+             ON CONFLICT (job_id, worker) DO UPDATE SET failures = failures + 1",
+        )
+        .bind(job)
+        .bind(worker)
+        .execute(&mut *tx)
+        .await?;
+        Self::apply_keep_away(&mut tx, now, keep).await?;
+        Self::fail_exhausted(&mut tx, now, max_attempts).await?;
+        tx.commit().await?;
+        Ok(true)
+    }
+
+    /// Gives a tile back unrendered (a worker shutting down): no failure is counted.
+    pub async fn release(&self, job: &str, idx: u32, lease: &str) -> Result<bool> {
+        let r = sqlx::query(
+            "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL
+             WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'",
+        )
+        .bind(job)
+        .bind(i64::from(idx))
+        .bind(lease)
+        .execute(&self.pool)
+        .await?;
+        Ok(r.rows_affected() == 1)
+    }
+
+    /// Requeues tiles whose lease expired (one failure each, counted against their worker
+    /// too) and fails jobs with a tile out of attempts. Returns the number of tiles requeued.
+    pub async fn reap(&self, now: i64, max_attempts: u32, keep: KeepAway) -> Result<u64> {
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        sqlx::query(
+            "INSERT INTO keep_away (job_id, worker, failures, until)
+             SELECT job_id, worker, 1, 0 FROM tiles
+             WHERE state = 'leased' AND lease_expires < ?1 AND worker IS NOT NULL
+             ON CONFLICT (job_id, worker) DO UPDATE SET failures = failures + 1",
+        )
+        .bind(now)
+        .execute(&mut *tx)
+        .await?;
+        let requeued = sqlx::query(
+            "UPDATE tiles SET state = 'queued', failures = failures + 1,
+                              last_error = 'lease lost: worker ' || COALESCE(worker, '?') || ' stopped answering',
+                              lease = NULL, worker = NULL, lease_expires = NULL
+             WHERE state = 'leased' AND lease_expires < ?1",
+        )
+        .bind(now)
+        .execute(&mut *tx)
+        .await?
+        .rows_affected();
+        if requeued > 0 {
+            Self::apply_keep_away(&mut tx, now, keep).await?;
+            Self::fail_exhausted(&mut tx, now, max_attempts).await?;
+        }
+        tx.commit().await?;
+        Ok(requeued)
+    }
+
+    async fn apply_keep_away(
+        tx: &mut sqlx::Transaction<'static, sqlx::Sqlite>,
+        now: i64,
+        keep: KeepAway,
+    ) -> Result<()> {
+        sqlx::query("UPDATE keep_away SET until = ?1, failures = 0 WHERE failures >= ?2")
+            .bind(now.saturating_add(keep.for_ms))
+            .bind(i64::from(keep.after.max(1)))
+            .execute(&mut **tx)
+            .await?;
+        Ok(())
+    }
+
+    async fn fail_exhausted(
+        tx: &mut sqlx::Transaction<'static, sqlx::Sqlite>,
+        now: i64,
+        max_attempts: u32,
+    ) -> Result<()> {
+        sqlx::query(
+            "UPDATE jobs SET state = 'failed', finished_at = ?1,
+                 error = (SELECT 'tile ' || t.idx || ' (' || t.w || '×' || t.h || ' at ' || t.x || ','
+                                 || t.y || ') failed ' || t.failures || ' times; last: '
+                                 || COALESCE(t.last_error, 'unknown')
+                          FROM tiles t WHERE t.job_id = jobs.id AND t.state = 'queued'
+                            AND t.failures >= ?2 LIMIT 1)
+             WHERE state IN ('queued', 'running') AND EXISTS (
+                 SELECT 1 FROM tiles t WHERE t.job_id = jobs.id AND t.state = 'queued'
+                   AND t.failures >= ?2)",
+        )
+        .bind(now)
+        .bind(i64::from(max_attempts))
+        .execute(&mut **tx)
+        .await?;
+        sqlx::query(
+            "DELETE FROM tile_pixels WHERE job_id IN (SELECT id FROM jobs WHERE state = 'failed')",
+        )
+        .execute(&mut **tx)
+        .await?;
+        Ok(())
+    }
+
+    /// After a restart: every live lease gets a fresh `lease_ms`, so workers that rode
+    /// through the outage can still post what they rendered.
+    pub async fn extend_leases(&self, now: i64, lease_ms: u64) -> Result<u64> {
+        let r = sqlx::query("UPDATE tiles SET lease_expires = ?1 WHERE state = 'leased'")
+            .bind(now.saturating_add(lease_ms as i64))
+            .execute(&self.pool)
+            .await?;
+        Ok(r.rows_affected())
+    }
+
+    /// Jobs whose tiles are all in but whose image is not yet assembled (after a restart).
+    pub async fn unassembled(&self) -> Result<Vec<String>> {
+        Ok(sqlx::query_scalar(
+            "SELECT id FROM jobs WHERE state IN ('queued', 'running') AND tiles_done = tiles_total
+             ORDER BY seq",
+        )
+        .fetch_all(&self.pool)
+        .await?)
+    }
+
+    /// The scene, sampler settings and asset names of a job.
+    pub async fn job_scene(&self, id: &str) -> Result<Option<JobScene>> {
+        let row: Option<(String, String, Option<String>, Option<i64>, Option<f64>)> =
+            sqlx::query_as(
+                "SELECT state, scene, sampler, samples, threshold FROM jobs WHERE id = ?1",
+            )
+            .bind(id)
+            .fetch_optional(&self.pool)
+            .await?;
+        let Some((state, scene, sampler, samples, threshold)) = row else {
+            return Ok(None);
+        };
+        let assets = sqlx::query_scalar("SELECT name FROM assets WHERE job_id = ?1 ORDER BY name")
+            .bind(id)
+            .fetch_all(&self.pool)
+            .await?;
+        Ok(Some(JobScene {
+            state,
+            scene,
+            sampler,
+            samples: samples.map(|s| s as u32),
+            threshold,
+            assets,
+        }))
+    }
+
+    pub async fn asset(&self, id: &str, name: &str) -> Result<Option<Vec<u8>>> {
+        Ok(
+            sqlx::query_scalar("SELECT bytes FROM assets WHERE job_id = ?1 AND name = ?2")
+                .bind(id)
+                .bind(name)
+                .fetch_optional(&self.pool)
+                .await?,
+        )
+    }
+
+    /// The stored tiles of one band of rows starting at `y`, left to right:
+    /// `(x, w, h, rgb)`.
+    pub async fn band(&self, id: &str, y: u32) -> Result<Vec<(u32, u32, u32, Vec<u8>)>> {
+        let rows: Vec<(i64, i64, i64, Vec<u8>)> = sqlx::query_as(
+            "SELECT t.x, t.w, t.h, p.rgb FROM tiles t
+             JOIN tile_pixels p ON p.job_id = t.job_id AND p.idx = t.idx
+             WHERE t.job_id = ?1 AND t.y = ?2 ORDER BY t.x",
+        )
+        .bind(id)
+        .bind(i64::from(y))
+        .fetch_all(&self.pool)
+        .await?;
+        Ok(rows
+            .into_iter()
+            .map(|(x, w, h, rgb)| (x as u32, w as u32, h as u32, rgb))
+            .collect())
+    }
+
+    pub async fn clear_image(&self, id: &str) -> Result<()> {
+        sqlx::query("DELETE FROM image_chunks WHERE job_id = ?1")
+            .bind(id)
+            .execute(&self.pool)
+            .await?;
+        Ok(())
+    }
+
+    pub async fn put_image_chunk(&self, id: &str, seq: u32, bytes: &[u8]) -> Result<()> {
+        sqlx::query("INSERT INTO image_chunks (job_id, seq, bytes) VALUES (?1, ?2, ?3)")
+            .bind(id)
+            .bind(i64::from(seq))
+            .bind(bytes)
+            .execute(&self.pool)
+            .await?;
+        Ok(())
+    }
+
+    /// Marks an assembled job done and drops its tile pixels. False (and the image dropped)
+    /// when the job was cancelled meanwhile.
+    pub async fn finish_image(&self, id: &str, png_bytes: u64, now: i64) -> Result<bool> {
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let r = sqlx::query(
+            "UPDATE jobs SET state = 'done', finished_at = ?2, png_bytes = ?3
+             WHERE id = ?1 AND state IN ('queued', 'running') AND tiles_done = tiles_total",
+        )
+        .bind(id)
+        .bind(now)
+        .bind(png_bytes as i64)
+        .execute(&mut *tx)
+        .await?;
+        let done = r.rows_affected() == 1;
+        if !done {
+            sqlx::query("DELETE FROM image_chunks WHERE job_id = ?1")
+                .bind(id)
+                .execute(&mut *tx)
+                .await?;
+        }
+        sqlx::query("DELETE FROM tile_pixels WHERE job_id = ?1")
+            .bind(id)
+            .execute(&mut *tx)
+            .await?;
+        tx.commit().await?;
+        Ok(done)
+    }
+
+    /// Fails a job whose image could not be assembled.
+    pub async fn fail_job(&self, id: &str, reason: &str, now: i64) -> Result<()> {
+        sqlx::query(
+            "UPDATE jobs SET state = 'failed', error = ?2, finished_at = ?3
+             WHERE id = ?1 AND state IN ('queued', 'running')",
+        )
+        .bind(id)
+        .bind(reason)
+        .bind(now)
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+
+    /// The number of chunks of a job's PNG.
+    pub async fn image_chunks(&self, id: &str) -> Result<u32> {
+        let n: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM image_chunks WHERE job_id = ?1")
+            .bind(id)
+            .fetch_one(&self.pool)
+            .await?;
+        Ok(n as u32)
+    }
+
+    pub async fn image_chunk(&self, id: &str, seq: u32) -> Result<Option<Vec<u8>>> {
+        Ok(
+            sqlx::query_scalar("SELECT bytes FROM image_chunks WHERE job_id = ?1 AND seq = ?2")
+                .bind(id)
+                .bind(i64::from(seq))
+                .fetch_optional(&self.pool)
+                .await?,
+        )
+    }
+}

@@ -1,0 +1,180 @@
+//! The worker routes: claim a tile, fetch a job's scene and assets, renew a lease, post a
+//! result, report a failure, give a tile back. See `docs/PROTOCOL.md`.
+//!
+//! Every tile route takes the lease token as `?lease=`; the queue applies it only while the
+//! token is the tile's current lease. Blobs are checked against the tile before storage.
+
+use axum::Json;
+use axum::body::Bytes;
+use axum::extract::{Path, Query, State};
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
+use serde::Deserialize;
+use tessera_worker::protocol::{
+    Accepted, ClaimRequest, FailRequest, JobSpec, Renewed, decode_tile,
+};
+
+use crate::error::{ApiError, ok_json};
+use crate::queue::Completion;
+use crate::{AppState, now_ms};
+
+#[derive(Debug, Deserialize)]
+pub struct LeaseParam {
+    pub lease: String,
+}
+
+fn worker_name(name: &str) -> Result<&str, ApiError> {
+    if name.is_empty() || name.len() > 200 || name.chars().any(char::is_control) {
+        return Err(ApiError::bad_request(
+            "worker name must be 1 to 200 printable characters",
+        ));
+    }
+    Ok(name)
+}
+
+pub async fn claim(
+    State(state): State<AppState>,
+    Json(req): Json<ClaimRequest>,
+) -> Result<Response, ApiError> {
+    let name = worker_name(&req.worker)?;
+    let claimed = state
+        .queue
+        .claim(name, now_ms(), state.cfg.lease_ms, state.cfg.max_attempts)
+        .await?;
+    state.seen(name, |w| w.claims += u64::from(claimed.is_some()));
+    Ok(match claimed {
+        Some(c) => ok_json(c).into_response(),
+        None => StatusCode::NO_CONTENT.into_response(),
+    })
+}
+
+pub async fn job(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let js = state
+        .queue
+        .job_scene(&id)
+        .await?
+        .ok_or_else(|| ApiError::not_found(format_args!("job `{id}`")))?;
+    if !matches!(js.state.as_str(), "queued" | "running") {
+        return Err(ApiError::new(
+            StatusCode::GONE,
+            format!("job `{id}` is {}", js.state),
+        ));
+    }
+    Ok(ok_json(JobSpec {
+        id,
+        scene: js.scene,
+        sampler: js.sampler,
+        samples: js.samples,
+        threshold: js.threshold,
+        assets: js.assets,
+    }))
+}
+
+pub async fn asset(
+    State(state): State<AppState>,
+    Path((id, name)): Path<(String, String)>,
+) -> Result<Vec<u8>, ApiError> {
+    state
+        .queue
+        .asset(&id, &name)
+        .await?
+        .ok_or_else(|| ApiError::not_found(format_args!("asset `{name}` in job `{id}`")))
+}
+
+pub async fn renew(
+    State(state): State<AppState>,
+    Path((id, idx)): Path<(String, u32)>,
+    Query(q): Query<LeaseParam>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    if state
+        .queue
+        .renew(&id, idx, &q.lease, now_ms(), state.cfg.lease_ms)
+        .await?
+    {
+        Ok(ok_json(Renewed {
+            lease_ms: state.cfg.lease_ms,
+        }))
+    } else {
+        Err(ApiError::conflict("this lease is no longer current"))
+    }
+}
+
+/// `PUT /worker/jobs/{id}/tiles/{idx}?lease=`: the tile blob. `200` stored (or a harmless
+/// repeat from the same lease), `409` from a lease that is not current, `422` for a blob
+/// that is not this tile's.
+pub async fn result(
+    State(state): State<AppState>,
+    Path((id, idx)): Path<(String, u32)>,
+    Query(q): Query<LeaseParam>,
+    body: Bytes,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let tile = state
+        .queue
+        .tile(&id, idx)
+        .await?
+        .ok_or_else(|| ApiError::not_found(format_args!("tile {idx} of job `{id}`")))?;
+    if tile.lease.as_deref() != Some(q.lease.as_str()) {
+        return Err(ApiError::conflict(
+            "this lease is no longer current (it expired or was given back)",
+        ));
+    }
+    let rgb = decode_tile(&body, tile.rect)
+        .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
+    let outcome = state.queue.complete(&id, idx, &q.lease, rgb).await?;
+    match outcome {
+        Completion::Stored { last } => {
+            if let Some(worker) = &tile.worker {
+                state.seen(worker, |w| w.tiles_done += 1);
+            }
+            if last {
+                state.spawn_assembly(id);
+            }
+            Ok(ok_json(Accepted { repeat: false }))
+        }
+        Completion::Repeat => Ok(ok_json(Accepted { repeat: true })),
+        Completion::Stale(why) => Err(ApiError::conflict(why)),
+    }
+}
+
+pub async fn fail(
+    State(state): State<AppState>,
+    Path((id, idx)): Path<(String, u32)>,
+    Query(q): Query<LeaseParam>,
+    Json(req): Json<FailRequest>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let worker = worker_name(&req.worker)?;
+    let reason: String = req.reason.chars().take(1000).collect();
+    let ok = state
+        .queue
+        .fail_tile(
+            &id,
+            idx,
+            &q.lease,
+            worker,
+            &reason,
+            now_ms(),
+            state.cfg.max_attempts,
+            state.keep_away(),
+        )
+        .await?;
+    if ok {
+        Ok(ok_json(serde_json::json!({ "requeued": true })))
+    } else {
+        Err(ApiError::conflict("this lease is no longer current"))
+    }
+}
+
+pub async fn release(
+    State(state): State<AppState>,
+    Path((id, idx)): Path<(String, u32)>,
+    Query(q): Query<LeaseParam>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    if state.queue.release(&id, idx, &q.lease).await? {
+        Ok(ok_json(serde_json::json!({ "requeued": true })))
+    } else {
+        Err(ApiError::conflict("this lease is no longer current"))
+    }
+}

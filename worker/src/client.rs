@@ -1,0 +1,257 @@
+//! The worker's HTTP client for the service's worker routes: one method per route, typed
+//! answers, and errors that say whether trying again later can help.
+//!
+//! It does not decide when to retry or back off; that is the worker loop's business.
+
+use std::time::Duration;
+
+use reqwest::{StatusCode, Url};
+
+use crate::protocol::{Accepted, Claim, ClaimRequest, FailRequest, JobSpec, Renewed};
+
+/// Why a request to the service did not give a usable answer.
+#[derive(Debug, thiserror::Error)]
+pub enum ClientError {
+    #[error("bad service URL `{0}`")]
+    BadUrl(String),
+    #[error("cannot reach the service: {0}")]
+    Unreachable(#[source] reqwest::Error),
+    #[error("the service refused this worker's token (401); check --token")]
+    Unauthorized,
+    #[error("{what}: the service answered {status}: {body}")]
+    Status {
+        what: &'static str,
+        status: u16,
+        body: String,
+    },
+    #[error("{what}: unreadable answer: {source}")]
+    Decode {
+        what: &'static str,
+        #[source]
+        source: reqwest::Error,
+    },
+}
+
+impl ClientError {
+    /// Whether waiting and trying again may help (the service is down or busy), as opposed
+    /// to a refusal that will not change.
+    pub fn is_transient(&self) -> bool {
+        match self {
+            ClientError::Unreachable(_) => true,
+            ClientError::Status { status, .. } => *status >= 500 || *status == 429,
+            _ => false,
+        }
+    }
+}
+
+/// What became of a posted tile.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Posted {
+    /// Stored (or, `repeat`, already stored from this lease).
+    Accepted { repeat: bool },
+    /// Refused because the lease is no longer ours (expired and handed out again, or the job
+    /// was cancelled): the tile is someone else's business now.
+    Stale(String),
+}
+
+/// A client for one service.
+#[derive(Debug, Clone)]
+pub struct Client {
+    http: reqwest::Client,
+    base: Url,
+    token: Option<String>,
+}
+
+type Result<T> = std::result::Result<T, ClientError>;
+
+impl Client {
+    pub fn new(server: &str, token: Option<String>) -> Result<Client> {
+        let mut base = Url::parse(server).map_err(|_| ClientError::BadUrl(server.to_string()))?;
+        if !matches!(base.scheme(), "http" | "https") || base.cannot_be_a_base() {
+            return Err(ClientError::BadUrl(server.to_string()));
+        }
+        if !base.path().ends_with('/') {
+            let p = format!("{}/", base.path());
+            base.set_path(&p);
+        }
+        let http = reqwest::Client::builder()
+            .connect_timeout(Duration::from_secs(5))
+            .timeout(Duration::from_secs(120))
+            .build()
+            .map_err(ClientError::Unreachable)?;
+        Ok(Client { http, base, token })
+    }
+
+    /// `segments` are appended to the base URL, each percent-encoded as one path segment.
+    fn url(&self, segments: &[&str], lease: Option<&str>) -> Url {
+        let mut url = self.base.clone();
+        {
+            // The base was checked to be a hierarchical http(s) URL in `new`, so it has
+            // path segments.
+            let mut path = url
+                .path_segments_mut()
+                .expect("checked in Client::new: base URL can be a base");
+            path.pop_if_empty();
+            for s in segments {
+                path.push(s);
+            }
+        }
+        if let Some(lease) = lease {
+            url.query_pairs_mut().append_pair("lease", lease);
+        }
+        url
+    }
+
+    fn auth(&self, req: reqwest::RequestBuilder) -> reqwest::RequestBuilder {
+        match &self.token {
+            Some(t) => req.bearer_auth(t),
+            None => req,
+        }
+    }
+
+    async fn send(&self, req: reqwest::RequestBuilder) -> Result<reqwest::Response> {
+        let resp = self
+            .auth(req)
+            .send()
+            .await
+            .map_err(ClientError::Unreachable)?;
+        if resp.status() == StatusCode::UNAUTHORIZED {
+            return Err(ClientError::Unauthorized);
+        }
+        Ok(resp)
+    }
+
+    async fn fail_status(what: &'static str, resp: reqwest::Response) -> ClientError {
+        let status = resp.status().as_u16();
+        let body = resp.text().await.unwrap_or_default();
+        ClientError::Status { what, status, body }
+    }
+
+    /// Claims the next tile; `None` when there is no work.
+    pub async fn claim(&self, worker: &str) -> Result<Option<Claim>> {
+        let what = "claim";
+        let req = self
+            .http
+            .post(self.url(&["worker", "claim"], None))
+            .json(&ClaimRequest {
+                worker: worker.to_string(),
+            });
+        let resp = self.send(req).await?;
+        match resp.status() {
+            StatusCode::NO_CONTENT => Ok(None),
+            StatusCode::OK => resp
+                .json()
+                .await
+                .map(Some)
+                .map_err(|source| ClientError::Decode { what, source }),
+            _ => Err(Self::fail_status(what, resp).await),
+        }
+    }
+
+    /// The job's scene and sampler settings.
+    pub async fn job(&self, job: &str) -> Result<JobSpec> {
+        let what = "fetch job";
+        let resp = self
+            .send(self.http.get(self.url(&["worker", "jobs", job], None)))
+            .await?;
+        if resp.status() != StatusCode::OK {
+            return Err(Self::fail_status(what, resp).await);
+        }
+        resp.json()
+            .await
+            .map_err(|source| ClientError::Decode { what, source })
+    }
+
+    /// One of the job's assets (a texture file).
+    pub async fn asset(&self, job: &str, name: &str) -> Result<Vec<u8>> {
+        let what = "fetch asset";
+        let url = self.url(&["worker", "jobs", job, "assets", name], None);
+        let resp = self.send(self.http.get(url)).await?;
+        if resp.status() != StatusCode::OK {
+            return Err(Self::fail_status(what, resp).await);
+        }
+        resp.bytes()
+            .await
+            .map(|b| b.to_vec())
+            .map_err(|source| ClientError::Decode { what, source })
+    }
+
+    fn tile_url(&self, c: &Claim, action: Option<&str>) -> Url {
+        let idx = c.idx.to_string();
+        let mut segs = vec!["worker", "jobs", c.job.as_str(), "tiles", idx.as_str()];
+        segs.extend(action);
+        self.url(&segs, Some(&c.lease))
+    }
+
+    /// Extends the lease; `Ok(false)` when it is no longer ours.
+    pub async fn renew(&self, c: &Claim) -> Result<bool> {
+        let what = "renew lease";
+        let resp = self
+            .send(self.http.post(self.tile_url(c, Some("renew"))))
+            .await?;
+        match resp.status() {
+            StatusCode::OK => {
+                let _: Renewed = resp
+                    .json()
+                    .await
+                    .map_err(|source| ClientError::Decode { what, source })?;
+                Ok(true)
+            }
+            StatusCode::CONFLICT | StatusCode::NOT_FOUND => Ok(false),
+            _ => Err(Self::fail_status(what, resp).await),
+        }
+    }
+
+    /// Posts a tile blob (see [`crate::protocol::encode_tile`]).
+    pub async fn post_tile(&self, c: &Claim, blob: Vec<u8>) -> Result<Posted> {
+        let what = "post tile";
+        let req = self
+            .http
+            .put(self.tile_url(c, None))
+            .header(reqwest::header::CONTENT_TYPE, "application/octet-stream")
+            .body(blob);
+        let resp = self.send(req).await?;
+        match resp.status() {
+            StatusCode::OK => {
+                let a: Accepted = resp
+                    .json()
+                    .await
+                    .map_err(|source| ClientError::Decode { what, source })?;
+                Ok(Posted::Accepted { repeat: a.repeat })
+            }
+            StatusCode::CONFLICT | StatusCode::NOT_FOUND => {
+                Ok(Posted::Stale(resp.text().await.unwrap_or_default()))
+            }
+            _ => Err(Self::fail_status(what, resp).await),
+        }
+    }
+
+    /// Reports that this worker could not render the tile.
+    pub async fn fail(&self, c: &Claim, worker: &str, reason: &str) -> Result<()> {
+        let what = "report failure";
+        let req = self
+            .http
+            .post(self.tile_url(c, Some("fail")))
+            .json(&FailRequest {
+                worker: worker.to_string(),
+                reason: reason.to_string(),
+            });
+        let resp = self.send(req).await?;
+        match resp.status() {
+            StatusCode::OK | StatusCode::CONFLICT | StatusCode::NOT_FOUND => Ok(()),
+            _ => Err(Self::fail_status(what, resp).await),
+        }
+    }
+
+    /// Gives the tile back unrendered, without counting it as a failure (shutdown).
+    pub async fn release(&self, c: &Claim) -> Result<()> {
+        let what = "release tile";
+        let resp = self
+            .send(self.http.post(self.tile_url(c, Some("release"))))
+            .await?;
+        match resp.status() {
+            StatusCode::OK | StatusCode::CONFLICT | StatusCode::NOT_FOUND => Ok(()),
+            _ => Err(Self::fail_status(what, resp).await),
+        }
+    }
+}
