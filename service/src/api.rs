@@ -262,7 +262,8 @@ async fn read_multipart(
         .await
         .map_err(|e| ApiError::new(e.status(), e.body_text()))?
     {
-        let field_name = field.name().unwrap_or_default().to_string();
+        // Some clients (reqwest among them) percent-encode part names: `textures%2Fglobe.png`.
+        let field_name = percent_decode(field.name().unwrap_or_default());
         let fname = field.file_name().map(str::to_string);
         let bytes = field
             .bytes()
@@ -292,6 +293,27 @@ async fn read_multipart(
         ApiError::bad_request("multipart body has no `scene` part (curl -F scene=@file.ray)")
     })?;
     Ok((scene, file_name, uploads))
+}
+
+/// Decodes `%XX` escapes; anything malformed is kept as written.
+fn percent_decode(s: &str) -> String {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        let hex = |c: u8| (c as char).to_digit(16);
+        if b[i] == b'%'
+            && i + 2 < b.len()
+            && let (Some(h), Some(l)) = (hex(b[i + 1]), hex(b[i + 2]))
+        {
+            out.push((h * 16 + l) as u8);
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).unwrap_or_else(|_| s.to_string())
 }
 
 /// Asset names are names, not paths: relative, `/`-separated, no `.` or `..` segments, no
@@ -364,11 +386,23 @@ async fn validate(
                 .with("column", pos.column));
             }
         }
-        let mut assets = MemoryAssets::new();
-        for (n, bytes) in &uploads {
-            if used.contains(n) {
-                assets.insert(n.clone(), bytes.clone());
+        // Each texture the scene names gets the upload of that name or, failing that, the
+        // one upload whose name is its file name (`textures/globe.png` ← `globe.png`: many
+        // clients send only file names).
+        let mut kept: Uploads = Vec::new();
+        for n in &used {
+            let base = n.rsplit('/').next().unwrap_or(n);
+            let found = uploads
+                .iter()
+                .find(|(u, _)| u == n)
+                .or_else(|| uploads.iter().find(|(u, _)| u == base));
+            if let Some((_, bytes)) = found {
+                kept.push((n.clone(), bytes.clone()));
             }
+        }
+        let mut assets = MemoryAssets::new();
+        for (n, bytes) in &kept {
+            assets.insert(n.clone(), bytes.clone());
         }
         Scene::build(&desc, &assets, &texture_limits).map_err(|e| {
             let missing: Vec<&str> = desc
@@ -384,11 +418,6 @@ async fn validate(
                 err.with("missing_assets", missing)
             }
         })?;
-        // Only assets the scene uses are kept.
-        let kept: Uploads = uploads
-            .into_iter()
-            .filter(|(n, _)| used.contains(n))
-            .collect();
         Ok::<_, ApiError>((source, desc.width, desc.height, kept))
     })
     .await
@@ -411,4 +440,36 @@ async fn validate(
     };
     let rects = tiles(width, height, tile);
     Ok((job, rects, kept))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{check_asset_name, percent_decode};
+
+    #[test]
+    fn part_names_are_percent_decoded() {
+        assert_eq!(percent_decode("textures%2Fglobe.png"), "textures/globe.png");
+        assert_eq!(percent_decode("a%2"), "a%2");
+        assert_eq!(percent_decode("100%"), "100%");
+        assert_eq!(percent_decode("plain.ppm"), "plain.ppm");
+    }
+
+    #[test]
+    fn asset_names_cannot_be_paths_out() {
+        for bad in [
+            "",
+            "/etc/passwd",
+            "../x.png",
+            "a/../../b",
+            "a\\b",
+            "./a",
+            "a//b",
+            "x\u{0}",
+        ] {
+            assert!(check_asset_name(bad).is_err(), "{bad:?}");
+        }
+        for good in ["globe.png", "textures/globe.png", "a b.ppm"] {
+            assert!(check_asset_name(good).is_ok(), "{good:?}");
+        }
+    }
 }

@@ -9,6 +9,7 @@
 pub mod api;
 pub mod assemble;
 pub mod auth;
+pub mod cli;
 pub mod config;
 pub mod error;
 pub mod queue;
@@ -74,6 +75,18 @@ impl AppState {
             });
         entry.last_seen = now_ms();
         f(entry);
+    }
+
+    /// Workers heard from within a lease period (plus slack for idle polling).
+    pub fn live_workers(&self) -> Vec<String> {
+        let cutoff = now_ms() - self.cfg.lease_ms as i64 - 5_000;
+        self.roster
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .values()
+            .filter(|w| w.last_seen >= cutoff)
+            .map(|w| w.name.clone())
+            .collect()
     }
 
     /// Assembles a job's PNG in the background once its last tile is in.
@@ -298,6 +311,12 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
             Ok(0) => {}
             Ok(n) => warn!("{n} expired leases: tiles handed out again"),
             Err(e) => warn!("reaping expired leases: {e}"),
+        }
+        let live = state.live_workers();
+        match state.queue.fail_unservable(&live, now_ms()).await {
+            Ok(0) => {}
+            Ok(n) => warn!("{n} jobs failed: every live worker is kept away from them"),
+            Err(e) => warn!("checking kept-away jobs: {e}"),
         }
     }
 }

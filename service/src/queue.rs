@@ -315,7 +315,7 @@ impl Queue {
         Ok(Some(claim))
     }
 
-    /// Extends a lease that is still current.
+    /// Extends a lease that is still current; returns its worker's name, `None` if stale.
     pub async fn renew(
         &self,
         job: &str,
@@ -323,19 +323,20 @@ impl Queue {
         lease: &str,
         now: i64,
         lease_ms: u64,
-    ) -> Result<bool> {
-        let r = sqlx::query(
+    ) -> Result<Option<String>> {
+        let worker: Option<Option<String>> = sqlx::query_scalar(
             "UPDATE tiles SET lease_expires = ?4
              WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'
-               AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
+               AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))
+             RETURNING worker",
         )
         .bind(job)
         .bind(i64::from(idx))
         .bind(lease)
         .bind(now.saturating_add(lease_ms as i64))
-        .execute(&self.pool)
+        .fetch_optional(&self.pool)
         .await?;
-        Ok(r.rows_affected() == 1)
+        Ok(worker.map(Option::unwrap_or_default))
     }
 
     /// A tile's rectangle, state and lease, with its job's state.
@@ -547,6 +548,47 @@ impl Queue {
         .execute(&mut **tx)
         .await?;
         Ok(())
+    }
+
+    /// Active jobs with queued work from which every one of `live` workers is kept away:
+    /// failed, since nothing would ever render them (Flamenco's rule). Returns how many.
+    pub async fn fail_unservable(&self, live: &[String], now: i64) -> Result<u64> {
+        if live.is_empty() {
+            return Ok(0);
+        }
+        let rows: Vec<(String, String)> = sqlx::query_as(
+            "SELECT k.job_id, k.worker FROM keep_away k JOIN jobs j ON j.id = k.job_id
+             WHERE k.until > ?1 AND j.state IN ('queued', 'running')",
+        )
+        .bind(now)
+        .fetch_all(&self.pool)
+        .await?;
+        let mut jobs: Vec<&str> = rows.iter().map(|(j, _)| j.as_str()).collect();
+        jobs.sort_unstable();
+        jobs.dedup();
+        let mut failed = 0;
+        for job in jobs {
+            let all_away = live
+                .iter()
+                .all(|w| rows.iter().any(|(j, k)| j == job && k == w));
+            if !all_away {
+                continue;
+            }
+            let r = sqlx::query(
+                "UPDATE jobs SET state = 'failed', finished_at = ?2,
+                     error = 'every available worker failed this job; last: ' || COALESCE(
+                         (SELECT last_error FROM tiles WHERE job_id = ?1 AND last_error IS NOT NULL
+                          ORDER BY failures DESC LIMIT 1), 'unknown')
+                 WHERE id = ?1 AND state IN ('queued', 'running')
+                   AND EXISTS (SELECT 1 FROM tiles WHERE job_id = ?1 AND state = 'queued')",
+            )
+            .bind(job)
+            .bind(now)
+            .execute(&self.pool)
+            .await?;
+            failed += r.rows_affected();
+        }
+        Ok(failed)
     }
 
     /// After a restart: every live lease gets a fresh `lease_ms`, so workers that rode

@@ -89,16 +89,18 @@ pub async fn renew(
     Path((id, idx)): Path<(String, u32)>,
     Query(q): Query<LeaseParam>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
-    if state
+    match state
         .queue
         .renew(&id, idx, &q.lease, now_ms(), state.cfg.lease_ms)
         .await?
     {
-        Ok(ok_json(Renewed {
-            lease_ms: state.cfg.lease_ms,
-        }))
-    } else {
-        Err(ApiError::conflict("this lease is no longer current"))
+        Some(worker) => {
+            state.seen(&worker, |_| {});
+            Ok(ok_json(Renewed {
+                lease_ms: state.cfg.lease_ms,
+            }))
+        }
+        None => Err(ApiError::conflict("this lease is no longer current")),
     }
 }
 

@@ -1,1 +1,2 @@
-
+//! End-to-end tests of the Tessera farm live in `tests/`; this crate's binaries are the
+//! service and worker programs those tests start as separate processes.

@@ -9,6 +9,7 @@
 //! It knows nothing of SQL or axum; the service runs the same loop in-process for its
 //! `--local-workers`, over the same HTTP protocol.
 
+pub mod cli;
 pub mod client;
 pub mod protocol;
 

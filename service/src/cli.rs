@@ -1,0 +1,34 @@
+//! The `tessera-service` command line: flags, logging, the runtime, errors at the edge.
+//! Kept in the library so that end-to-end tests can build the same program.
+
+use std::process::ExitCode;
+
+use clap::Parser;
+
+use crate::{Config, run, shutdown_signal};
+
+/// The program: parses flags, serves until SIGINT/SIGTERM, reports errors.
+pub fn main() -> ExitCode {
+    let cfg = Config::parse();
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| "info,sqlx=warn,tower_http=warn".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let runtime = match tokio::runtime::Runtime::new() {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("tessera-service: cannot start the async runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match runtime.block_on(run(cfg, shutdown_signal())) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("tessera-service: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

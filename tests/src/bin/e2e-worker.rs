@@ -1,0 +1,5 @@
+//! `tessera-worker`, built inside the test crate (see Cargo.toml).
+
+fn main() -> std::process::ExitCode {
+    tessera_worker::cli::main()
+}

@@ -1,0 +1,271 @@
+//! The farm end to end: a real `tessera-service` process with a real SQLite file, real
+//! `tessera-worker` processes, and HTTP requests as curl would send them.
+
+mod common;
+
+use std::time::Duration;
+
+use common::{Service, TempDir, Worker, client, examples, local_png};
+use serde_json::Value;
+
+const JOB_TIME: Duration = Duration::from_secs(120);
+
+fn read(name: &str) -> String {
+    std::fs::read_to_string(examples().join(name)).expect("example readable")
+}
+
+#[test]
+fn two_worker_processes_share_a_job_and_match_tessera_render() {
+    let dir = TempDir::new("share");
+    let svc = Service::start(&dir, &["--local-workers", "0"]);
+    let _a = Worker::start(&svc.url, "worker-a", &[]);
+    let _b = Worker::start(&svc.url, "worker-b", &[]);
+    let job = svc.submit(&read("thesis.ray"), "?tile=16&name=thesis.ray");
+    // Workers may claim its first tiles before the answer is even written.
+    assert!(
+        matches!(job["state"].as_str(), Some("queued" | "running")),
+        "{job}"
+    );
+    assert_eq!(job["tiles_total"], 40 * 30);
+    let id = job["id"].as_str().expect("job id");
+    let done = svc.wait_finished(id, JOB_TIME);
+    assert_eq!(done["state"], "done", "{done}");
+    assert_eq!(done["tiles_done"], done["tiles_total"]);
+    let png = svc.image(id);
+    assert!(
+        png == local_png(&examples().join("thesis.ray"), None, None),
+        "farm PNG differs from tessera-render's"
+    );
+    let workers = svc.get_json("/workers");
+    let done_by = |name: &str| {
+        workers
+            .as_array()
+            .and_then(|ws| ws.iter().find(|w| w["name"] == name))
+            .map_or(0, |w| w["tiles_done"].as_u64().unwrap_or(0))
+    };
+    assert!(
+        done_by("worker-a") > 0 && done_by("worker-b") > 0,
+        "{workers}"
+    );
+    assert_eq!(done_by("worker-a") + done_by("worker-b"), 1200);
+}
+
+#[test]
+fn multipart_scene_with_textures_matches_tessera_render() {
+    let dir = TempDir::new("multipart");
+    let svc = Service::start(&dir, &["--local-workers", "2"]);
+    let tex = examples().join("textures");
+    let form = reqwest::blocking::multipart::Form::new()
+        .file("scene", examples().join("textures.ray"))
+        .expect("scene file")
+        .file("textures/globe.png", tex.join("globe.png"))
+        .expect("texture")
+        .file("textures/tile.ppm", tex.join("tile.ppm"))
+        .expect("texture");
+    let r = client()
+        .post(format!("{}/jobs", svc.url))
+        .multipart(form)
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 201, "{}", r.text().unwrap_or_default());
+    let location = r.headers()["location"].to_str().expect("ascii").to_string();
+    let job: Value = r.json().expect("json");
+    assert_eq!(
+        location,
+        format!("/jobs/{}", job["id"].as_str().expect("id"))
+    );
+    assert_eq!(job["name"], "textures.ray");
+    let id = job["id"].as_str().expect("id");
+    assert_eq!(svc.wait_finished(id, JOB_TIME)["state"], "done");
+    assert!(svc.image(id) == local_png(&examples().join("textures.ray"), None, None));
+}
+
+#[test]
+fn a_job_can_override_the_scenes_sampler() {
+    let dir = TempDir::new("sampler");
+    let svc = Service::start(&dir, &["--local-workers", "2"]);
+    let scene = read("checker.ray");
+    let job = svc.submit(&scene, "?sampler=jitter&samples=2");
+    assert_eq!(job["sampler"], "jitter");
+    assert_eq!(job["samples"], 2);
+    let id = job["id"].as_str().expect("id");
+    assert_eq!(svc.wait_finished(id, JOB_TIME)["state"], "done");
+    let png = svc.image(id);
+    let path = examples().join("checker.ray");
+    assert!(png == local_png(&path, Some("jitter"), Some(2)));
+    assert!(
+        png != local_png(&path, None, None),
+        "the override changed nothing"
+    );
+
+    let bad = client()
+        .post(format!("{}/jobs?sampler=random", svc.url))
+        .body(scene)
+        .send()
+        .expect("answer");
+    assert_eq!(bad.status(), 400);
+    let body: Value = bad.json().expect("json");
+    assert!(
+        body["error"]
+            .as_str()
+            .unwrap_or("")
+            .contains("unknown sampler"),
+        "{body}"
+    );
+}
+
+#[test]
+fn bad_requests_get_json_errors_and_store_nothing() {
+    let dir = TempDir::new("errors");
+    let svc = Service::start(&dir, &["--local-workers", "0"]);
+    let http = client();
+    let post = |body: &str| {
+        http.post(format!("{}/jobs", svc.url))
+            .body(body.to_string())
+            .send()
+            .expect("answer")
+    };
+
+    // A misspelt key: 400 with its line and column.
+    let r = post("[GLOBALS]\nwidth = 8\nheigth = 6\n[/GLOBALS]\n");
+    assert_eq!(r.status(), 400);
+    let e: Value = r.json().expect("json");
+    assert_eq!(
+        (e["line"].as_u64(), e["column"].as_u64()),
+        (Some(3), Some(1)),
+        "{e}"
+    );
+    assert!(e["error"].as_str().unwrap_or("").contains("height"), "{e}");
+
+    // A texture that was not uploaded: 400 naming it.
+    let r = post(&read("textures.ray"));
+    assert_eq!(r.status(), 400);
+    let e: Value = r.json().expect("json");
+    assert!(
+        e["missing_assets"]
+            .to_string()
+            .contains("textures/globe.png"),
+        "{e}"
+    );
+
+    // A texture named by path: refused before any file system could be involved.
+    let r = post("[OBJECT]\ntype = sphere\nradius = 1\ntexture = ../../etc/passwd\n[/OBJECT]\n");
+    assert_eq!(r.status(), 400);
+
+    // Empty body, bad tile size, not UTF-8.
+    assert_eq!(post("").status(), 400);
+    let r = http
+        .post(format!("{}/jobs?tile=3", svc.url))
+        .body(read("thesis.ray"))
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 400);
+    let r = http
+        .post(format!("{}/jobs", svc.url))
+        .body(vec![0xff, 0xfe, 0x00])
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 400);
+
+    // Nothing was stored.
+    assert_eq!(svc.get_json("/jobs"), Value::Array(vec![]));
+
+    // Unknown job and unknown route: 404 JSON.
+    let r = svc.get("/jobs/does-not-exist");
+    assert_eq!(r.status(), 404);
+    assert!(r.json::<Value>().expect("json")["error"].is_string());
+    assert_eq!(svc.get("/jobs/does-not-exist/image.png").status(), 404);
+    assert_eq!(svc.get("/nothing-here").status(), 404);
+
+    // An image before the job is done: 409 saying how far it is.
+    let job = svc.submit(&read("thesis.ray"), "");
+    let id = job["id"].as_str().expect("id");
+    let r = svc.get(&format!("/jobs/{id}/image.png"));
+    assert_eq!(r.status(), 409);
+    let e: Value = r.json().expect("json");
+    assert_eq!(e["state"], "queued");
+    assert_eq!(e["tiles_done"], 0);
+
+    // Cancel: its tiles are no longer handed out.
+    let r = http
+        .delete(format!("{}/jobs/{id}", svc.url))
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 200);
+    assert_eq!(svc.get_json(&format!("/jobs/{id}"))["state"], "cancelled");
+    let claim = http
+        .post(format!("{}/worker/claim", svc.url))
+        .json(&serde_json::json!({"worker": "w"}))
+        .send()
+        .expect("answer");
+    assert_eq!(claim.status(), 204);
+    // Deleting a finished (here: cancelled) job removes it.
+    let r = http
+        .delete(format!("{}/jobs/{id}", svc.url))
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 204);
+    assert_eq!(svc.get(&format!("/jobs/{id}")).status(), 404);
+
+    assert_eq!(svc.get("/healthz").status(), 200);
+    let page = svc.get("/").text().expect("page");
+    assert!(page.contains("<form") && page.contains("/jobs"));
+}
+
+#[test]
+fn a_killed_workers_tile_is_handed_out_again() {
+    let dir = TempDir::new("killed");
+    let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "500"]);
+    let scene = read("thesis.ray");
+    let id = svc.submit(&scene, "?tile=64")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    let http = client();
+
+    // A worker that claims a tile and dies before posting it: the test holds its lease.
+    let r = http
+        .post(format!("{}/worker/claim", svc.url))
+        .json(&serde_json::json!({"worker": "doomed"}))
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 200);
+    let dead: Value = r.json().expect("claim");
+
+    // A real worker process, killed with SIGKILL once it has claimed.
+    let mut a = Worker::start(&svc.url, "killed", &[]);
+    common::wait_until("the worker's first claim", Duration::from_secs(30), || {
+        svc.get_json("/workers").as_array().is_some_and(|ws| {
+            ws.iter()
+                .any(|w| w["name"] == "killed" && w["claims"].as_u64() > Some(0))
+        })
+    });
+    a.kill9();
+
+    let _b = Worker::start(&svc.url, "survivor", &[]);
+    let done = svc.wait_finished(&id, JOB_TIME);
+    assert_eq!(done["state"], "done", "{done}");
+    assert!(svc.image(&id) == local_png(&examples().join("thesis.ray"), None, None));
+
+    // The dead worker's late result is refused: its lease was handed to someone else.
+    let rect = tessera_tracer::Rect::new(
+        dead["x"].as_u64().expect("x") as u32,
+        dead["y"].as_u64().expect("y") as u32,
+        dead["w"].as_u64().expect("w") as u32,
+        dead["h"].as_u64().expect("h") as u32,
+    );
+    let blob = tessera_worker::protocol::encode_tile(rect, &vec![0; rect.pixel_count() * 3]);
+    let r = http
+        .put(format!(
+            "{}/worker/jobs/{id}/tiles/{}?lease={}",
+            svc.url,
+            dead["idx"],
+            dead["lease"].as_str().expect("lease")
+        ))
+        .body(blob)
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 409);
+    // And the image is unchanged by it.
+    assert!(svc.image(&id) == local_png(&examples().join("thesis.ray"), None, None));
+}

@@ -1,0 +1,96 @@
+//! The `tessera-worker` command line: flags (with environment fallbacks), logging, signals.
+//! Kept in the library so that end-to-end tests can build the same program.
+
+use std::time::Duration;
+
+use std::process::ExitCode;
+
+use clap::Parser;
+
+use crate::{WorkerConfig, default_name, run};
+
+/// A stateless Tessera render worker: claims tiles from a service, traces them, posts them.
+#[derive(Debug, Parser)]
+#[command(name = "tessera-worker", version, about)]
+struct Args {
+    /// The service's base URL.
+    #[arg(long, env = "TESSERA_SERVER", default_value = "http://127.0.0.1:8080")]
+    server: String,
+    /// Tiles rendered at once (default: one per core).
+    #[arg(long, env = "TESSERA_THREADS")]
+    threads: Option<usize>,
+    /// Bearer token for the worker routes, when the service requires one.
+    #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// This worker's name in the service's lists (default: host-pid-random).
+    #[arg(long, env = "TESSERA_WORKER_NAME")]
+    name: Option<String>,
+    /// Longest pause between claims when idle, in milliseconds.
+    #[arg(long, env = "TESSERA_IDLE_MAX_MS", default_value_t = 1000)]
+    idle_max_ms: u64,
+    /// Seconds to keep rendering held tiles after SIGINT/SIGTERM before giving them back.
+    #[arg(long, env = "TESSERA_GRACE_SECS", default_value_t = 30)]
+    grace_secs: u64,
+    /// Benchmarking only: skip tracing and post black tiles (measures the queue).
+    #[arg(long, hide = true)]
+    noop: bool,
+}
+
+/// The program: parses flags, runs the worker until SIGINT/SIGTERM, reports errors.
+pub fn main() -> ExitCode {
+    let args = Args::parse();
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let mut cfg = WorkerConfig::new(args.server);
+    if let Some(t) = args.threads {
+        cfg.threads = t;
+    }
+    cfg.token = args.token.filter(|t| !t.is_empty());
+    cfg.name = args.name.unwrap_or_else(default_name);
+    cfg.idle_max = Duration::from_millis(args.idle_max_ms.max(1));
+    cfg.grace = Duration::from_secs(args.grace_secs);
+    cfg.noop = args.noop;
+    let runtime = match tokio::runtime::Runtime::new() {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("tessera-worker: cannot start the async runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match runtime.block_on(run(cfg, shutdown_signal())) {
+        Ok(summary) => {
+            tracing::info!("rendered {} tiles", summary.tiles);
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("tessera-worker: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// SIGINT or SIGTERM.
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {}
+        _ = term => {}
+    }
+}
