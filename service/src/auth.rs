@@ -30,20 +30,22 @@ fn presented(req: &Request) -> Option<&[u8]> {
     value.strip_prefix(b"Bearer ")
 }
 
-fn check(expected: Option<&str>, req: &Request, what: &str) -> Result<(), Response> {
+fn check(expected: Option<&str>, req: &Request, what: &str) -> Result<(), Box<Response>> {
     let Some(expected) = expected else {
         return Ok(());
     };
     match presented(req) {
         Some(t) if constant_time_eq(t, expected.as_bytes()) => Ok(()),
-        _ => Err((
-            [(header::WWW_AUTHENTICATE, "Bearer")],
-            ApiError::new(
-                StatusCode::UNAUTHORIZED,
-                format!("this route needs the {what} token: `Authorization: Bearer <token>`"),
-            ),
-        )
-            .into_response()),
+        _ => Err(Box::new(
+            (
+                [(header::WWW_AUTHENTICATE, "Bearer")],
+                ApiError::new(
+                    StatusCode::UNAUTHORIZED,
+                    format!("this route needs the {what} token: `Authorization: Bearer <token>`"),
+                ),
+            )
+                .into_response(),
+        )),
     }
 }
 
@@ -55,7 +57,7 @@ pub async fn require_worker_token(
 ) -> Response {
     match check(state.cfg.token.as_deref(), &req, "worker") {
         Ok(()) => next.run(req).await,
-        Err(r) => r,
+        Err(r) => *r,
     }
 }
 
@@ -70,7 +72,7 @@ pub async fn require_submit_token(
     }
     match check(state.cfg.submit_token.as_deref(), &req, "submit") {
         Ok(()) => next.run(req).await,
-        Err(r) => r,
+        Err(r) => *r,
     }
 }
 

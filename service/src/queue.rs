@@ -613,13 +613,13 @@ impl Queue {
 
     /// The scene, sampler settings and asset names of a job.
     pub async fn job_scene(&self, id: &str) -> Result<Option<JobScene>> {
-        let row: Option<(String, String, Option<String>, Option<i64>, Option<f64>)> =
-            sqlx::query_as(
-                "SELECT state, scene, sampler, samples, threshold FROM jobs WHERE id = ?1",
-            )
-            .bind(id)
-            .fetch_optional(&self.pool)
-            .await?;
+        type SceneRow = (String, String, Option<String>, Option<i64>, Option<f64>);
+        let row: Option<SceneRow> = sqlx::query_as(
+            "SELECT state, scene, sampler, samples, threshold FROM jobs WHERE id = ?1",
+        )
+        .bind(id)
+        .fetch_optional(&self.pool)
+        .await?;
         let Some((state, scene, sampler, samples, threshold)) = row else {
             return Ok(None);
         };
