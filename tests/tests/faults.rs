@@ -1,0 +1,390 @@
+//! Faults and hostile input against real processes: service restarts, killed workers, a
+//! chaos run, limits, tokens and malformed tile blobs.
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use common::{SERVICE, Service, TempDir, Worker, client, examples, local_png, wait_until};
+use serde_json::{Value, json};
+use tessera_tracer::Rect;
+use tessera_worker::protocol::encode_tile;
+
+const JOB_TIME: Duration = Duration::from_secs(180);
+
+fn read(name: &str) -> String {
+    std::fs::read_to_string(examples().join(name)).expect("example readable")
+}
+
+/// A loopback address with a port free right now, so a restarted service can reuse it.
+fn free_addr() -> String {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    l.local_addr().expect("addr").to_string()
+}
+
+fn tiles_done(svc: &Service, id: &str) -> u64 {
+    svc.get_json(&format!("/jobs/{id}"))["tiles_done"]
+        .as_u64()
+        .unwrap_or(0)
+}
+
+#[test]
+fn jobs_survive_service_restarts_and_workers_ride_through() {
+    let dir = TempDir::new("restart");
+    let addr = free_addr();
+    let args = ["--local-workers", "0", "--lease-ms", "2000"];
+    let mut svc = Service::start_on(&dir, &addr, &args);
+    let url = svc.url.clone();
+    let small = svc.submit(&read("checker.ray"), "")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    let big = svc.submit(&read("thesis.ray"), "?tile=16")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    let _w1 = Worker::start(&url, "w1", &[]);
+    let _w2 = Worker::start(&url, "w2", &[]);
+    assert_eq!(svc.wait_finished(&small, JOB_TIME)["state"], "done");
+    let small_png = svc.image(&small);
+
+    // SIGKILL mid-job, then start again on the same file and address.
+    wait_until("progress on the big job", JOB_TIME, || {
+        tiles_done(&svc, &big) > 50
+    });
+    svc.kill();
+    svc = Service::start_on(&dir, &addr, &args);
+    let before = tiles_done(&svc, &big);
+    assert!(before > 0, "tiles stored before the crash survive it");
+    // SIGTERM mid-job: a clean stop, and again a restart.
+    wait_until("more progress", JOB_TIME, || {
+        tiles_done(&svc, &big) > before + 50
+    });
+    assert!(svc.terminate().success());
+    svc = Service::start_on(&dir, &addr, &args);
+
+    // The workers were never restarted: they rode through both outages.
+    let done = svc.wait_finished(&big, JOB_TIME);
+    assert_eq!(done["state"], "done", "{done}");
+    assert!(svc.image(&big) == local_png(&examples().join("thesis.ray"), None, None));
+    assert!(
+        svc.image(&small) == small_png,
+        "a finished image survives restarts"
+    );
+}
+
+#[test]
+fn chaos_killed_workers_and_a_restarted_service_still_give_the_exact_image() {
+    let dir = TempDir::new("chaos");
+    let addr = free_addr();
+    let args = [
+        "--local-workers",
+        "0",
+        "--lease-ms",
+        "400",
+        "--max-attempts",
+        "20",
+    ];
+    let mut svc = Service::start_on(&dir, &addr, &args);
+    let url = svc.url.clone();
+    let id = svc.submit(&read("mirrors.ray"), "?tile=16")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    let total = svc.get_json(&format!("/jobs/{id}"))["tiles_total"]
+        .as_u64()
+        .unwrap_or(0);
+    let mut workers: Vec<Worker> = (0..3)
+        .map(|i| Worker::start(&url, &format!("c{i}"), &[]))
+        .collect();
+    // A fixed-seed schedule of SIGKILLs and fresh workers; the service restarts once,
+    // half-way through.
+    let mut rng = 0x2545_F491_4F6C_DD1Du64;
+    let mut next = || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        rng
+    };
+    let deadline = Instant::now() + JOB_TIME;
+    let mut restarted = false;
+    let mut spawned = 3;
+    loop {
+        let job = svc.get_json(&format!("/jobs/{id}"));
+        let state = job["state"].as_str().unwrap_or("").to_string();
+        if state != "queued" && state != "running" {
+            assert_eq!(state, "done", "{job}");
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "chaos run did not finish: {job}\n{}",
+            svc.log()
+        );
+        let done = job["tiles_done"].as_u64().unwrap_or(0);
+        if !restarted && done * 2 >= total {
+            svc.kill();
+            svc = Service::start_on(&dir, &addr, &args);
+            restarted = true;
+        }
+        // The chaos schedule: this pause is the interval between faults, not a wait for a
+        // result.
+        std::thread::sleep(Duration::from_millis(50 + next() % 200));
+        let victim = (next() % workers.len() as u64) as usize;
+        workers[victim].kill9();
+        workers[victim] = Worker::start(&url, &format!("c{spawned}"), &[]);
+        spawned += 1;
+    }
+    assert!(restarted, "the service was restarted during the run");
+    assert!(spawned > 3, "workers were killed during the run");
+    assert!(svc.image(&id) == local_png(&examples().join("mirrors.ray"), None, None));
+}
+
+#[test]
+fn limits_refuse_oversized_input_and_store_nothing() {
+    let dir = TempDir::new("limits");
+    let svc = Service::start(
+        &dir,
+        &[
+            "--local-workers",
+            "0",
+            "--max-body-bytes",
+            "1048576",
+            "--max-pixels",
+            "10000",
+            "--max-objects",
+            "3",
+            "--max-csg-depth",
+            "2",
+            "--max-texture-pixels",
+            "4096",
+        ],
+    );
+    let http = client();
+    let post = |body: Vec<u8>| {
+        http.post(format!("{}/jobs", svc.url))
+            .body(body)
+            .send()
+            .expect("answer")
+    };
+    let mut huge = b"# padding\n".repeat(120_000);
+    huge.extend_from_slice(read("thesis.ray").as_bytes());
+    let r = post(huge);
+    assert_eq!(r.status(), 413);
+    assert!(r.json::<Value>().expect("JSON 413")["error"].is_string());
+
+    let r = post(b"[GLOBALS]\nwidth = 200\nheight = 200\n[/GLOBALS]\n".to_vec());
+    assert_eq!(r.status(), 400);
+
+    let sphere = "[OBJECT]\ntype = sphere\nradius = 1\n[/OBJECT]\n";
+    let r = post(
+        format!(
+            "[GLOBALS]\nwidth = 8\nheight = 8\n[/GLOBALS]\n{}",
+            sphere.repeat(4)
+        )
+        .into_bytes(),
+    );
+    assert_eq!(r.status(), 400);
+    let e: Value = r.json().expect("json");
+    assert!(e["line"].is_u64(), "{e}");
+
+    let nested = format!(
+        "[GLOBALS]\nwidth = 8\nheight = 8\n[/GLOBALS]\n[CSG]\nop = union\n[CSG]\nop = union\n[CSG]\nop = union\n{sphere}{sphere}[/CSG]\n[/CSG]\n[/CSG]\n"
+    );
+    assert_eq!(post(nested.into_bytes()).status(), 400);
+
+    // A decompression bomb: a small PNG that claims 8192 × 8192 texels.
+    let sink = tessera_tracer::SharedBuffer::new();
+    {
+        let mut enc = png::Encoder::new(sink.clone(), 8192, 8192);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_compression(png::Compression::High);
+        let mut w = enc
+            .write_header()
+            .expect("header")
+            .into_stream_writer()
+            .expect("stream");
+        let row = vec![0u8; 8192 * 3];
+        for _ in 0..8192 {
+            std::io::Write::write_all(&mut w, &row).expect("row");
+        }
+        w.finish().expect("finish");
+    }
+    let bomb = sink.take();
+    assert!(
+        bomb.len() < 1_000_000,
+        "the bomb is small: {} bytes",
+        bomb.len()
+    );
+    let form = reqwest::blocking::multipart::Form::new()
+        .text(
+            "scene",
+            "[GLOBALS]\nwidth = 8\nheight = 8\n[/GLOBALS]\n[OBJECT]\ntype = sphere\nradius = 1\ntexture = bomb.png\n[/OBJECT]\n",
+        )
+        .part("bomb.png", reqwest::blocking::multipart::Part::bytes(bomb).file_name("bomb.png"));
+    let r = http
+        .post(format!("{}/jobs", svc.url))
+        .multipart(form)
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 400);
+    let e: Value = r.json().expect("json");
+    assert!(e["error"].as_str().unwrap_or("").contains("texels"), "{e}");
+
+    assert_eq!(svc.get_json("/jobs"), json!([]), "nothing stored");
+}
+
+#[test]
+fn tokens_guard_worker_routes_and_submission() {
+    let dir = TempDir::new("tokens");
+    let svc = Service::start(
+        &dir,
+        &[
+            "--local-workers",
+            "0",
+            "--token",
+            "w-secret",
+            "--submit-token",
+            "s-secret",
+        ],
+    );
+    let http = client();
+    let claim = |token: Option<&str>| {
+        let mut r = http
+            .post(format!("{}/worker/claim", svc.url))
+            .json(&json!({"worker": "t"}));
+        if let Some(t) = token {
+            r = r.bearer_auth(t);
+        }
+        r.send().expect("answer").status()
+    };
+    assert_eq!(claim(None), 401);
+    assert_eq!(claim(Some("w-secreT")), 401);
+    assert_eq!(
+        claim(Some("s-secret")),
+        401,
+        "the submit token is not a worker token"
+    );
+    assert_eq!(claim(Some("w-secret")), 204);
+
+    let scene = read("checker.ray");
+    let r = http
+        .post(format!("{}/jobs", svc.url))
+        .body(scene.clone())
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 401);
+    assert!(r.json::<Value>().expect("json")["error"].is_string());
+    assert_eq!(svc.get_json("/jobs"), json!([]));
+    let r = http
+        .post(format!("{}/jobs", svc.url))
+        .bearer_auth("s-secret")
+        .body(scene)
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 201);
+    let id = r.json::<Value>().expect("json")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    assert_eq!(
+        svc.get(&format!("/jobs/{id}")).status(),
+        200,
+        "reading stays open"
+    );
+    let r = http
+        .delete(format!("{}/jobs/{id}", svc.url))
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 401);
+
+    // A worker with the wrong token stops with an error instead of polling forever.
+    let mut bad = Worker::start(&svc.url, "bad", &["--token", "nope"]);
+    wait_until(
+        "the refused worker to exit",
+        Duration::from_secs(30),
+        || bad.try_wait().is_some(),
+    );
+    assert!(!bad.try_wait().expect("exited").success());
+    // The right token renders the job.
+    let _good = Worker::start(&svc.url, "good", &["--token", "w-secret"]);
+    assert_eq!(svc.wait_finished(&id, JOB_TIME)["state"], "done");
+}
+
+#[test]
+fn an_open_service_beyond_loopback_must_be_asked_for() {
+    let dir = TempDir::new("open");
+    let out = std::process::Command::new(SERVICE)
+        .args([
+            "--listen",
+            "0.0.0.0:0",
+            "--local-workers",
+            "0",
+            "--database",
+        ])
+        .arg(format!("sqlite://{}", dir.path().join("t.db").display()))
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--submit-token"));
+}
+
+#[test]
+fn tile_blobs_are_checked_before_they_are_stored() {
+    let dir = TempDir::new("blobs");
+    let svc = Service::start(&dir, &["--local-workers", "0"]);
+    let id = svc.submit(&read("checker.ray"), "?tile=32")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    let http = client();
+    let c: Value = http
+        .post(format!("{}/worker/claim", svc.url))
+        .json(&json!({"worker": "t"}))
+        .send()
+        .expect("answer")
+        .json()
+        .expect("claim");
+    let u = |k: &str| c[k].as_u64().expect("number") as u32;
+    let rect = Rect::new(u("x"), u("y"), u("w"), u("h"));
+    let put = |lease: &str, body: Vec<u8>| {
+        http.put(format!(
+            "{}/worker/jobs/{id}/tiles/{}?lease={lease}",
+            svc.url, c["idx"]
+        ))
+        .body(body)
+        .send()
+        .expect("answer")
+    };
+    let lease = c["lease"].as_str().expect("lease");
+    let good = vec![9u8; rect.pixel_count() * 3];
+    assert_eq!(
+        put(lease, encode_tile(rect, &good[1..])).status(),
+        422,
+        "short"
+    );
+    let mut long = good.clone();
+    long.push(0);
+    assert_eq!(put(lease, encode_tile(rect, &long)).status(), 422, "long");
+    let other = Rect::new(rect.x + 32, rect.y, rect.width, rect.height);
+    assert_eq!(
+        put(lease, encode_tile(other, &good)).status(),
+        422,
+        "wrong tile"
+    );
+    assert_eq!(put(lease, b"garbage".to_vec()).status(), 422, "no header");
+    assert_eq!(
+        put("someone-else", encode_tile(rect, &good)).status(),
+        409,
+        "not the lease"
+    );
+    assert_eq!(tiles_done(&svc, &id), 0, "nothing refused was stored");
+
+    let r = put(lease, encode_tile(rect, &good));
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.json::<Value>().expect("json")["repeat"], false);
+    let r = put(lease, encode_tile(rect, &good));
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.json::<Value>().expect("json")["repeat"], true);
+    assert_eq!(tiles_done(&svc, &id), 1, "the repeat changed nothing");
+}
