@@ -364,6 +364,22 @@ impl Parser<'_> {
                 ),
             );
         }
+        // The defaults (640×480) count against the limits too, when no size was given.
+        let pixels = u64::from(desc.width) * u64::from(desc.height);
+        let max_dim = self.limits.max_dimension;
+        if desc.width > max_dim
+            || desc.height > max_dim
+            || (globals_at.is_none() && pixels > self.limits.max_pixels)
+        {
+            self.err(
+                globals_at.unwrap_or(Pos::new(1, 1)),
+                format!(
+                    "the default image size {}×{} is over this service's limits \
+                     ({max_dim} a side, {} pixels): set `width` and `height` in [GLOBALS]",
+                    desc.width, desc.height, self.limits.max_pixels
+                ),
+            );
+        }
         desc
     }
 
