@@ -10,6 +10,7 @@
 //! - `povray`: trace time and image difference against POV-Ray 3.7 on the same scenes.
 
 mod chart;
+mod farm;
 mod features;
 mod povray;
 mod svg;
@@ -31,10 +32,22 @@ enum Command {
     Features(features::Args),
     /// Trace time and image difference against POV-Ray 3.7 on the same scenes.
     Povray(povray::Args),
+    /// The farm: overhead against the local tracer, scaling, queue throughput, memory.
+    Farm(farm::Args),
 }
 
 fn main() -> anyhow::Result<()> {
+    // The farm benchmark runs the service as a child process: this program, started again.
+    let argv: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    if argv.get(1).is_some_and(|a| a == "__service") {
+        let rest = std::iter::once(argv[0].clone()).chain(argv[2..].iter().cloned());
+        return match tessera_service::cli::main_from(rest) {
+            code if code == std::process::ExitCode::SUCCESS => Ok(()),
+            _ => anyhow::bail!("service failed"),
+        };
+    }
     match Cli::parse().command {
+        Command::Farm(args) => farm::run(&args).map(|_| ()),
         Command::Chart(args) => chart::run(&args),
         Command::Features(args) => features::run(&args),
         Command::Povray(args) => povray::run(&args),

@@ -9,7 +9,16 @@ use crate::{Config, run, shutdown_signal};
 
 /// The program: parses flags, serves until SIGINT/SIGTERM, reports errors.
 pub fn main() -> ExitCode {
-    let cfg = Config::parse();
+    main_from(std::env::args_os())
+}
+
+/// [`main`] with the command line given (the first item is the program name).
+pub fn main_from<I, T>(args: I) -> ExitCode
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    let cfg = Config::parse_from(args);
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()

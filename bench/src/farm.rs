@@ -1,0 +1,329 @@
+//! `tessera-bench farm`: what the farm costs. The service runs as a child process (this
+//! program started again as `__service`), exactly as `tessera-service` would, and the figures
+//! are measured over HTTP:
+//!
+//! - overhead: a job through the service with local workers on all threads, against the
+//!   tracer rendering the same image on the same threads in this process (`tessera-render`'s
+//!   code path), with the PNGs compared byte for byte;
+//! - scaling: one local worker against two;
+//! - tile size: the same job at several tile sizes (full mode), the measurement behind the
+//!   default;
+//! - queue: claims plus results per second with no-op workers (they post black tiles);
+//! - memory: the service process's peak resident memory while it takes in and assembles a
+//!   7680×4320 image, against the image's RGBA8 size.
+//!
+//! Times are medians of repeated runs; ratios compare runs made in this same process.
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use serde_json::Value;
+use tessera_tracer::{Limits, MemoryAssets, Scene, TextureLimits, encode_png, parse};
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Small images and single runs (seconds, for CI).
+    #[arg(long)]
+    pub quick: bool,
+    /// Threads for the overhead comparison (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Repetitions per timing (median reported).
+    #[arg(long, default_value_t = 3)]
+    pub runs: usize,
+}
+
+/// The farm figures, for the `all` summary.
+#[derive(Debug, Clone, Default)]
+pub struct Figures {
+    pub overhead_pct: f64,
+    pub scaling: f64,
+    pub queue_ops_per_s: f64,
+    pub peak_mib: f64,
+    pub base_mib: f64,
+    pub image_rgba_mib: f64,
+}
+
+const SCENE: &str = include_str!("../scenes/mirrors.ray");
+
+/// The mirrors bench scene at `w × h`.
+fn scene_at(w: u32, h: u32) -> String {
+    SCENE
+        .lines()
+        .map(|l| {
+            let t = l.trim_start();
+            if t.starts_with("width") {
+                format!("width = {w}")
+            } else if t.starts_with("height") {
+                format!("height = {h}")
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// A service child process.
+struct Service {
+    child: Child,
+    url: String,
+    _dir: TempDir,
+}
+
+struct TempDir(PathBuf);
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+impl Service {
+    fn start(extra: &[&str]) -> Result<Service> {
+        static N: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        let dir = std::env::temp_dir().join(format!(
+            "tessera-bench-farm-{}-{}",
+            std::process::id(),
+            N.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+        ));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir)?;
+        let mut child = Command::new(std::env::current_exe()?)
+            .arg("__service")
+            .args(["--listen", "127.0.0.1:0", "--database"])
+            .arg(format!("sqlite://{}", dir.join("bench.db").display()))
+            .args(extra)
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .context("starting the service")?;
+        let stdout = child.stdout.take().context("service stdout")?;
+        let mut line = String::new();
+        BufReader::new(stdout).read_line(&mut line)?;
+        let url = line
+            .trim()
+            .strip_prefix("tessera-service listening on ")
+            .with_context(|| format!("unexpected service output `{line}`"))?
+            .to_string();
+        Ok(Service {
+            child,
+            url,
+            _dir: TempDir(dir),
+        })
+    }
+
+    /// Peak resident memory so far (Linux), in bytes.
+    fn peak_rss(&self) -> Option<u64> {
+        let status = std::fs::read_to_string(format!("/proc/{}/status", self.child.id())).ok()?;
+        let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+        let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+        Some(kb * 1024)
+    }
+
+    /// Submits a scene, waits until it is done, downloads the PNG; returns it and the time.
+    fn render(
+        &self,
+        http: &reqwest::blocking::Client,
+        scene: &str,
+        query: &str,
+    ) -> Result<(Vec<u8>, Duration)> {
+        let start = Instant::now();
+        let r = http
+            .post(format!("{}/jobs{query}", self.url))
+            .body(scene.to_string())
+            .send()?;
+        if r.status() != 201 {
+            bail!("submit: {} {}", r.status(), r.text().unwrap_or_default());
+        }
+        let job: Value = r.json()?;
+        let id = job["id"].as_str().context("job id")?.to_string();
+        loop {
+            let j: Value = http.get(format!("{}/jobs/{id}", self.url)).send()?.json()?;
+            match j["state"].as_str() {
+                Some("done") => break,
+                Some("queued" | "running") => std::thread::sleep(Duration::from_millis(2)),
+                _ => bail!("job ended: {j}"),
+            }
+        }
+        let png = http
+            .get(format!("{}/jobs/{id}/image.png", self.url))
+            .send()?
+            .bytes()?
+            .to_vec();
+        Ok((png, start.elapsed()))
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn median(mut v: Vec<Duration>) -> Duration {
+    v.sort();
+    v[v.len() / 2]
+}
+
+/// What `tessera-render --threads n` does, timed: parse, build, render in 32-pixel tiles on
+/// a pool of `n` threads, encode the PNG.
+fn local(scene: &str, threads: usize) -> Result<(Vec<u8>, Duration)> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?;
+    let start = Instant::now();
+    let desc = parse(scene, &Limits::default())?;
+    let s = Scene::build(&desc, &MemoryAssets::new(), &TextureLimits::default())?;
+    let (rgb, _) = pool.install(|| s.render_image(32, |_| {}));
+    let png = encode_png(s.width, s.height, &rgb)?;
+    Ok((png, start.elapsed()))
+}
+
+fn runs(
+    n: usize,
+    mut f: impl FnMut() -> Result<(Vec<u8>, Duration)>,
+) -> Result<(Vec<u8>, Duration)> {
+    let mut times = Vec::new();
+    let mut last = Vec::new();
+    for _ in 0..n.max(1) {
+        let (png, t) = f()?;
+        times.push(t);
+        last = png;
+    }
+    Ok((last, median(times)))
+}
+
+/// Runs in-process no-op workers against `url` until `done` says stop.
+fn noop_workers(
+    url: &str,
+    workers: usize,
+    threads: usize,
+) -> Result<(tokio::runtime::Runtime, tokio::sync::watch::Sender<bool>)> {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+    let (tx, rx) = tokio::sync::watch::channel(false);
+    for i in 0..workers {
+        let mut cfg = tessera_worker::WorkerConfig::new(url);
+        cfg.noop = true;
+        cfg.threads = threads;
+        cfg.name = format!("noop-{i}");
+        cfg.idle_max = Duration::from_millis(20);
+        let mut rx = rx.clone();
+        rt.spawn(async move {
+            let stop = async move {
+                let _ = rx.wait_for(|s| *s).await;
+            };
+            let _ = tessera_worker::run(cfg, stop).await;
+        });
+    }
+    Ok((rt, tx))
+}
+
+pub fn run(args: &Args) -> Result<Figures> {
+    let threads = args
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let reps = if args.quick { 1 } else { args.runs };
+    let (w, h) = if args.quick { (320, 180) } else { (1920, 1080) };
+    let http = reqwest::blocking::Client::builder()
+        .timeout(Duration::from_secs(600))
+        .build()?;
+    let scene = scene_at(w, h);
+    let mut fig = Figures::default();
+
+    println!("farm: mirrors scene at {w}×{h}, {threads} threads, median of {reps}");
+    let (local_png, t_local) = runs(reps, || local(&scene, threads))?;
+    let svc = Service::start(&["--local-workers", &threads.to_string()])?;
+    let (farm_png, t_farm) = runs(reps, || svc.render(&http, &scene, ""))?;
+    drop(svc);
+    fig.overhead_pct = (t_farm.as_secs_f64() / t_local.as_secs_f64() - 1.0) * 100.0;
+    println!(
+        "  overhead: tessera-render path {:.3} s, farm (64 px tiles, {threads} local workers) {:.3} s: {:+.1} %  (PNG identical: {})",
+        t_local.as_secs_f64(),
+        t_farm.as_secs_f64(),
+        fig.overhead_pct,
+        if local_png == farm_png { "yes" } else { "NO" }
+    );
+    if local_png != farm_png {
+        bail!("the farm's PNG differs from the local render");
+    }
+
+    let one = Service::start(&["--local-workers", "1"])?;
+    let (_, t1) = runs(reps, || one.render(&http, &scene, ""))?;
+    drop(one);
+    let two = Service::start(&["--local-workers", "2"])?;
+    let (_, t2) = runs(reps, || two.render(&http, &scene, ""))?;
+    drop(two);
+    fig.scaling = t1.as_secs_f64() / t2.as_secs_f64();
+    println!(
+        "  scaling: 1 worker {:.3} s, 2 workers {:.3} s: {:.2}×",
+        t1.as_secs_f64(),
+        t2.as_secs_f64(),
+        fig.scaling
+    );
+
+    if !args.quick {
+        let svc = Service::start(&["--local-workers", &threads.to_string()])?;
+        let mut line = String::from("  tile size:");
+        for tile in [16, 32, 64, 128, 256] {
+            let (_, t) = runs(reps, || svc.render(&http, &scene, &format!("?tile={tile}")))?;
+            line.push_str(&format!("  {tile} px {:.3} s", t.as_secs_f64()));
+        }
+        println!("{line}");
+    }
+
+    // The queue: no-op workers, 8-pixel tiles.
+    let (qw, qh): (u32, u32) = if args.quick { (320, 240) } else { (1920, 1080) };
+    let svc = Service::start(&["--local-workers", "0"])?;
+    let (rt, stop) = noop_workers(&svc.url, 4, 4)?;
+    let tiles = u64::from(qw.div_ceil(8) * qh.div_ceil(8));
+    let (_, tq) = svc.render(&http, &scene_at(qw, qh), "?tile=8")?;
+    let _ = stop.send(true);
+    rt.shutdown_timeout(Duration::from_secs(5));
+    drop(svc);
+    fig.queue_ops_per_s = 2.0 * tiles as f64 / tq.as_secs_f64();
+    println!(
+        "  queue: {tiles} tiles claimed and posted by 16 no-op worker loops in {:.3} s: {:.0} claims+results/s",
+        tq.as_secs_f64(),
+        fig.queue_ops_per_s
+    );
+
+    // Memory: a large image through no-op workers.
+    let (mw, mh): (u32, u32) = if args.quick {
+        (1920, 1080)
+    } else {
+        (7680, 4320)
+    };
+    let svc = Service::start(&["--local-workers", "0"])?;
+    // The base: the service after a small job.
+    svc.render(&http, &scene_at(64, 64), "")?;
+    let base = svc.peak_rss().unwrap_or(0);
+    let (rt, stop) = noop_workers(&svc.url, 2, 4)?;
+    let (png, tm) = svc.render(&http, &scene_at(mw, mh), "")?;
+    let peak = svc.peak_rss().unwrap_or(0);
+    let _ = stop.send(true);
+    rt.shutdown_timeout(Duration::from_secs(5));
+    drop(svc);
+    let rgba = u64::from(mw) * u64::from(mh) * 4;
+    let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
+    fig.peak_mib = mib(peak);
+    fig.base_mib = mib(base);
+    fig.image_rgba_mib = mib(rgba);
+    println!(
+        "  memory: {mw}×{mh} ({:.0} MiB as RGBA8, PNG {:.1} MiB, {:.2} s): service peak {:.1} MiB, base {:.1} MiB, peak − base = {:.2} × RGBA8",
+        mib(rgba),
+        mib(png.len() as u64),
+        tm.as_secs_f64(),
+        mib(peak),
+        mib(base),
+        (peak.saturating_sub(base)) as f64 / rgba as f64
+    );
+    Ok(fig)
+}
