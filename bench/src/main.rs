@@ -8,11 +8,14 @@
 //! - `features`: what each feature of a scene costs in rays and time, and that unused
 //!   features cost nothing.
 //! - `povray`: trace time and image difference against POV-Ray 3.7 on the same scenes.
+//! - `tracer`: rays per second on the bench scenes, and how the per-ray cost grows with the
+//!   number of objects with and without the BVH.
 
 mod chart;
 mod features;
 mod povray;
 mod svg;
+mod tracer;
 
 use clap::{Parser, Subcommand};
 
@@ -31,6 +34,8 @@ enum Command {
     Features(features::Args),
     /// Trace time and image difference against POV-Ray 3.7 on the same scenes.
     Povray(povray::Args),
+    /// Rays per second per thread, and the BVH's scaling with the object count.
+    Tracer(tracer::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -38,5 +43,6 @@ fn main() -> anyhow::Result<()> {
         Command::Chart(args) => chart::run(&args),
         Command::Features(args) => features::run(&args),
         Command::Povray(args) => povray::run(&args),
+        Command::Tracer(args) => tracer::run(&args),
     }
 }
