@@ -27,6 +27,30 @@ pub struct Args {
     /// Timed runs of each render; the median is reported.
     #[arg(long, default_value_t = 3)]
     repeats: usize,
+    /// Only the bench scenes, no scaling table (for profiling one scene under callgrind).
+    #[arg(long)]
+    scenes_only: bool,
+    /// How the bench scenes find candidate objects (the scaling table shows both).
+    #[arg(long, value_enum, default_value_t = Accel::Auto)]
+    acceleration: Accel,
+}
+
+/// [`Acceleration`] as a command-line value.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum Accel {
+    Auto,
+    Off,
+    Always,
+}
+
+impl From<Accel> for Acceleration {
+    fn from(a: Accel) -> Acceleration {
+        match a {
+            Accel::Auto => Acceleration::Auto,
+            Accel::Off => Acceleration::Off,
+            Accel::Always => Acceleration::Always,
+        }
+    }
 }
 
 /// SplitMix64, so the scaling scenes are the same on every run.
@@ -131,7 +155,7 @@ pub fn run(args: &Args) -> Result<()> {
         "scene", "size", "bvh", "rays", "Mrays/s"
     );
     for path in scene_files(&args.scenes)? {
-        let scene = load(&path)?;
+        let scene = load(&path)?.with_acceleration(args.acceleration.into());
         // Quick: the middle of the image, a quarter each way (a few milliseconds).
         let rect = if args.quick {
             let (w, h) = ((scene.width / 4).max(1), (scene.height / 4).max(1));
@@ -151,6 +175,9 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
 
+    if args.scenes_only {
+        return Ok(());
+    }
     let (w, h) = if args.quick { (48, 36) } else { (160, 120) };
     let sizes: &[usize] = if args.quick {
         &[16, 256, 4096]
