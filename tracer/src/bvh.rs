@@ -222,8 +222,8 @@ impl Bvh {
         let mut sp = 1;
         while sp > 0 {
             sp -= 1;
-            let (mut at, entry) = stack[sp];
-            if entry > loose(limit) {
+            let (mut at, t_enter) = stack[sp];
+            if t_enter > loose(limit) {
                 continue;
             }
             loop {
