@@ -30,6 +30,9 @@ pub struct Args {
     /// Only the bench scenes, no scaling table (for profiling one scene under callgrind).
     #[arg(long)]
     scenes_only: bool,
+    /// Sphere counts for the scaling table (default: 4 to 16384; quick: 16, 256, 4096).
+    #[arg(long, value_delimiter = ',')]
+    sizes: Vec<usize>,
     /// How the bench scenes find candidate objects (the scaling table shows both).
     #[arg(long, value_enum, default_value_t = Accel::Auto)]
     acceleration: Accel,
@@ -149,6 +152,17 @@ fn load(path: &Path) -> Result<Scene> {
 
 pub fn run(args: &Args) -> Result<()> {
     let repeats = if args.quick { 1 } else { args.repeats };
+    if args.sizes.is_empty() {
+        scenes(args, repeats)?;
+    }
+    if args.scenes_only {
+        return Ok(());
+    }
+    scaling(args, repeats)
+}
+
+/// Rays per second on each bench scene.
+fn scenes(args: &Args, repeats: usize) -> Result<()> {
     println!("Bench scenes, one thread (median of {repeats}):");
     println!(
         "{:<18} {:>9} {:>5} {:>10} {:>12}",
@@ -175,11 +189,15 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
 
-    if args.scenes_only {
-        return Ok(());
-    }
+    Ok(())
+}
+
+/// The BVH scaling table.
+fn scaling(args: &Args, repeats: usize) -> Result<()> {
     let (w, h) = if args.quick { (48, 36) } else { (160, 120) };
-    let sizes: &[usize] = if args.quick {
+    let sizes: &[usize] = if !args.sizes.is_empty() {
+        &args.sizes
+    } else if args.quick {
         &[16, 256, 4096]
     } else {
         &[4, 8, 16, 64, 256, 1024, 4096, 16384]

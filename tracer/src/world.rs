@@ -96,10 +96,31 @@ impl Object {
         let Some((c, r2)) = self.sphere else {
             return false;
         };
-        let f = ray.origin - c;
-        let (ff, dd, fd) = (f.dot(f), ray.dir.dot(ray.dir), f.dot(ray.dir));
-        ff * dd - fd * fd > dd * (r2 + 1e-6 * (ff + r2))
+        sphere_certainly_missed(c, r2, ray)
     }
+}
+
+/// The test of [`Object::certainly_missed_by`] for centre `c` and squared radius `r2`.
+/// With `r2 = ∞` it rejects nothing (the right side is ∞, or NaN when `d = 0`, and `>`
+/// fails for both), which is how prims other than similarity spheres pass through it.
+#[inline]
+fn sphere_certainly_missed(c: DVec3, r2: f64, ray: &Ray) -> bool {
+    let f = ray.origin - c;
+    let (ff, dd, fd) = (f.dot(f), ray.dir.dot(ray.dir), f.dot(ray.dir));
+    ff * dd - fd * fd > dd * (r2 + 1e-6 * (ff + r2))
+}
+
+/// What the BVH search reads first about each of its prims, packed in the tree's item
+/// order so that a leaf's prims share cache lines: most candidates of a scene of many small
+/// spheres are rejected here without touching the prim or its object.
+#[derive(Debug, Clone, Copy)]
+struct Quick {
+    /// Index into `Scene::prims`.
+    prim: u32,
+    /// The similarity sphere's world centre and squared radius; `r2 = ∞` for every other
+    /// prim (see [`sphere_certainly_missed`]).
+    centre: DVec3,
+    r2: f64,
 }
 
 /// A nearest hit: which object, and the hit in its object space.
@@ -158,7 +179,12 @@ enum Accel {
     Linear,
     /// A BVH over the bounded prims (items are indices into `prims`) and the prims without
     /// a usable box (planes, unbounded CSG), tested every time.
-    Bvh { bvh: Bvh, unbounded: Vec<u32> },
+    Bvh {
+        bvh: Bvh,
+        unbounded: Vec<u32>,
+        /// Per BVH item slot (see [`Bvh::items`]).
+        quick: Vec<Quick>,
+    },
 }
 
 impl Accel {
@@ -187,7 +213,27 @@ impl Accel {
                 .map(|(i, _)| i as u32),
         );
         unbounded.sort_unstable();
-        Accel::Bvh { bvh, unbounded }
+        let quick = bvh
+            .items()
+            .iter()
+            .map(|&i| {
+                let sphere = match &prims[i as usize] {
+                    Prim::Object(o) => objects[*o as usize].sphere,
+                    Prim::Csg(_) => None,
+                };
+                let (centre, r2) = sphere.unwrap_or((DVec3::ZERO, f64::INFINITY));
+                Quick {
+                    prim: i,
+                    centre,
+                    r2,
+                }
+            })
+            .collect();
+        Accel::Bvh {
+            bvh,
+            unbounded,
+            quick,
+        }
     }
 }
 
@@ -284,7 +330,11 @@ impl Scene {
     pub fn intersect(&self, ray: &Ray, t_max: f64, skip: Option<u32>) -> Option<Hit> {
         match &self.accel {
             Accel::Linear => self.intersect_linear(ray, t_max, skip),
-            Accel::Bvh { bvh, unbounded } => self.intersect_bvh(bvh, unbounded, ray, t_max, skip),
+            Accel::Bvh {
+                bvh,
+                unbounded,
+                quick,
+            } => self.intersect_bvh(bvh, unbounded, quick, ray, t_max, skip),
         }
     }
 
@@ -313,28 +363,34 @@ impl Scene {
         &self,
         bvh: &Bvh,
         unbounded: &[u32],
+        quick: &[Quick],
         ray: &Ray,
         t_max: f64,
         skip: Option<u32>,
     ) -> Option<Hit> {
         let mut best: Option<(Hit, u32)> = None;
         let mut t_best = t_max;
-        let mut consider = |i: u32| {
-            let limit = match best {
-                Some((_, b)) if i < b => t_best.next_up(),
-                _ => t_best,
-            };
-            if let Some(h) = self.prim_hit(&self.prims[i as usize], ray, limit, skip) {
-                t_best = h.local.t;
-                best = Some((h, i));
+        // Tests prim `i` unless the quick test already rejected it; returns the new limit.
+        let mut consider = |i: u32, rejected: bool| {
+            if !rejected {
+                let limit = match best {
+                    Some((_, b)) if i < b => t_best.next_up(),
+                    _ => t_best,
+                };
+                if let Some(h) = self.prim_hit(&self.prims[i as usize], ray, limit, skip) {
+                    t_best = h.local.t;
+                    best = Some((h, i));
+                }
             }
             t_best
         };
         for &i in unbounded {
-            consider(i);
+            consider(i, false);
         }
-        bvh.traverse(ray.origin, ray.inv_dir(), t_max, |i| {
-            ControlFlow::Continue(consider(i))
+        bvh.traverse(ray.origin, ray.inv_dir(), t_max, |slot| {
+            let q = &quick[slot];
+            let rejected = sphere_certainly_missed(q.centre, q.r2, ray);
+            ControlFlow::Continue(consider(q.prim, rejected))
         });
         best.map(|(h, _)| h)
     }
@@ -385,12 +441,19 @@ impl Scene {
                 .prims
                 .iter()
                 .any(|prim| self.prim_blocks(prim, ray, t_max, skip)),
-            Accel::Bvh { bvh, unbounded } => {
+            Accel::Bvh {
+                bvh,
+                unbounded,
+                quick,
+            } => {
                 unbounded
                     .iter()
                     .any(|&i| self.prim_blocks(&self.prims[i as usize], ray, t_max, skip))
-                    || bvh.traverse(ray.origin, ray.inv_dir(), t_max, |i| {
-                        if self.prim_blocks(&self.prims[i as usize], ray, t_max, skip) {
+                    || bvh.traverse(ray.origin, ray.inv_dir(), t_max, |slot| {
+                        let q = &quick[slot];
+                        if !sphere_certainly_missed(q.centre, q.r2, ray)
+                            && self.prim_blocks(&self.prims[q.prim as usize], ray, t_max, skip)
+                        {
                             ControlFlow::Break(())
                         } else {
                             ControlFlow::Continue(t_max)
