@@ -339,6 +339,7 @@ impl Scene {
     }
 
     /// Every prim in order: a prim replaces the best hit only when strictly nearer.
+    #[inline]
     fn intersect_linear(&self, ray: &Ray, t_max: f64, skip: Option<u32>) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut t_best = t_max;
