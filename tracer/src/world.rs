@@ -355,7 +355,8 @@ impl Scene {
     /// The unbounded prims, then the BVH's candidates nearest first.
     ///
     /// Every prim test is a pure filter on its own `t` (a shape or CSG tree computes the
-    /// same `t` whatever `t_max` it is given, and reports it iff `t < t_max`), so the linear
+    /// same `t` whatever `t_max` it is given, and reports it iff `t < t_max`; a CSG tree's
+    /// box shortcut is widened so that it cannot decide, see [`Csg::first_hit`]), so the linear
     /// loop's answer is the hit with the least `(t, prim index)`. Here prims come in another
     /// order; a prim written *before* the current best is therefore asked with the limit one
     /// ulp above `t_best`, so a hit at exactly `t_best` (and nothing beyond it) is reported
