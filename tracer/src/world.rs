@@ -147,7 +147,9 @@ pub struct Scene {
     pub lights: Vec<Light>,
     /// Every primitive, CSG children included.
     pub objects: Vec<Object>,
-    /// The solids rays are tested against, in the order written.
+    /// The solids rays are tested against, in the order written. Changing `objects` or
+    /// `prims` after [`Scene::build`] leaves the BVH describing the old ones: rebuild it with
+    /// [`Scene::with_acceleration`].
     pub prims: Vec<Prim>,
     /// How rays find the prims they may hit (built from `prims` by [`Scene::build`]).
     accel: Accel,
