@@ -327,7 +327,7 @@ impl Scene {
     /// Of hits at the very same `t`, the one on the prim written first wins, with or without
     /// a BVH: the linear loop keeps its first hit because later ones must be strictly
     /// nearer, and the BVH, which meets prims in another order, breaks ties on the prim index
-    /// (see [`Self::intersect_bvh`]).
+    /// (see `intersect_bvh`).
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_max: f64, skip: Option<u32>) -> Option<Hit> {
         match &self.accel {
