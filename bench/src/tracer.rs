@@ -129,24 +129,6 @@ fn time_render(scene: &Scene, rect: Rect, repeats: usize) -> (f64, RayStats) {
     (times[times.len() / 2], stats)
 }
 
-fn scene_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
-    let mut files = Vec::new();
-    for p in paths {
-        if p.is_dir() {
-            for e in std::fs::read_dir(p).with_context(|| format!("{}", p.display()))? {
-                let f = e?.path();
-                if f.extension().is_some_and(|x| x == "ray") {
-                    files.push(f);
-                }
-            }
-        } else {
-            files.push(p.clone());
-        }
-    }
-    files.sort();
-    Ok(files)
-}
-
 fn load(path: &Path) -> Result<Scene> {
     let src = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
     let dir = path.parent().unwrap_or(Path::new("."));
@@ -177,7 +159,7 @@ fn scenes(args: &Args, repeats: usize) -> Result<()> {
         "{:<18} {:>9} {:>5} {:>10} {:>12}",
         "scene", "size", "bvh", "rays", "Mrays/s"
     );
-    for path in scene_files(&args.scenes)? {
+    for path in crate::chart::scene_files(&args.scenes)? {
         let scene = load(&path)?.with_acceleration(args.acceleration.into());
         // Quick: the middle of the image, a quarter each way (a few milliseconds).
         let rect = if args.quick {
