@@ -8,12 +8,18 @@
 //! - `features`: what each feature of a scene costs in rays and time, and that unused
 //!   features cost nothing.
 //! - `povray`: trace time and image difference against POV-Ray 3.7 on the same scenes.
+//! - `tracer`: rays per second on the bench scenes, and how the per-ray cost grows with the
+//!   number of objects with and without the BVH.
+//! - `farm`: the farm's overhead against the local tracer, two-worker scaling, queue
+//!   throughput and the service's peak memory on a large image.
+//! - `all`: `tracer`, `farm` and `povray` in one run: every performance figure.
 
 mod chart;
 mod farm;
 mod features;
 mod povray;
 mod svg;
+mod tracer;
 
 use clap::{Parser, Subcommand};
 
@@ -32,8 +38,37 @@ enum Command {
     Features(features::Args),
     /// Trace time and image difference against POV-Ray 3.7 on the same scenes.
     Povray(povray::Args),
+    /// Rays per second per thread, and the BVH's scaling with the object count.
+    Tracer(tracer::Args),
     /// The farm: overhead against the local tracer, scaling, queue throughput, memory.
     Farm(farm::Args),
+    /// Every performance figure in one run: `tracer`, `farm` and `povray`.
+    All {
+        /// The short modes (CI).
+        #[arg(long)]
+        quick: bool,
+    },
+}
+
+fn dispatch(command: Command) -> anyhow::Result<()> {
+    match command {
+        Command::Farm(args) => farm::run(&args).map(|_| ()),
+        Command::Chart(args) => chart::run(&args),
+        Command::Features(args) => features::run(&args),
+        Command::Povray(args) => povray::run(&args),
+        Command::Tracer(args) => tracer::run(&args),
+        Command::All { quick } => {
+            for sub in ["tracer", "farm", "povray"] {
+                let mut argv = vec!["tessera-bench", sub];
+                if quick {
+                    argv.push("--quick");
+                }
+                println!("\n== tessera-bench {} ==", argv[1..].join(" "));
+                dispatch(Cli::try_parse_from(argv)?.command)?;
+            }
+            Ok(())
+        }
+    }
 }
 
 fn main() -> anyhow::Result<()> {
@@ -46,10 +81,5 @@ fn main() -> anyhow::Result<()> {
             _ => anyhow::bail!("service failed"),
         };
     }
-    match Cli::parse().command {
-        Command::Farm(args) => farm::run(&args).map(|_| ()),
-        Command::Chart(args) => chart::run(&args),
-        Command::Features(args) => features::run(&args),
-        Command::Povray(args) => povray::run(&args),
-    }
+    dispatch(Cli::parse().command)
 }

@@ -108,3 +108,44 @@ fn povray_comparison_runs_or_says_why_not() {
         assert!(off < 1.0, "images differ: {line}");
     }
 }
+
+#[test]
+fn tracer_quick_reports_rates_and_the_bvh_scaling() {
+    let run = bench().args(["tracer", "--quick"]).output().expect("runs");
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let scenes = std::fs::read_dir(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes"))
+        .expect("bench/scenes")
+        .count();
+    // One line per bench scene, with a positive rate in the last column.
+    let rates: Vec<f64> = stdout
+        .lines()
+        .skip(2)
+        .take(scenes)
+        .map(|l| {
+            l.split_whitespace()
+                .last()
+                .and_then(|x| x.parse().ok())
+                .unwrap_or_else(|| panic!("no rate in {l:?}\n{stdout}"))
+        })
+        .collect();
+    assert!(rates.iter().all(|r| r.is_finite() && *r > 0.0), "{stdout}");
+    // The scaling table: N, rays, ns/ray, ratio, linear ns/ray, linear/BVH.
+    let rows: Vec<Vec<&str>> = stdout
+        .lines()
+        .skip_while(|l| !l.starts_with("BVH scaling"))
+        .skip(2)
+        .take_while(|l| !l.starts_with("per-ray"))
+        .map(|l| l.split_whitespace().collect())
+        .collect();
+    assert_eq!(rows.len(), 3, "{stdout}");
+    for r in &rows {
+        let ns: f64 = r[2].parse().expect("ns/ray");
+        assert!(ns.is_finite() && ns > 0.0, "{stdout}");
+    }
+    assert!(stdout.contains("that at N=16"), "{stdout}");
+}

@@ -222,8 +222,16 @@ impl Csg {
         t_max: f64,
         scratch: &mut Scratch,
     ) -> Option<Boundary> {
+        // The box is only a shortcut: it must never decide between hits. Against `t_max`
+        // itself it could, by rounding: a boundary on the box's own face can come out an ulp
+        // before the slab test's entry, and a `t_max` in that gap (another solid's hit on a
+        // coincident face) would drop it. With `t_max` widened by `bvh::SLACK` (1e-7) that
+        // gap would have to be ~10⁹ ulps wide, so the answer is "the first boundary, if
+        // before `t_max`" whatever `t_max` is, which is what lets the BVH visit solids in
+        // any order and still agree with the plain loop (see `Scene::intersect`).
         if let Some(b) = self.bounds
-            && b.hit_interval(ray.origin, ray.inv_dir(), t_max).is_none()
+            && b.hit_interval(ray.origin, ray.inv_dir(), t_max + t_max * crate::bvh::SLACK)
+                .is_none()
         {
             return None;
         }

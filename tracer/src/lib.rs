@@ -24,6 +24,7 @@
 // comparison, so the negated form rejects it where `x <= 0.0` would let it through.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod bvh;
 pub mod camera;
 pub mod csg;
 pub mod diag;
@@ -47,4 +48,4 @@ pub use sampler::Sampler;
 pub use scene::{Limits, SceneDesc, parse};
 pub use texture::{AssetSource, DirAssets, MemoryAssets, Texture, TextureError, TextureLimits};
 pub use tile::{Rect, tiles};
-pub use world::Scene;
+pub use world::{Acceleration, Scene};

@@ -31,6 +31,9 @@ pub struct Transform {
     normal: DMat3,
     /// `Some((s, t))` when the transform is `p ↦ s·p + t` exactly.
     similarity: Option<(f64, DVec3)>,
+    /// `1 / s` of the similarity, computed once here rather than for every ray (the same
+    /// correctly rounded value, so rays come out bit for bit as before).
+    inv_scale: f64,
 }
 
 impl Default for Transform {
@@ -45,6 +48,7 @@ impl Transform {
         to_object: DAffine3::IDENTITY,
         normal: DMat3::IDENTITY,
         similarity: Some((1.0, DVec3::ZERO)),
+        inv_scale: 1.0,
     };
 
     fn from_parts(to_world: DAffine3, to_object: DAffine3) -> Transform {
@@ -56,6 +60,7 @@ impl Transform {
             to_object,
             normal: to_object.matrix3.transpose(),
             similarity: is_similarity.then_some((uniform, to_world.translation)),
+            inv_scale: 1.0 / uniform,
         }
     }
 
@@ -116,8 +121,8 @@ impl Transform {
     /// means the same point in both spaces.
     #[inline]
     pub fn ray_to_object(&self, ray: &Ray) -> Ray {
-        if let Some((s, t)) = self.similarity {
-            let inv = 1.0 / s;
+        if let Some((_, t)) = self.similarity {
+            let inv = self.inv_scale;
             return Ray::new((ray.origin - t) * inv, ray.dir * inv);
         }
         Ray::new(

@@ -1,0 +1,247 @@
+//! The tracer's own speed, one thread: rays per second on each bench scene, and how the
+//! per-ray cost grows with the number of objects, with the BVH and without it.
+//!
+//! The scaling scenes are `N` random, non-overlapping small spheres (one per cell of a
+//! jittered grid, fixed seed) over a ground plane, lit by one light with shadows, so every
+//! ray is a nearest-hit query and most hits add an any-hit shadow query. Time per ray is the
+//! median render time over all rays traced (primary and shadow). Wall-clock figures on a
+//! shared machine are noisy; `valgrind --tool=callgrind` on this subcommand gives repeatable
+//! instruction counts for A/B comparisons.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use tessera_tracer::{
+    Acceleration, DirAssets, Limits, MemoryAssets, RayStats, Rect, Scene, TextureLimits,
+};
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Bench scenes (`.ray` files or directories of them).
+    #[arg(long, default_value = "bench/scenes")]
+    scenes: Vec<PathBuf>,
+    /// Small images, fewer sizes, one repeat (for CI: a few seconds).
+    #[arg(long)]
+    quick: bool,
+    /// Timed runs of each render; the median is reported.
+    #[arg(long, default_value_t = 3)]
+    repeats: usize,
+    /// Only the bench scenes, no scaling table (for profiling one scene under callgrind).
+    #[arg(long)]
+    scenes_only: bool,
+    /// Sphere counts for the scaling table (default: 4 to 16384; quick: 16, 256, 4096).
+    #[arg(long, value_delimiter = ',')]
+    sizes: Vec<usize>,
+    /// Leave out the linear (no BVH) column of the scaling table.
+    #[arg(long)]
+    no_linear: bool,
+    /// How the bench scenes find candidate objects (the scaling table shows both).
+    #[arg(long, value_enum, default_value_t = Accel::Auto)]
+    acceleration: Accel,
+}
+
+/// [`Acceleration`] as a command-line value.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum Accel {
+    Auto,
+    Off,
+    Always,
+}
+
+impl From<Accel> for Acceleration {
+    fn from(a: Accel) -> Acceleration {
+        match a {
+            Accel::Auto => Acceleration::Auto,
+            Accel::Off => Acceleration::Off,
+            Accel::Always => Acceleration::Always,
+        }
+    }
+}
+
+/// SplitMix64, so the scaling scenes are the same on every run.
+struct Rng(u64);
+
+impl Rng {
+    fn unit(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^= z >> 31;
+        (z >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+}
+
+/// `n` spheres in distinct cells of a `k³` grid over the cube [-10, 10]³ (`k³ ≥ n`), each
+/// inside its own cell (so none overlap), over a plane at y = -11.
+///
+/// Radii shrink as `1/√n` (from about 1.5 at n = 16 to 0.05 at 16384), so the spheres'
+/// total cross-section, and so the share of rays that hit one, is about the same at every
+/// `n`: the per-ray cost then compares the search for the nearest hit, not a different mix
+/// of shaded hits and cheap misses.
+pub fn spheres_scene(n: usize, width: u32, height: u32) -> String {
+    let k = (1..).find(|k: &usize| k * k * k >= n).unwrap_or(1);
+    let cell = 20.0 / k as f64;
+    let mut rng = Rng(0x7e55_e7a0 + n as u64);
+    // Choose n distinct cells: a partial Fisher–Yates shuffle of all cell indices.
+    let mut cells: Vec<usize> = (0..k * k * k).collect();
+    for i in 0..n {
+        let j = i + ((rng.unit() * (cells.len() - i) as f64) as usize).min(cells.len() - i - 1);
+        cells.swap(i, j);
+    }
+    let mut s = format!(
+        "[GLOBALS]\nwidth = {width}\nheight = {height}\nambient = 0.15\nshadow = 0.8\n\
+         background = <0.1, 0.1, 0.2>\n[/GLOBALS]\n\
+         [CAMERA]\neye = <6, 8, 40>\nlook_at = <0, -2, 0>\nfov = 40\n[/CAMERA]\n\
+         [LIGHT]\nposition = <30, 60, 40>\n[/LIGHT]\n\
+         [OBJECT]\ntype = plane\ntranslate = <0, -11, 0>\ncolor1 = 0.7\ncolor2 = 0.4\n[/OBJECT]\n"
+    );
+    for &c in &cells[..n] {
+        let (x, y, z) = (c % k, (c / k) % k, c / (k * k));
+        // At most 7.5/√n: below half a cell (10/∛n) for every n ≥ 1.
+        let r = (6.0 / (n as f64).sqrt() * (0.75 + 0.5 * rng.unit())).min(0.45 * cell);
+        let slack = cell / 2.0 - r;
+        let at = |i: usize, u: f64| -10.0 + (i as f64 + 0.5) * cell + slack * (2.0 * u - 1.0);
+        let (px, py, pz) = (at(x, rng.unit()), at(y, rng.unit()), at(z, rng.unit()));
+        s += &format!(
+            "[OBJECT]\ntype = sphere\nradius = {r:.6}\ntranslate = <{px:.6}, {py:.6}, {pz:.6}>\n\
+             color1 = <{:.3}, {:.3}, {:.3}>\n[/OBJECT]\n",
+            0.3 + 0.7 * rng.unit(),
+            0.3 + 0.7 * rng.unit(),
+            0.3 + 0.7 * rng.unit()
+        );
+    }
+    s
+}
+
+/// Median seconds of rendering `rect` on this thread, and the rays it took.
+fn time_render(scene: &Scene, rect: Rect, repeats: usize) -> (f64, RayStats) {
+    let mut times = Vec::with_capacity(repeats);
+    let mut stats = RayStats::default();
+    for _ in 0..repeats.max(1) {
+        let start = Instant::now();
+        let (_, s) = scene.render_rect_linear(rect);
+        times.push(start.elapsed().as_secs_f64());
+        stats = s;
+    }
+    times.sort_by(f64::total_cmp);
+    (times[times.len() / 2], stats)
+}
+
+fn load(path: &Path) -> Result<Scene> {
+    let src = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    Scene::from_source(
+        &src,
+        &Limits::default(),
+        &DirAssets::new(dir),
+        &TextureLimits::default(),
+    )
+    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    let repeats = if args.quick { 1 } else { args.repeats };
+    if args.sizes.is_empty() {
+        scenes(args, repeats)?;
+    }
+    if args.scenes_only {
+        return Ok(());
+    }
+    scaling(args, repeats)
+}
+
+/// Rays per second on each bench scene.
+fn scenes(args: &Args, repeats: usize) -> Result<()> {
+    println!("Bench scenes, one thread (median of {repeats}):");
+    println!(
+        "{:<18} {:>9} {:>5} {:>10} {:>12}",
+        "scene", "size", "bvh", "rays", "Mrays/s"
+    );
+    for path in crate::chart::scene_files(&args.scenes)? {
+        let scene = load(&path)?.with_acceleration(args.acceleration.into());
+        // Quick: the middle of the image, a quarter each way (a few milliseconds).
+        let rect = if args.quick {
+            let (w, h) = ((scene.width / 4).max(1), (scene.height / 4).max(1));
+            Rect::new((scene.width - w) / 2, (scene.height - h) / 2, w, h)
+        } else {
+            Rect::full(scene.width, scene.height)
+        };
+        let (secs, stats) = time_render(&scene, rect, repeats);
+        let name = path.file_stem().map(|s| s.to_string_lossy().into_owned());
+        println!(
+            "{:<18} {:>9} {:>5} {:>10} {:>12.3}",
+            name.unwrap_or_default(),
+            format!("{}x{}", rect.width, rect.height),
+            if scene.uses_bvh() { "yes" } else { "no" },
+            stats.total(),
+            stats.total() as f64 / secs / 1e6
+        );
+    }
+
+    Ok(())
+}
+
+/// The BVH scaling table.
+fn scaling(args: &Args, repeats: usize) -> Result<()> {
+    let (w, h) = if args.quick { (48, 36) } else { (160, 120) };
+    let sizes: &[usize] = if !args.sizes.is_empty() {
+        &args.sizes
+    } else if args.quick {
+        &[16, 256, 4096]
+    } else {
+        &[4, 8, 16, 64, 256, 1024, 4096, 16384]
+    };
+    let linear_at: &[usize] = if args.quick {
+        &[16, 256]
+    } else {
+        &[4, 8, 16, 1024]
+    };
+    println!();
+    println!("BVH scaling: N random spheres + ground plane, {w}x{h}, one thread:");
+    println!(
+        "{:>6} {:>10} {:>12} {:>8} {:>14} {:>11}",
+        "N", "rays", "BVH ns/ray", "× N=16", "linear ns/ray", "linear/BVH"
+    );
+    let mut at16 = None;
+    let mut last = None;
+    for &n in sizes {
+        let src = spheres_scene(n, w, h);
+        let scene = Scene::from_source(
+            &src,
+            &Limits::default(),
+            &MemoryAssets::new(),
+            &TextureLimits::default(),
+        )
+        .map_err(|e| anyhow::anyhow!("{n} spheres: {e}"))?
+        .with_acceleration(Acceleration::Always);
+        let full = Rect::full(w, h);
+        let (secs, stats) = time_render(&scene, full, repeats);
+        let ns = secs * 1e9 / stats.total() as f64;
+        if n == 16 {
+            at16 = Some(ns);
+        }
+        last = Some((n, ns));
+        let ratio = at16.map_or("-".to_string(), |b| format!("{:.2}", ns / b));
+        let (lin, gain) = if !args.no_linear && linear_at.contains(&n) {
+            let lin = scene.without_acceleration();
+            let (lsecs, lstats) = time_render(&lin, full, repeats);
+            let lns = lsecs * 1e9 / lstats.total() as f64;
+            (format!("{lns:.0}"), format!("{:.2}", lns / ns))
+        } else {
+            ("-".to_string(), "-".to_string())
+        };
+        println!(
+            "{n:>6} {:>10} {ns:>12.0} {ratio:>8} {lin:>14} {gain:>11}",
+            stats.total()
+        );
+    }
+    if let (Some(b), Some((n, ns))) = (at16, last) {
+        println!(
+            "per-ray cost at N={n} is {:.2}× that at N=16 (target: within 3×)",
+            ns / b
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,273 @@
+//! The BVH changes speed, never answers: on random scenes of every shape, CSG trees and
+//! planes, with coincident copies (ties at equal `t`), rays starting inside boxes and rays
+//! with zero direction components, the nearest hit and the any-hit answer are the same, bit
+//! for bit, as testing every prim in order; and whole images are byte-identical.
+
+mod common;
+
+use glam::DVec3;
+use tessera_tracer::math::Ray;
+use tessera_tracer::{Acceleration, Rect, Scene};
+
+/// SplitMix64: a small deterministic generator, so failures reproduce.
+struct Rng(u64);
+
+impl Rng {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.unit()
+    }
+
+    fn below(&mut self, n: u64) -> u64 {
+        self.next_u64() % n
+    }
+
+    fn vec(&mut self, r: f64) -> DVec3 {
+        DVec3::new(self.range(-r, r), self.range(-r, r), self.range(-r, r))
+    }
+}
+
+fn v(p: DVec3) -> String {
+    format!("<{}, {}, {}>", p.x, p.y, p.z)
+}
+
+/// One random object: a shape, a transform (sometimes only scale and translation, sometimes
+/// on integer coordinates so axis-parallel rays meet faces and edges exactly) and a colour.
+fn object(rng: &mut Rng, extent: f64) -> String {
+    let shape = match rng.below(6) {
+        0 | 1 => "type = sphere\n".to_string(),
+        2 => "type = cube\n".to_string(),
+        3 => "type = cylinder\n".to_string(),
+        4 => "type = cone\n".to_string(),
+        _ => "type = torus\nmajor = 1\nminor = 0.3\n".to_string(),
+    };
+    let mut t = String::new();
+    match rng.below(3) {
+        0 => {
+            t += &format!("scale = {}\n", rng.range(0.2, 1.5));
+        }
+        1 => {
+            let s = DVec3::new(
+                rng.range(0.2, 1.5),
+                rng.range(0.2, 1.5),
+                rng.range(0.2, 1.5),
+            );
+            t += &format!("scale = {}\nrotate = {}\n", v(s), v(rng.vec(180.0)));
+        }
+        _ => {}
+    }
+    let at = if rng.below(3) == 0 {
+        rng.vec(extent).round()
+    } else {
+        rng.vec(extent)
+    };
+    t += &format!("translate = {}\n", v(at));
+    let c = DVec3::new(rng.unit(), rng.unit(), rng.unit());
+    let mirror = if rng.below(5) == 0 {
+        "mirror = 0.5\n"
+    } else {
+        ""
+    };
+    format!("[OBJECT]\n{shape}{t}color1 = {}\n{mirror}[/OBJECT]\n", v(c))
+}
+
+/// A random scene of `n` solids: objects, CSG trees (of every operation, one of them
+/// possibly unbounded through a plane), ground planes, and exact copies of earlier solids.
+fn random_scene(rng: &mut Rng, n: usize, extent: f64) -> String {
+    let mut solids: Vec<String> = Vec::new();
+    for _ in 0..n {
+        let s = match rng.below(10) {
+            0 if !solids.is_empty() => {
+                // An exact copy of an earlier solid: every hit on it ties.
+                let k = rng.below(solids.len() as u64) as usize;
+                solids[k].clone()
+            }
+            1 => format!(
+                "[OBJECT]\ntype = plane\nrotate = {}\ntranslate = <0, {}, 0>\ncolor1 = <0.5, 0.5, 0.5>\ncolor2 = <0.1, 0.1, 0.1>\n[/OBJECT]\n",
+                v(rng.vec(10.0)),
+                -extent
+            ),
+            2 | 3 => {
+                let op = ["union", "intersection", "difference"][rng.below(3) as usize];
+                let mut kids = object(rng, 0.7) + &object(rng, 0.7);
+                if rng.below(4) == 0 {
+                    kids += "[OBJECT]\ntype = plane\n[/OBJECT]\n";
+                }
+                format!(
+                    "[CSG]\nop = {op}\nrotate = {}\ntranslate = {}\n{kids}[/CSG]\n",
+                    v(rng.vec(90.0)),
+                    v(rng.vec(extent))
+                )
+            }
+            _ => object(rng, extent),
+        };
+        solids.push(s);
+    }
+    format!(
+        "[GLOBALS]\nwidth = 64\nheight = 48\nambient = 0.15\nshadow = 0.7\n[/GLOBALS]\n\
+         [CAMERA]\neye = <3, 5, {}>\nfov = 60\n[/CAMERA]\n\
+         [LIGHT]\nposition = <10, 20, 15>\n[/LIGHT]\n\
+         [LIGHT]\nposition = <-15, 5, 5>\ncolor = <0.3, 0.3, 0.5>\n[/LIGHT]\n{}",
+        extent * 2.5,
+        solids.concat()
+    )
+}
+
+/// A ray of one of the awkward kinds: from outside, from a solid's centre (inside its box),
+/// with one or two zero direction components (of either sign), or aimed at an integer point.
+fn random_ray(rng: &mut Rng, s: &Scene, extent: f64) -> Ray {
+    let origin = match rng.below(3) {
+        0 => {
+            let k = rng.below(s.objects.len() as u64) as usize;
+            s.objects[k].transform.to_world().translation
+        }
+        1 => rng.vec(extent * 1.5).round(),
+        _ => rng.vec(extent * 2.0),
+    };
+    let mut d = match rng.below(4) {
+        0 => rng.vec(extent).round() - origin,
+        _ => rng.vec(1.0),
+    };
+    match rng.below(5) {
+        0 => d.x = 0.0,
+        1 => d.y = -0.0,
+        2 => {
+            d.x = -0.0;
+            d.z = 0.0;
+        }
+        _ => {}
+    }
+    if d == DVec3::ZERO || !d.is_finite() {
+        d = DVec3::X;
+    }
+    Ray::new(origin, d)
+}
+
+#[test]
+fn bvh_answers_equal_brute_force_on_random_scenes() {
+    let mut rng = Rng(2024);
+    let (mut hits, mut ties, mut rays) = (0, 0, 0);
+    for round in 0..24 {
+        let n = [3, 9, 40, 150][round % 4];
+        let extent = [2.0, 4.0, 8.0][round % 3];
+        let src = random_scene(&mut rng, n, extent);
+        let linear = common::scene(&src).without_acceleration();
+        let bvh = common::scene(&src).with_acceleration(Acceleration::Always);
+        assert!(!linear.uses_bvh());
+        assert!(
+            bvh.uses_bvh()
+                || linear
+                    .prims
+                    .iter()
+                    .all(|p| p.bounds(&linear.objects).is_none())
+        );
+        for _ in 0..500 {
+            let r = random_ray(&mut rng, &linear, extent);
+            let t_max = match rng.below(3) {
+                0 => rng.range(0.0, 3.0),
+                _ => f64::INFINITY,
+            };
+            // `skip` is only ever an object outside every CSG tree.
+            let free: Vec<u32> = (0..linear.objects.len() as u32)
+                .filter(|&i| !linear.objects[i as usize].in_csg)
+                .collect();
+            let skip = (rng.below(4) == 0 && !free.is_empty())
+                .then(|| free[rng.below(free.len() as u64) as usize]);
+            let a = linear.intersect(&r, t_max, skip);
+            let b = bvh.intersect(&r, t_max, skip);
+            rays += 1;
+            match (a, b) {
+                (None, None) => {}
+                (Some(a), Some(b)) => {
+                    assert_eq!(
+                        (a.object, a.local),
+                        (b.object, b.local),
+                        "round {round}, ray {r:?}, t_max {t_max}, skip {skip:?}\n{src}"
+                    );
+                    hits += 1;
+                    // A tie: another solid also has a hit at exactly this t.
+                    let others = linear.objects.len();
+                    let tied = (0..others as u32).any(|k| {
+                        k != a.object && !linear.objects[k as usize].in_csg && Some(k) != skip && {
+                            let o = &linear.objects[k as usize];
+                            o.shape
+                                .intersect(&o.transform.ray_to_object(&r), t_max)
+                                .is_some_and(|h| h.t == a.local.t)
+                        }
+                    });
+                    ties += usize::from(tied);
+                }
+                (a, b) => panic!(
+                    "round {round}: linear {a:?} but BVH {b:?} for {r:?}, t_max {t_max}\n{src}"
+                ),
+            }
+            assert_eq!(
+                linear.occluded(&r, t_max, skip),
+                bvh.occluded(&r, t_max, skip),
+                "round {round}: occluded differs for {r:?}, t_max {t_max}\n{src}"
+            );
+        }
+    }
+    assert!(hits > rays / 4, "{hits} hits of {rays}");
+    eprintln!("{rays} rays, {hits} hits, {ties} ties");
+    assert!(ties > 50, "only {ties} tied hits");
+}
+
+/// Whole images, by the scene's own sampler, with mirrors and shadows: the same bytes.
+#[test]
+fn images_are_identical_with_and_without_the_bvh() {
+    let mut rng = Rng(77);
+    let mut total = tessera_tracer::RayStats::default();
+    for n in [12, 60, 300] {
+        let src = random_scene(&mut rng, n, 6.0);
+        let auto = common::scene(&src);
+        assert!(auto.uses_bvh(), "{n} solids");
+        let linear = auto.clone().without_acceleration();
+        let rect = Rect::full(auto.width, auto.height);
+        let (a, sa) = auto.render_rect_stats(rect);
+        let (b, sb) = linear.render_rect_stats(rect);
+        assert_eq!(sa, sb, "{n} solids: ray counts differ");
+        assert!(a == b, "{n} solids: images differ");
+        total.add(&sa);
+    }
+    assert!(total.shadow > 1000 && total.mirror > 100, "{total:?}");
+}
+
+/// The benchmark's many-small-spheres scene, where the BVH does its work.
+#[test]
+fn small_spheres_bench_scene_is_identical() {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/scenes/small-spheres.ray");
+    let src = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path:?}: {e}"));
+    let s = common::scene(&src);
+    assert!(s.uses_bvh());
+    let rect = Rect::new(0, 0, s.width, s.height / 2);
+    let linear = s.clone().without_acceleration();
+    assert!(s.render_rect(rect) == linear.render_rect(rect));
+}
+
+/// Small scenes stay linear under the default mode; the threshold is the one documented.
+#[test]
+fn few_prims_stay_linear() {
+    let mut src = String::from("[OBJECT]\ntype = plane\n[/OBJECT]\n");
+    for i in 0..tessera_tracer::world::BVH_MIN_PRIMS - 1 {
+        src += &format!(
+            "[OBJECT]\ntype = sphere\ntranslate = <{}, 1, 0>\n[/OBJECT]\n",
+            3 * i
+        );
+    }
+    assert!(!common::scene(&src).uses_bvh());
+    src += "[OBJECT]\ntype = sphere\ntranslate = <-3, 1, 0>\n[/OBJECT]\n";
+    assert!(common::scene(&src).uses_bvh());
+}
