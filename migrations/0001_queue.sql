@@ -53,6 +53,8 @@ CREATE TABLE tiles (
 -- The claim walks active jobs in submission order and takes each one's first queued tile.
 CREATE INDEX tiles_by_state ON tiles (job_id, state, idx);
 CREATE INDEX jobs_by_state ON jobs (state, seq);
+-- The reaper finds expired leases without scanning every tile ever stored.
+CREATE INDEX tiles_leased ON tiles (state, lease_expires);
 
 CREATE TABLE tile_pixels (
     job_id  TEXT NOT NULL REFERENCES jobs(id) ON DELETE CASCADE,

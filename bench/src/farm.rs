@@ -34,6 +34,15 @@ pub struct Args {
     /// Repetitions per timing (median reported).
     #[arg(long, default_value_t = 3)]
     pub runs: usize,
+    /// Only these parts (overhead, scaling, tiles, queue, memory); default all.
+    #[arg(long, value_delimiter = ',')]
+    pub parts: Vec<String>,
+}
+
+impl Args {
+    fn wants(&self, part: &str) -> bool {
+        self.parts.is_empty() || self.parts.iter().any(|p| p == part)
+    }
 }
 
 /// The farm figures, for the `all` summary.
@@ -239,37 +248,40 @@ pub fn run(args: &Args) -> Result<Figures> {
     let mut fig = Figures::default();
 
     println!("farm: mirrors scene at {w}×{h}, {threads} threads, median of {reps}");
-    let (local_png, t_local) = runs(reps, || local(&scene, threads))?;
-    let svc = Service::start(&["--local-workers", &threads.to_string()])?;
-    let (farm_png, t_farm) = runs(reps, || svc.render(&http, &scene, ""))?;
-    drop(svc);
-    fig.overhead_pct = (t_farm.as_secs_f64() / t_local.as_secs_f64() - 1.0) * 100.0;
-    println!(
-        "  overhead: tessera-render path {:.3} s, farm (64 px tiles, {threads} local workers) {:.3} s: {:+.1} %  (PNG identical: {})",
-        t_local.as_secs_f64(),
-        t_farm.as_secs_f64(),
-        fig.overhead_pct,
-        if local_png == farm_png { "yes" } else { "NO" }
-    );
-    if local_png != farm_png {
-        bail!("the farm's PNG differs from the local render");
+    if args.wants("overhead") {
+        let (local_png, t_local) = runs(reps, || local(&scene, threads))?;
+        let svc = Service::start(&["--local-workers", &threads.to_string()])?;
+        let (farm_png, t_farm) = runs(reps, || svc.render(&http, &scene, ""))?;
+        drop(svc);
+        fig.overhead_pct = (t_farm.as_secs_f64() / t_local.as_secs_f64() - 1.0) * 100.0;
+        println!(
+            "  overhead: tessera-render path {:.3} s, farm (64 px tiles, {threads} local workers) {:.3} s: {:+.1} %  (PNG identical: {})",
+            t_local.as_secs_f64(),
+            t_farm.as_secs_f64(),
+            fig.overhead_pct,
+            if local_png == farm_png { "yes" } else { "NO" }
+        );
+        if local_png != farm_png {
+            bail!("the farm's PNG differs from the local render");
+        }
+    }
+    if args.wants("scaling") {
+        let one = Service::start(&["--local-workers", "1"])?;
+        let (_, t1) = runs(reps, || one.render(&http, &scene, ""))?;
+        drop(one);
+        let two = Service::start(&["--local-workers", "2"])?;
+        let (_, t2) = runs(reps, || two.render(&http, &scene, ""))?;
+        drop(two);
+        fig.scaling = t1.as_secs_f64() / t2.as_secs_f64();
+        println!(
+            "  scaling: 1 worker {:.3} s, 2 workers {:.3} s: {:.2}×",
+            t1.as_secs_f64(),
+            t2.as_secs_f64(),
+            fig.scaling
+        );
     }
 
-    let one = Service::start(&["--local-workers", "1"])?;
-    let (_, t1) = runs(reps, || one.render(&http, &scene, ""))?;
-    drop(one);
-    let two = Service::start(&["--local-workers", "2"])?;
-    let (_, t2) = runs(reps, || two.render(&http, &scene, ""))?;
-    drop(two);
-    fig.scaling = t1.as_secs_f64() / t2.as_secs_f64();
-    println!(
-        "  scaling: 1 worker {:.3} s, 2 workers {:.3} s: {:.2}×",
-        t1.as_secs_f64(),
-        t2.as_secs_f64(),
-        fig.scaling
-    );
-
-    if !args.quick {
+    if !args.quick && args.wants("tiles") {
         let svc = Service::start(&["--local-workers", &threads.to_string()])?;
         let mut line = String::from("  tile size:");
         for tile in [16, 32, 64, 128, 256] {
@@ -279,51 +291,54 @@ pub fn run(args: &Args) -> Result<Figures> {
         println!("{line}");
     }
 
-    // The queue: no-op workers, 8-pixel tiles.
-    let (qw, qh): (u32, u32) = if args.quick { (320, 240) } else { (1920, 1080) };
-    let svc = Service::start(&["--local-workers", "0"])?;
-    let (rt, stop) = noop_workers(&svc.url, 4, 4)?;
-    let tiles = u64::from(qw.div_ceil(8) * qh.div_ceil(8));
-    let (_, tq) = svc.render(&http, &scene_at(qw, qh), "?tile=8")?;
-    let _ = stop.send(true);
-    rt.shutdown_timeout(Duration::from_secs(5));
-    drop(svc);
-    fig.queue_ops_per_s = 2.0 * tiles as f64 / tq.as_secs_f64();
-    println!(
-        "  queue: {tiles} tiles claimed and posted by 16 no-op worker loops in {:.3} s: {:.0} claims+results/s",
-        tq.as_secs_f64(),
-        fig.queue_ops_per_s
-    );
-
-    // Memory: a large image through no-op workers.
-    let (mw, mh): (u32, u32) = if args.quick {
-        (1920, 1080)
-    } else {
-        (7680, 4320)
-    };
-    let svc = Service::start(&["--local-workers", "0"])?;
-    // The base: the service after a small job.
-    svc.render(&http, &scene_at(64, 64), "")?;
-    let base = svc.peak_rss().unwrap_or(0);
-    let (rt, stop) = noop_workers(&svc.url, 2, 4)?;
-    let (png, tm) = svc.render(&http, &scene_at(mw, mh), "")?;
-    let peak = svc.peak_rss().unwrap_or(0);
-    let _ = stop.send(true);
-    rt.shutdown_timeout(Duration::from_secs(5));
-    drop(svc);
-    let rgba = u64::from(mw) * u64::from(mh) * 4;
-    let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
-    fig.peak_mib = mib(peak);
-    fig.base_mib = mib(base);
-    fig.image_rgba_mib = mib(rgba);
-    println!(
-        "  memory: {mw}×{mh} ({:.0} MiB as RGBA8, PNG {:.1} MiB, {:.2} s): service peak {:.1} MiB, base {:.1} MiB, peak − base = {:.2} × RGBA8",
-        mib(rgba),
-        mib(png.len() as u64),
-        tm.as_secs_f64(),
-        mib(peak),
-        mib(base),
-        (peak.saturating_sub(base)) as f64 / rgba as f64
-    );
+    if args.wants("queue") {
+        // The queue: no-op workers, 8-pixel tiles.
+        let (qw, qh): (u32, u32) = if args.quick { (320, 240) } else { (1920, 1080) };
+        let svc = Service::start(&["--local-workers", "0"])?;
+        let (rt, stop) = noop_workers(&svc.url, 4, 4)?;
+        let tiles = u64::from(qw.div_ceil(8) * qh.div_ceil(8));
+        let (_, tq) = svc.render(&http, &scene_at(qw, qh), "?tile=8")?;
+        let _ = stop.send(true);
+        rt.shutdown_timeout(Duration::from_secs(5));
+        drop(svc);
+        fig.queue_ops_per_s = 2.0 * tiles as f64 / tq.as_secs_f64();
+        println!(
+            "  queue: {tiles} tiles claimed and posted by 16 no-op worker loops in {:.3} s: {:.0} claims+results/s",
+            tq.as_secs_f64(),
+            fig.queue_ops_per_s
+        );
+    }
+    if args.wants("memory") {
+        // Memory: a large image through no-op workers.
+        let (mw, mh): (u32, u32) = if args.quick {
+            (1920, 1080)
+        } else {
+            (7680, 4320)
+        };
+        let svc = Service::start(&["--local-workers", "0"])?;
+        // The base: the service after a small job.
+        svc.render(&http, &scene_at(64, 64), "")?;
+        let base = svc.peak_rss().unwrap_or(0);
+        let (rt, stop) = noop_workers(&svc.url, 2, 4)?;
+        let (png, tm) = svc.render(&http, &scene_at(mw, mh), "")?;
+        let peak = svc.peak_rss().unwrap_or(0);
+        let _ = stop.send(true);
+        rt.shutdown_timeout(Duration::from_secs(5));
+        drop(svc);
+        let rgba = u64::from(mw) * u64::from(mh) * 4;
+        let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
+        fig.peak_mib = mib(peak);
+        fig.base_mib = mib(base);
+        fig.image_rgba_mib = mib(rgba);
+        println!(
+            "  memory: {mw}×{mh} ({:.0} MiB as RGBA8, PNG {:.1} MiB, {:.2} s): service peak {:.1} MiB, base {:.1} MiB, peak − base = {:.2} × RGBA8",
+            mib(rgba),
+            mib(png.len() as u64),
+            tm.as_secs_f64(),
+            mib(peak),
+            mib(base),
+            (peak.saturating_sub(base)) as f64 / rgba as f64
+        );
+    }
     Ok(fig)
 }

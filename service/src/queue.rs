@@ -266,6 +266,9 @@ impl Queue {
 
     /// Hands the first queued tile of the oldest active job to `worker` under a new lease,
     /// unless the worker is kept away from that job. One statement: see the module comment.
+    /// The job is chosen first and its tile second, so that both steps walk an index in
+    /// order (`jobs_by_state`, `tiles_by_state`) instead of sorting every queued tile of
+    /// every job on each claim.
     pub async fn claim(
         &self,
         worker: &str,
@@ -278,12 +281,17 @@ impl Queue {
             "UPDATE tiles SET state = 'leased', attempt = attempt + 1, lease = ?2, worker = ?1,
                               lease_expires = ?3
              WHERE rowid = (
-                 SELECT t.rowid FROM jobs j
-                 JOIN tiles t ON t.job_id = j.id AND t.state = 'queued'
-                 WHERE j.state IN ('queued', 'running') AND t.failures < ?5
-                   AND NOT EXISTS (SELECT 1 FROM keep_away k
-                                   WHERE k.job_id = j.id AND k.worker = ?1 AND k.until > ?4)
-                 ORDER BY j.seq, t.idx LIMIT 1)
+                 SELECT t.rowid FROM tiles t
+                 WHERE t.job_id = (
+                     SELECT j.id FROM jobs j
+                     WHERE j.state IN ('queued', 'running')
+                       AND NOT EXISTS (SELECT 1 FROM keep_away k
+                                       WHERE k.job_id = j.id AND k.worker = ?1 AND k.until > ?4)
+                       AND EXISTS (SELECT 1 FROM tiles q
+                                   WHERE q.job_id = j.id AND q.state = 'queued' AND q.failures < ?5)
+                     ORDER BY j.seq LIMIT 1)
+                   AND t.state = 'queued' AND t.failures < ?5
+                 ORDER BY t.idx LIMIT 1)
              RETURNING job_id, idx, x, y, w, h",
         )
         .bind(worker)
