@@ -155,7 +155,7 @@ impl Service {
             let j: Value = http.get(format!("{}/jobs/{id}", self.url)).send()?.json()?;
             match j["state"].as_str() {
                 Some("done") => break,
-                Some("queued" | "running") => std::thread::sleep(Duration::from_millis(2)),
+                Some("queued" | "running") => std::thread::sleep(Duration::from_millis(10)),
                 _ => bail!("job ended: {j}"),
             }
         }
@@ -182,12 +182,18 @@ fn median(mut v: Vec<Duration>) -> Duration {
 
 /// What `tessera-render --threads n` does, timed: parse, build, render in 32-pixel tiles on
 /// a pool of `n` threads, encode the PNG.
-fn local(scene: &str, threads: usize) -> Result<(Vec<u8>, Duration)> {
+fn local(scene: &str, threads: usize, samples: Option<u32>) -> Result<(Vec<u8>, Duration)> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()?;
     let start = Instant::now();
-    let desc = parse(scene, &Limits::default())?;
+    let mut desc = parse(scene, &Limits::default())?;
+    if let Some(n) = samples {
+        desc.sampler = desc
+            .sampler
+            .with_overrides(Some("jitter"), Some(n), None, 32)
+            .map_err(anyhow::Error::msg)?;
+    }
     let s = Scene::build(&desc, &MemoryAssets::new(), &TextureLimits::default())?;
     let (rgb, _) = pool.install(|| s.render_image(32, |_| {}));
     let png = encode_png(s.width, s.height, &rgb)?;
@@ -248,37 +254,53 @@ pub fn run(args: &Args) -> Result<Figures> {
     let mut fig = Figures::default();
 
     println!("farm: mirrors scene at {w}×{h}, {threads} threads, median of {reps}");
-    if args.wants("overhead") {
-        let (local_png, t_local) = runs(reps, || local(&scene, threads))?;
-        let svc = Service::start(&["--local-workers", &threads.to_string()])?;
-        let (farm_png, t_farm) = runs(reps, || svc.render(&http, &scene, ""))?;
-        drop(svc);
-        fig.overhead_pct = (t_farm.as_secs_f64() / t_local.as_secs_f64() - 1.0) * 100.0;
-        println!(
-            "  overhead: tessera-render path {:.3} s, farm (64 px tiles, {threads} local workers) {:.3} s: {:+.1} %  (PNG identical: {})",
-            t_local.as_secs_f64(),
-            t_farm.as_secs_f64(),
-            fig.overhead_pct,
-            if local_png == farm_png { "yes" } else { "NO" }
-        );
-        if local_png != farm_png {
-            bail!("the farm's PNG differs from the local render");
+    // Two workloads: the scene as written (1 ray per pixel, a fraction of a second: the
+    // farm's fixed and per-tile costs show) and with 4×4 jittered samples per pixel (a
+    // render worth distributing).
+    for samples in [None, Some(4)] {
+        let (query, label) = match samples {
+            Some(n) => (
+                format!("?sampler=jitter&samples={n}"),
+                format!("jitter {n}×{n}"),
+            ),
+            None => (String::new(), "1 ray/pixel".to_string()),
+        };
+        if args.wants("overhead") {
+            let (local_png, t_local) = runs(reps, || local(&scene, threads, samples))?;
+            let svc = Service::start(&["--local-workers", &threads.to_string()])?;
+            let (farm_png, t_farm) = runs(reps, || svc.render(&http, &scene, &query))?;
+            drop(svc);
+            let pct = (t_farm.as_secs_f64() / t_local.as_secs_f64() - 1.0) * 100.0;
+            if samples.is_some() {
+                fig.overhead_pct = pct;
+            }
+            println!(
+                "  overhead ({label}): tessera-render path {:.3} s, farm (64 px tiles, {threads} local workers) {:.3} s: {pct:+.1} %  (PNG identical: {})",
+                t_local.as_secs_f64(),
+                t_farm.as_secs_f64(),
+                if local_png == farm_png { "yes" } else { "NO" }
+            );
+            if local_png != farm_png {
+                bail!("the farm's PNG differs from the local render");
+            }
         }
-    }
-    if args.wants("scaling") {
-        let one = Service::start(&["--local-workers", "1"])?;
-        let (_, t1) = runs(reps, || one.render(&http, &scene, ""))?;
-        drop(one);
-        let two = Service::start(&["--local-workers", "2"])?;
-        let (_, t2) = runs(reps, || two.render(&http, &scene, ""))?;
-        drop(two);
-        fig.scaling = t1.as_secs_f64() / t2.as_secs_f64();
-        println!(
-            "  scaling: 1 worker {:.3} s, 2 workers {:.3} s: {:.2}×",
-            t1.as_secs_f64(),
-            t2.as_secs_f64(),
-            fig.scaling
-        );
+        if args.wants("scaling") {
+            let one = Service::start(&["--local-workers", "1"])?;
+            let (_, t1) = runs(reps, || one.render(&http, &scene, &query))?;
+            drop(one);
+            let two = Service::start(&["--local-workers", "2"])?;
+            let (_, t2) = runs(reps, || two.render(&http, &scene, &query))?;
+            drop(two);
+            let ratio = t1.as_secs_f64() / t2.as_secs_f64();
+            if samples.is_some() {
+                fig.scaling = ratio;
+            }
+            println!(
+                "  scaling ({label}): 1 worker {:.3} s, 2 workers {:.3} s: {ratio:.2}×",
+                t1.as_secs_f64(),
+                t2.as_secs_f64(),
+            );
+        }
     }
 
     if !args.quick && args.wants("tiles") {
@@ -316,10 +338,10 @@ pub fn run(args: &Args) -> Result<Figures> {
             (7680, 4320)
         };
         let svc = Service::start(&["--local-workers", "0"])?;
+        let (rt, stop) = noop_workers(&svc.url, 2, 4)?;
         // The base: the service after a small job.
         svc.render(&http, &scene_at(64, 64), "")?;
         let base = svc.peak_rss().unwrap_or(0);
-        let (rt, stop) = noop_workers(&svc.url, 2, 4)?;
         let (png, tm) = svc.render(&http, &scene_at(mw, mh), "")?;
         let peak = svc.peak_rss().unwrap_or(0);
         let _ = stop.send(true);

@@ -149,3 +149,31 @@ fn tracer_quick_reports_rates_and_the_bvh_scaling() {
     }
     assert!(stdout.contains("that at N=16"), "{stdout}");
 }
+
+#[test]
+fn farm_quick_reports_overhead_scaling_queue_and_memory() {
+    let run = bench()
+        .args(["farm", "--quick"])
+        .env("RUST_LOG", "error")
+        .output()
+        .expect("runs");
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    // The farm's PNG is compared byte for byte with the local render's.
+    assert!(stdout.contains("PNG identical: yes"), "{stdout}");
+    for part in ["overhead:", "scaling:", "queue:", "memory:"] {
+        assert!(stdout.contains(part), "no {part} line in\n{stdout}");
+    }
+    let per_s: f64 = stdout
+        .lines()
+        .find(|l| l.contains("claims+results/s"))
+        .and_then(|l| l.split(": ").last())
+        .and_then(|x| x.split_whitespace().next())
+        .and_then(|x| x.parse().ok())
+        .unwrap_or_else(|| panic!("no queue rate in\n{stdout}"));
+    assert!(per_s.is_finite() && per_s > 0.0, "{stdout}");
+}

@@ -236,6 +236,7 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     let job = validate(&state, source, uploads, &params, tile, name).await?;
     let (new_job, rects, assets) = job;
     let row = state.queue.insert_job(&new_job, &rects, &assets).await?;
+    state.work.notify_waiters();
     let location = format!("/jobs/{}", row.id);
     let mut resp = (StatusCode::CREATED, ok_json(JobView::from(row))).into_response();
     if let Ok(v) = HeaderValue::from_str(&location) {

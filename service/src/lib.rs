@@ -55,6 +55,8 @@ pub struct AppState {
     pub queue: Queue,
     /// Workers seen since start (in memory only: informational).
     pub roster: Arc<Mutex<HashMap<String, WorkerSeen>>>,
+    /// Woken whenever tiles become claimable, so that waiting claims answer at once.
+    pub work: Arc<tokio::sync::Notify>,
 }
 
 impl AppState {
@@ -223,6 +225,7 @@ pub async fn serve(
         cfg: Arc::new(cfg),
         queue: queue.clone(),
         roster: Arc::default(),
+        work: Arc::default(),
     };
     for job in queue.unassembled().await? {
         info!(job = %job, "all tiles were in before the restart: assembling");
@@ -309,7 +312,10 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
             .await
         {
             Ok(0) => {}
-            Ok(n) => warn!("{n} expired leases: tiles handed out again"),
+            Ok(n) => {
+                warn!("{n} expired leases: tiles handed out again");
+                state.work.notify_waiters();
+            }
             Err(e) => warn!("reaping expired leases: {e}"),
         }
         let live = state.live_workers();

@@ -4,6 +4,8 @@
 //! Every tile route takes the lease token as `?lease=`; the queue applies it only while the
 //! token is the tile's current lease. Blobs are checked against the tile before storage.
 
+use std::time::Duration;
+
 use axum::Json;
 use axum::body::Bytes;
 use axum::extract::{Path, Query, State};
@@ -17,6 +19,16 @@ use tessera_worker::protocol::{
 use crate::error::{ApiError, ok_json};
 use crate::queue::Completion;
 use crate::{AppState, now_ms};
+
+/// `POST /worker/claim?wait_ms=N`: with no work at hand, wait up to `N` ms (at most 10 s)
+/// for some before answering `204`. Workers need not poll fast to start promptly.
+#[derive(Debug, Default, Deserialize)]
+pub struct ClaimParams {
+    pub wait_ms: Option<u64>,
+}
+
+/// The longest a claim waits for work.
+pub const MAX_CLAIM_WAIT_MS: u64 = 10_000;
 
 #[derive(Debug, Deserialize)]
 pub struct LeaseParam {
@@ -34,18 +46,32 @@ fn worker_name(name: &str) -> Result<&str, ApiError> {
 
 pub async fn claim(
     State(state): State<AppState>,
+    Query(params): Query<ClaimParams>,
     Json(req): Json<ClaimRequest>,
 ) -> Result<Response, ApiError> {
     let name = worker_name(&req.worker)?;
-    let claimed = state
-        .queue
-        .claim(name, now_ms(), state.cfg.lease_ms, state.cfg.max_attempts)
-        .await?;
-    state.seen(name, |w| w.claims += u64::from(claimed.is_some()));
-    Ok(match claimed {
-        Some(c) => ok_json(c).into_response(),
-        None => StatusCode::NO_CONTENT.into_response(),
-    })
+    let wait = Duration::from_millis(params.wait_ms.unwrap_or(0).min(MAX_CLAIM_WAIT_MS));
+    let deadline = tokio::time::Instant::now() + wait;
+    loop {
+        // Registered before looking, so that work arriving in between is not missed.
+        let notified = state.work.notified();
+        tokio::pin!(notified);
+        notified.as_mut().enable();
+        let claimed = state
+            .queue
+            .claim(name, now_ms(), state.cfg.lease_ms, state.cfg.max_attempts)
+            .await?;
+        state.seen(name, |w| w.claims += u64::from(claimed.is_some()));
+        if let Some(c) = claimed {
+            return Ok(ok_json(c).into_response());
+        }
+        tokio::select! {
+            _ = &mut notified => {}
+            _ = tokio::time::sleep_until(deadline) => {
+                return Ok(StatusCode::NO_CONTENT.into_response());
+            }
+        }
+    }
 }
 
 pub async fn job(
@@ -163,6 +189,7 @@ pub async fn fail(
         )
         .await?;
     if ok {
+        state.work.notify_waiters();
         Ok(ok_json(serde_json::json!({ "requeued": true })))
     } else {
         Err(ApiError::conflict("this lease is no longer current"))
@@ -175,6 +202,7 @@ pub async fn release(
     Query(q): Query<LeaseParam>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     if state.queue.release(&id, idx, &q.lease).await? {
+        state.work.notify_waiters();
         Ok(ok_json(serde_json::json!({ "requeued": true })))
     } else {
         Err(ApiError::conflict("this lease is no longer current"))

@@ -127,15 +127,16 @@ impl Client {
         ClientError::Status { what, status, body }
     }
 
-    /// Claims the next tile; `None` when there is no work.
-    pub async fn claim(&self, worker: &str) -> Result<Option<Claim>> {
+    /// Claims the next tile; `None` when there is no work. With no work at hand the
+    /// service waits up to `wait` for some before answering.
+    pub async fn claim(&self, worker: &str, wait: Duration) -> Result<Option<Claim>> {
         let what = "claim";
-        let req = self
-            .http
-            .post(self.url(&["worker", "claim"], None))
-            .json(&ClaimRequest {
-                worker: worker.to_string(),
-            });
+        let mut url = self.url(&["worker", "claim"], None);
+        url.query_pairs_mut()
+            .append_pair("wait_ms", &wait.as_millis().to_string());
+        let req = self.http.post(url).json(&ClaimRequest {
+            worker: worker.to_string(),
+        });
         let resp = self.send(req).await?;
         match resp.status() {
             StatusCode::NO_CONTENT => Ok(None),

@@ -38,7 +38,8 @@ pub struct WorkerConfig {
     pub name: String,
     /// Skip tracing and post black tiles: for measuring the queue, never for images.
     pub noop: bool,
-    /// Longest pause between claims when there is no work.
+    /// How long a claim waits at the service for work to appear (and the longest back-off
+    /// while the service is unreachable is twice that, at least 2 s).
     pub idle_max: Duration,
     /// After a shutdown request, how long to keep rendering held tiles before giving them back.
     pub grace: Duration,
@@ -217,7 +218,7 @@ async fn slot(
             return Ok(());
         }
         let claimed = tokio::select! {
-            c = shared.client.claim(&shared.cfg.name) => c,
+            c = shared.client.claim(&shared.cfg.name, shared.cfg.idle_max) => c,
             _ = stop.changed() => return Ok(()),
         };
         match claimed {
@@ -232,9 +233,11 @@ async fn slot(
                 work(&shared, c, &mut stop, &mut rng).await?;
             }
             Ok(None) => {
+                // The service already waited `idle_max` for work (or, an older service,
+                // answered at once): a short jittered pause keeps idle workers out of step.
                 unreachable_since = None;
                 idle = idle.saturating_add(1);
-                if pause(backoff(idle, shared.cfg.idle_max, &mut rng), &mut stop).await {
+                if pause(backoff(0, shared.cfg.idle_max, &mut rng), &mut stop).await {
                     return Ok(());
                 }
             }
