@@ -45,17 +45,6 @@ impl Args {
     }
 }
 
-/// The farm figures, for the `all` summary.
-#[derive(Debug, Clone, Default)]
-pub struct Figures {
-    pub overhead_pct: f64,
-    pub scaling: f64,
-    pub queue_ops_per_s: f64,
-    pub peak_mib: f64,
-    pub base_mib: f64,
-    pub image_rgba_mib: f64,
-}
-
 const SCENE: &str = include_str!("../scenes/mirrors.ray");
 
 /// The mirrors bench scene at `w × h`.
@@ -241,7 +230,7 @@ fn noop_workers(
     Ok((rt, tx))
 }
 
-pub fn run(args: &Args) -> Result<Figures> {
+pub fn run(args: &Args) -> Result<()> {
     let threads = args
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
@@ -251,7 +240,6 @@ pub fn run(args: &Args) -> Result<Figures> {
         .timeout(Duration::from_secs(600))
         .build()?;
     let scene = scene_at(w, h);
-    let mut fig = Figures::default();
 
     println!("farm: mirrors scene at {w}×{h}, {threads} threads, median of {reps}");
     // Two workloads: the scene as written (1 ray per pixel, a fraction of a second: the
@@ -271,9 +259,6 @@ pub fn run(args: &Args) -> Result<Figures> {
             let (farm_png, t_farm) = runs(reps, || svc.render(&http, &scene, &query))?;
             drop(svc);
             let pct = (t_farm.as_secs_f64() / t_local.as_secs_f64() - 1.0) * 100.0;
-            if samples.is_some() {
-                fig.overhead_pct = pct;
-            }
             println!(
                 "  overhead ({label}): tessera-render path {:.3} s, farm (64 px tiles, {threads} local workers) {:.3} s: {pct:+.1} %  (PNG identical: {})",
                 t_local.as_secs_f64(),
@@ -292,9 +277,6 @@ pub fn run(args: &Args) -> Result<Figures> {
             let (_, t2) = runs(reps, || two.render(&http, &scene, &query))?;
             drop(two);
             let ratio = t1.as_secs_f64() / t2.as_secs_f64();
-            if samples.is_some() {
-                fig.scaling = ratio;
-            }
             println!(
                 "  scaling ({label}): 1 worker {:.3} s, 2 workers {:.3} s: {ratio:.2}×",
                 t1.as_secs_f64(),
@@ -323,11 +305,11 @@ pub fn run(args: &Args) -> Result<Figures> {
         let _ = stop.send(true);
         rt.shutdown_timeout(Duration::from_secs(5));
         drop(svc);
-        fig.queue_ops_per_s = 2.0 * tiles as f64 / tq.as_secs_f64();
+        let per_s = 2.0 * tiles as f64 / tq.as_secs_f64();
         println!(
             "  queue: {tiles} tiles claimed and posted by 16 no-op worker loops in {:.3} s: {:.0} claims+results/s",
             tq.as_secs_f64(),
-            fig.queue_ops_per_s
+            per_s
         );
     }
     if args.wants("memory") {
@@ -349,9 +331,6 @@ pub fn run(args: &Args) -> Result<Figures> {
         drop(svc);
         let rgba = u64::from(mw) * u64::from(mh) * 4;
         let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
-        fig.peak_mib = mib(peak);
-        fig.base_mib = mib(base);
-        fig.image_rgba_mib = mib(rgba);
         println!(
             "  memory: {mw}×{mh} ({:.0} MiB as RGBA8, PNG {:.1} MiB, {:.2} s): service peak {:.1} MiB, base {:.1} MiB, peak − base = {:.2} × RGBA8",
             mib(rgba),
@@ -362,5 +341,5 @@ pub fn run(args: &Args) -> Result<Figures> {
             (peak.saturating_sub(base)) as f64 / rgba as f64
         );
     }
-    Ok(fig)
+    Ok(())
 }

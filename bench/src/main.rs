@@ -52,7 +52,7 @@ enum Command {
 
 fn dispatch(command: Command) -> anyhow::Result<()> {
     match command {
-        Command::Farm(args) => farm::run(&args).map(|_| ()),
+        Command::Farm(args) => farm::run(&args),
         Command::Chart(args) => chart::run(&args),
         Command::Features(args) => features::run(&args),
         Command::Povray(args) => povray::run(&args),

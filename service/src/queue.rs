@@ -21,7 +21,7 @@ use serde::Serialize;
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
 use sqlx::{Row, SqlitePool};
 use tessera_tracer::Rect;
-use tessera_worker::protocol::Claim;
+use tessera_worker::protocol::{Claim, JobSpec};
 
 /// The embedded migrations of the top-level `migrations/` folder.
 static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
@@ -76,17 +76,6 @@ pub struct NewJob {
     pub samples: Option<u32>,
     pub threshold: Option<f64>,
     pub created_at: i64,
-}
-
-/// What a worker needs of a job.
-#[derive(Debug, Clone)]
-pub struct JobScene {
-    pub state: String,
-    pub scene: String,
-    pub sampler: Option<String>,
-    pub samples: Option<u32>,
-    pub threshold: Option<f64>,
-    pub assets: Vec<String>,
 }
 
 /// A tile's place and lease, with its job's state.
@@ -313,13 +302,19 @@ impl Queue {
             lease,
             lease_ms,
         };
-        sqlx::query(
-            "UPDATE jobs SET state = 'running', started_at = ?2 WHERE id = ?1 AND state = 'queued'",
-        )
-        .bind(&job)
-        .bind(now)
-        .execute(&self.pool)
-        .await?;
+        // A job's first claim is always its tile 0 (every tile is queued with no failures
+        // then, and claims take the lowest index), so only that claim needs to mark the job
+        // running: no second write on every other claim. The state guard keeps a later
+        // re-claim of tile 0 from changing anything.
+        if claim.idx == 0 {
+            sqlx::query(
+                "UPDATE jobs SET state = 'running', started_at = ?2 WHERE id = ?1 AND state = 'queued'",
+            )
+            .bind(&job)
+            .bind(now)
+            .execute(&self.pool)
+            .await?;
+        }
         Ok(Some(claim))
     }
 
@@ -619,8 +614,8 @@ impl Queue {
         .await?)
     }
 
-    /// The scene, sampler settings and asset names of a job.
-    pub async fn job_scene(&self, id: &str) -> Result<Option<JobScene>> {
+    /// A job's state, and what a worker needs of it: scene, sampler settings, asset names.
+    pub async fn job_scene(&self, id: &str) -> Result<Option<(String, JobSpec)>> {
         type SceneRow = (String, String, Option<String>, Option<i64>, Option<f64>);
         let row: Option<SceneRow> = sqlx::query_as(
             "SELECT state, scene, sampler, samples, threshold FROM jobs WHERE id = ?1",
@@ -635,14 +630,15 @@ impl Queue {
             .bind(id)
             .fetch_all(&self.pool)
             .await?;
-        Ok(Some(JobScene {
-            state,
+        let spec = JobSpec {
+            id: id.to_string(),
             scene,
             sampler,
             samples: samples.map(|s| s as u32),
             threshold,
             assets,
-        }))
+        };
+        Ok(Some((state, spec)))
     }
 
     pub async fn asset(&self, id: &str, name: &str) -> Result<Option<Vec<u8>>> {

@@ -12,9 +12,7 @@ use axum::extract::{Path, Query, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
-use tessera_worker::protocol::{
-    Accepted, ClaimRequest, FailRequest, JobSpec, Renewed, decode_tile,
-};
+use tessera_worker::protocol::{Accepted, ClaimRequest, FailRequest, Renewed, decode_tile};
 
 use crate::error::{ApiError, ok_json};
 use crate::queue::Completion;
@@ -78,25 +76,18 @@ pub async fn job(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
-    let js = state
+    let (job_state, spec) = state
         .queue
         .job_scene(&id)
         .await?
         .ok_or_else(|| ApiError::not_found(format_args!("job `{id}`")))?;
-    if !matches!(js.state.as_str(), "queued" | "running") {
+    if !matches!(job_state.as_str(), "queued" | "running") {
         return Err(ApiError::new(
             StatusCode::GONE,
-            format!("job `{id}` is {}", js.state),
+            format!("job `{id}` is {job_state}"),
         ));
     }
-    Ok(ok_json(JobSpec {
-        id,
-        scene: js.scene,
-        sampler: js.sampler,
-        samples: js.samples,
-        threshold: js.threshold,
-        assets: js.assets,
-    }))
+    Ok(ok_json(spec))
 }
 
 pub async fn asset(

@@ -223,7 +223,13 @@ impl Scene {
 
     /// [`Self::render_rect`] with the rays it took.
     pub fn render_rect_stats(&self, rect: Rect) -> (Vec<u8>, RayStats) {
-        let (linear, stats) = self.render_rect_linear(rect);
+        self.render_rect_stats_with(rect, &self.sampler)
+    }
+
+    /// [`Self::render_rect_stats`] with another sampler than the scene's (a farm job's
+    /// override).
+    pub fn render_rect_stats_with(&self, rect: Rect, sampler: &Sampler) -> (Vec<u8>, RayStats) {
+        let (linear, stats) = self.render_rect_linear_with(rect, sampler);
         let mut bytes = Vec::with_capacity(linear.len() * 3);
         for c in linear {
             bytes.extend_from_slice(&srgb::encode_rgb8(c));

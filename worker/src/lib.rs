@@ -18,7 +18,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use tessera_tracer::{Limits, MemoryAssets, Rect, Sampler, Scene, TextureLimits, srgb};
+use tessera_tracer::{Limits, MemoryAssets, Sampler, Scene, TextureLimits};
 use tokio::sync::{Mutex, watch};
 use tracing::{debug, info, warn};
 
@@ -307,17 +307,6 @@ async fn prepared(shared: &Shared, job: &str) -> Result<Arc<Prepared>, Unusable>
     Ok(p)
 }
 
-/// Renders a tile to 8-bit sRGB bytes: the same values `tessera-render` writes, since a
-/// pixel's value does not depend on its tile.
-pub fn render_tile(scene: &Scene, sampler: &Sampler, rect: Rect) -> Vec<u8> {
-    let (linear, _) = scene.render_rect_linear_with(rect, sampler);
-    let mut out = Vec::with_capacity(linear.len() * 3);
-    for c in linear {
-        out.extend_from_slice(&srgb::encode_rgb8(c));
-    }
-    out
-}
-
 /// Renders one claimed tile and posts it, renewing the lease meanwhile.
 async fn work(
     shared: &Shared,
@@ -349,7 +338,8 @@ async fn work(
             }
             Err(Unusable::Client(e)) => return Err(e),
         };
-        tokio::task::spawn_blocking(move || render_tile(&p.scene, &p.sampler, rect))
+        // The same bytes `tessera-render` writes: a pixel's value does not depend on its tile.
+        tokio::task::spawn_blocking(move || p.scene.render_rect_stats_with(rect, &p.sampler).0)
     };
     tokio::pin!(render);
 
