@@ -269,3 +269,48 @@ fn a_killed_workers_tile_is_handed_out_again() {
     // And the image is unchanged by it.
     assert!(svc.image(&id) == local_png(&examples().join("thesis.ray"), None, None));
 }
+
+/// A worker claims its next tile while the current one renders. Stopped with SIGTERM, it
+/// must finish what it renders and give back the tile it holds ahead at once: with leases
+/// far longer than the test, a tile left behind would be missing from what others can claim.
+#[test]
+fn a_stopped_worker_gives_back_the_tile_it_claimed_ahead() {
+    let dir = TempDir::new("ahead");
+    let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "600000"]);
+    // Small tiles at 8×8 jitter: hundreds of tiles, each long enough that the worker is
+    // always mid-render with one claimed ahead.
+    let job = svc.submit(&read("thesis.ray"), "?tile=16&sampler=jitter&samples=8");
+    let id = job["id"].as_str().expect("id").to_string();
+    let total = job["tiles_total"].as_u64().expect("tiles_total");
+
+    let mut w = Worker::start(&svc.url, "stopping", &[]);
+    common::wait_until("a few tiles done", JOB_TIME, || {
+        svc.get_json(&format!("/jobs/{id}"))["tiles_done"].as_u64() >= Some(4)
+    });
+    assert!(w.terminate().success(), "the worker exits cleanly");
+    let done = svc.get_json(&format!("/jobs/{id}"))["tiles_done"]
+        .as_u64()
+        .expect("tiles_done");
+    assert!(
+        done < total,
+        "the job finished before the worker was stopped"
+    );
+
+    // Every tile not done is claimable again right now: nothing is stranded under a lease.
+    let http = client();
+    let mut claimed = std::collections::HashSet::new();
+    loop {
+        let r = http
+            .post(format!("{}/worker/claim", svc.url))
+            .json(&serde_json::json!({"worker": "probe"}))
+            .send()
+            .expect("answer");
+        if r.status() == 204 {
+            break;
+        }
+        assert_eq!(r.status(), 200);
+        let c: Value = r.json().expect("claim");
+        assert!(claimed.insert(c["idx"].as_u64().expect("idx")), "{c}");
+    }
+    assert_eq!(claimed.len() as u64, total - done);
+}

@@ -20,6 +20,7 @@ use std::time::{Duration, Instant};
 
 use tessera_tracer::{Limits, MemoryAssets, Sampler, Scene, TextureLimits};
 use tokio::sync::{Mutex, watch};
+use tokio::task::JoinHandle;
 use tracing::{debug, info, warn};
 
 use client::{Client, ClientError, Posted};
@@ -205,6 +206,60 @@ fn seed() -> u64 {
     (t ^ (u64::from(std::process::id()) << 32)) | 1
 }
 
+/// A claim asked for ahead of time, running as its own task so that it is never dropped
+/// half-way (a claim answered but never read would strand its tile until the lease ran out).
+type ClaimTask = JoinHandle<Result<Option<Claim>, ClientError>>;
+
+/// A rendered tile on its way to the service.
+type PostTask = JoinHandle<Result<(), ClientError>>;
+
+/// What a slot has in flight besides the tile it renders. While tile N renders, the claim
+/// for tile N + 1 is already asked for and tile N − 1's pixels are being posted, so the
+/// round trips to the service overlap with tracing instead of leaving the core idle between
+/// tiles. Each slot holds at most one tile ahead, which bounds what a job's last moments can
+/// wait for to one tile per slot.
+#[derive(Default)]
+struct Pipeline {
+    /// The next claim, still on its way.
+    claim: Option<ClaimTask>,
+    /// The next claim's answer, waiting for the current tile to finish.
+    next: Option<Result<Option<Claim>, ClientError>>,
+    /// The previous tile's post.
+    post: Option<PostTask>,
+}
+
+impl Pipeline {
+    /// The claim held ahead, if its answer is in and gave a tile.
+    fn held(&self) -> Option<&Claim> {
+        match &self.next {
+            Some(Ok(Some(c))) => Some(c),
+            _ => None,
+        }
+    }
+
+    /// Waits for the claim in flight, if any (forever if none: for `select!`).
+    async fn claim_answer(&mut self) -> Result<Option<Claim>, ClientError> {
+        match &mut self.claim {
+            Some(task) => task.await.unwrap_or_else(|e| {
+                warn!("claim task ended abnormally: {e}");
+                Ok(None)
+            }),
+            None => std::future::pending().await,
+        }
+    }
+
+    /// Waits for the previous post, passing on a refusal that retrying cannot fix.
+    async fn finish_post(&mut self) -> Result<(), ClientError> {
+        match self.post.take() {
+            Some(task) => task.await.unwrap_or_else(|e| {
+                warn!("post task ended abnormally: {e}");
+                Ok(())
+            }),
+            None => Ok(()),
+        }
+    }
+}
+
 async fn slot(
     shared: Arc<Shared>,
     index: usize,
@@ -213,13 +268,26 @@ async fn slot(
     let mut rng = seed().wrapping_add(index as u64 * 0x9E37_79B9_7F4A_7C15) | 1;
     let mut idle = 0u32;
     let mut unreachable_since: Option<Instant> = None;
-    loop {
+    let mut pipe = Pipeline::default();
+    let outcome = loop {
         if *stop.borrow() {
-            return Ok(());
+            break Ok(());
         }
-        let claimed = tokio::select! {
-            c = shared.client.claim(&shared.cfg.name, shared.cfg.idle_max) => c,
-            _ = stop.changed() => return Ok(()),
+        let claimed = if let Some(answer) = pipe.next.take() {
+            answer
+        } else if pipe.claim.is_some() {
+            tokio::select! {
+                a = pipe.claim_answer() => {
+                    pipe.claim = None;
+                    a
+                }
+                _ = stop.changed() => break Ok(()),
+            }
+        } else {
+            tokio::select! {
+                c = shared.client.claim(&shared.cfg.name, shared.cfg.idle_max) => c,
+                _ = stop.changed() => break Ok(()),
+            }
         };
         match claimed {
             Ok(Some(c)) => {
@@ -230,7 +298,9 @@ async fn slot(
                     );
                 }
                 idle = 0;
-                work(&shared, c, &mut stop, &mut rng).await?;
+                if let Err(e) = work(&shared, c, &mut stop, &mut pipe).await {
+                    break Err(e);
+                }
             }
             Ok(None) => {
                 // The service already waited `idle_max` for work (or, an older service,
@@ -238,7 +308,7 @@ async fn slot(
                 unreachable_since = None;
                 idle = idle.saturating_add(1);
                 if pause(backoff(0, shared.cfg.idle_max, &mut rng), &mut stop).await {
-                    return Ok(());
+                    break Ok(());
                 }
             }
             Err(e) if e.is_transient() => {
@@ -249,12 +319,35 @@ async fn slot(
                 idle = idle.saturating_add(1);
                 let max = shared.cfg.idle_max.max(Duration::from_secs(2));
                 if pause(backoff(idle, max, &mut rng), &mut stop).await {
-                    return Ok(());
+                    break Ok(());
                 }
             }
-            Err(e) => return Err(e),
+            Err(e) => break Err(e),
+        }
+    };
+    let drained = drain(&shared, pipe).await;
+    outcome.and(drained)
+}
+
+/// On the way out: the last post is finished, and a tile claimed ahead (or still being
+/// claimed) is given back at once rather than left to its lease.
+async fn drain(shared: &Shared, mut pipe: Pipeline) -> Result<(), ClientError> {
+    let posted = pipe.finish_post().await;
+    if let Some(mut task) = pipe.claim.take() {
+        // The claim waits at most `idle_max` at the service; past that and a margin, the
+        // answer is abandoned and the tile, if any, comes back when its lease runs out.
+        let limit = shared.cfg.idle_max + Duration::from_secs(2);
+        match tokio::time::timeout(limit, &mut task).await {
+            Ok(Ok(answer)) => pipe.next = Some(answer),
+            Ok(Err(e)) => warn!("claim task ended abnormally: {e}"),
+            Err(_) => task.abort(),
         }
     }
+    if let Some(c) = pipe.held() {
+        shared.released.fetch_add(1, Ordering::Relaxed);
+        shared.client.release(c).await.or_else(ignore_transient)?;
+    }
+    posted
 }
 
 /// The scene of `job`, from the cache or fetched and built.
@@ -307,12 +400,13 @@ async fn prepared(shared: &Shared, job: &str) -> Result<Arc<Prepared>, Unusable>
     Ok(p)
 }
 
-/// Renders one claimed tile and posts it, renewing the lease meanwhile.
+/// Renders one claimed tile, renewing its lease (and that of a tile claimed ahead)
+/// meanwhile, and starts posting it; asks for the next tile as the render starts.
 async fn work(
-    shared: &Shared,
+    shared: &Arc<Shared>,
     c: Claim,
     stop: &mut watch::Receiver<bool>,
-    rng: &mut u64,
+    pipe: &mut Pipeline,
 ) -> Result<(), ClientError> {
     let client = &shared.client;
     let rect = c.rect();
@@ -342,6 +436,11 @@ async fn work(
         tokio::task::spawn_blocking(move || p.scene.render_rect_stats_with(rect, &p.sampler).0)
     };
     tokio::pin!(render);
+    if pipe.claim.is_none() && pipe.next.is_none() && !*stop.borrow() {
+        let client = client.clone();
+        let (name, wait) = (shared.cfg.name.clone(), shared.cfg.idle_max);
+        pipe.claim = Some(tokio::spawn(async move { client.claim(&name, wait).await }));
+    }
 
     let renew_every = Duration::from_millis((c.lease_ms / 3).max(10));
     let mut ticker =
@@ -357,19 +456,38 @@ async fn work(
         };
         tokio::select! {
             r = &mut render => break r,
-            _ = ticker.tick() => match client.renew(&c).await {
-                Ok(true) => {}
-                Ok(false) => {
-                    debug!(job = %c.job, tile = c.idx, "lease lost; dropping the tile");
-                    return Ok(());
+            answer = pipe.claim_answer() => {
+                pipe.claim = None;
+                pipe.next = Some(answer);
+            }
+            _ = ticker.tick() => {
+                match client.renew(&c).await {
+                    Ok(true) => {}
+                    Ok(false) => {
+                        debug!(job = %c.job, tile = c.idx, "lease lost; dropping the tile");
+                        return Ok(());
+                    }
+                    // Unreachable: keep rendering; the service extends leases when it restarts.
+                    Err(e) if e.is_transient() => debug!("renewal failed: {e}"),
+                    Err(e) => return Err(e),
                 }
-                // Unreachable: keep rendering; the service extends leases when it restarts.
-                Err(e) if e.is_transient() => debug!("renewal failed: {e}"),
-                Err(e) => return Err(e),
-            },
+                if let Some(ahead) = pipe.held() {
+                    match client.renew(ahead).await {
+                        Ok(true) => {}
+                        Ok(false) => pipe.next = None,
+                        Err(e) if e.is_transient() => debug!("renewal failed: {e}"),
+                        Err(e) => return Err(e),
+                    }
+                }
+            }
             changed = stop.changed(), if deadline.is_none() => {
                 if changed.is_err() || *stop.borrow() {
                     deadline = Some(tokio::time::Instant::now() + shared.cfg.grace);
+                    // The tile held ahead will not be rendered here: others may take it now.
+                    if let Some(Ok(Some(ahead))) = pipe.next.take() {
+                        shared.released.fetch_add(1, Ordering::Relaxed);
+                        client.release(&ahead).await.or_else(ignore_transient)?;
+                    }
                 }
             }
             _ = give_up => {
@@ -393,11 +511,20 @@ async fn work(
     };
     debug!(job = %c.job, tile = c.idx, ms = started.elapsed().as_millis() as u64, "rendered");
     let blob = encode_tile(rect, &rgb);
-    // Post, riding through a service restart: it extends leases when it comes back.
+    // One post in flight per slot: the previous one has had a whole render to finish.
+    pipe.finish_post().await?;
+    pipe.post = Some(tokio::spawn(post(shared.clone(), c, blob)));
+    Ok(())
+}
+
+/// Posts a rendered tile, riding through a service restart (it extends leases when it
+/// comes back).
+async fn post(shared: Arc<Shared>, c: Claim, blob: Vec<u8>) -> Result<(), ClientError> {
     let give_up_at = Instant::now() + Duration::from_millis(c.lease_ms.max(1000) * 4);
+    let mut rng = seed();
     let mut streak = 0;
     loop {
-        match client.post_tile(&c, blob.clone()).await {
+        match shared.client.post_tile(&c, blob.clone()).await {
             Ok(Posted::Accepted { .. }) => {
                 shared.tiles.fetch_add(1, Ordering::Relaxed);
                 return Ok(());
@@ -409,7 +536,7 @@ async fn work(
             Err(e) if e.is_transient() && Instant::now() < give_up_at => {
                 streak += 1;
                 // The stop flag is ignored here: finishing a rendered tile is worth the wait.
-                tokio::time::sleep(backoff(streak, Duration::from_secs(2), rng)).await;
+                tokio::time::sleep(backoff(streak, Duration::from_secs(2), &mut rng)).await;
             }
             Err(e) if e.is_transient() => {
                 warn!(job = %c.job, tile = c.idx, "could not post the tile: {e}");
