@@ -13,8 +13,9 @@ use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{Html, IntoResponse, Response};
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
-use tessera_tracer::{MemoryAssets, Scene, SceneError, parse, tiles};
+use tessera_tracer::{MemoryAssets, Sampler, Scene, SceneError, parse, tiles};
 
+use crate::config::auto_tile;
 use crate::error::{ApiError, ok_json};
 use crate::queue::{JobRow, NewJob};
 use crate::{AppState, now_ms};
@@ -226,8 +227,8 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
             "empty body: send the scene file (curl --data-binary @scene.ray)",
         ));
     }
-    let tile = params.tile.unwrap_or(state.cfg.tile);
-    if !(MIN_TILE..=MAX_TILE).contains(&tile) {
+    let tile = params.tile.or(state.cfg.tile);
+    if tile.is_some_and(|t| !(MIN_TILE..=MAX_TILE).contains(&t)) {
         return Err(ApiError::bad_request(format!(
             "tile must be from {MIN_TILE} to {MAX_TILE} pixels"
         )));
@@ -353,13 +354,23 @@ fn scene_error(e: &SceneError) -> ApiError {
     .with("errors", Value::Array(all))
 }
 
+/// The fewest primary rays per pixel a sampler traces: the automatic tile size's measure of
+/// a job's cost (an adaptive pixel may take more, never fewer).
+fn min_rays_per_pixel(sampler: &Sampler) -> u32 {
+    match sampler {
+        Sampler::Adaptive { .. } => 4,
+        other => other.max_samples_per_pixel(),
+    }
+}
+
 /// Parses and builds the scene off the async threads; on success returns what to store.
+/// `tile` is the job's or `--tile`'s; without either the size follows [`auto_tile`].
 async fn validate(
     state: &AppState,
     source: String,
     uploads: Uploads,
     params: &SubmitParams,
-    tile: u32,
+    tile: Option<u32>,
     name: Option<String>,
 ) -> Result<(NewJob, Vec<tessera_tracer::Rect>, Uploads), ApiError> {
     let limits = state.cfg.scene_limits();
@@ -369,7 +380,8 @@ async fn validate(
     let threshold = params.threshold;
     let checked = tokio::task::spawn_blocking(move || {
         let desc = parse(&source, &limits).map_err(|e| scene_error(&e))?;
-        desc.sampler
+        let chosen = desc
+            .sampler
             .with_overrides(sampler.as_deref(), samples, threshold, limits.max_samples)
             .map_err(ApiError::bad_request)?;
         let used: Vec<String> = desc
@@ -419,14 +431,16 @@ async fn validate(
                 err.with("missing_assets", missing)
             }
         })?;
-        Ok::<_, ApiError>((source, desc.width, desc.height, kept))
+        let rays = min_rays_per_pixel(&chosen);
+        Ok::<_, ApiError>((source, desc.width, desc.height, kept, rays))
     })
     .await
     .map_err(|e| {
         tracing::error!("scene validation panicked: {e}");
         ApiError::bad_request("the scene could not be checked (the validator failed)")
     })??;
-    let (source, width, height, kept) = checked;
+    let (source, width, height, kept, rays) = checked;
+    let tile = tile.unwrap_or_else(|| auto_tile(width, height, rays));
     let job = NewJob {
         id: uuid::Uuid::new_v4().simple().to_string()[..16].to_string(),
         scene: source,

@@ -4,10 +4,36 @@
 use clap::Parser;
 use tessera_tracer::{Limits, TextureLimits};
 
-/// Default tile edge in pixels, chosen by measurement (`tessera-bench farm`): 64 px tiles
-/// cost well under 1 % in queue overhead on a 1080p frame while leaving enough tiles
-/// (510 of them) that no worker idles long at the end of a job.
-pub const DEFAULT_TILE: u32 = 64;
+/// Primary rays a tile should carry when the service picks its size: about 20 ms of tracing
+/// on the bench machine, some fifty times the service's and worker's own cost per tile
+/// (claim, post, store; about 0.4 ms of CPU in all, see README "The farm's figures").
+pub const TILE_RAYS: u64 = 65_536;
+
+/// Tiles a job should have at least when the service picks their size, so that a handful of
+/// workers can share even a small image and finish together.
+pub const MIN_AUTO_TILES: u64 = 16;
+
+/// The tile edges the service picks from.
+pub const AUTO_TILE_RANGE: (u32, u32) = (32, 256);
+
+/// The tile edge for a `width × height` job whose pixels cost at least `rays_per_pixel`
+/// primary rays, when neither the job nor `--tile` sets one: the smallest power of two whose
+/// tile carries [`TILE_RAYS`], then halved while the job would have fewer than
+/// [`MIN_AUTO_TILES`] tiles, always within [`AUTO_TILE_RANGE`]. A 1080p frame gets 256 px
+/// tiles at one ray per pixel (40 tiles) and 64 px tiles at 16 (510 tiles).
+pub fn auto_tile(width: u32, height: u32, rays_per_pixel: u32) -> u32 {
+    let (lo, hi) = AUTO_TILE_RANGE;
+    let rays = u64::from(rays_per_pixel.max(1));
+    let mut edge = lo;
+    while edge < hi && u64::from(edge) * u64::from(edge) * rays < TILE_RAYS {
+        edge *= 2;
+    }
+    let count = |e: u32| u64::from(width.div_ceil(e)) * u64::from(height.div_ceil(e));
+    while edge > lo && count(edge) < MIN_AUTO_TILES {
+        edge /= 2;
+    }
+    edge
+}
 
 /// The Tessera render service: HTTP API, SQLite job queue, web page, and local workers.
 #[derive(Debug, Clone, Parser)]
@@ -32,9 +58,10 @@ pub struct Config {
     /// Accept jobs from anyone even when listening beyond loopback without --submit-token.
     #[arg(long, env = "TESSERA_OPEN_SUBMIT")]
     pub open_submit: bool,
-    /// Default tile edge in pixels (a job may ask for another with `?tile=`).
-    #[arg(long, env = "TESSERA_TILE", default_value_t = DEFAULT_TILE)]
-    pub tile: u32,
+    /// Tile edge in pixels for jobs that do not ask with `?tile=`; by default the service
+    /// picks one per job from its size and samples per pixel.
+    #[arg(long, env = "TESSERA_TILE")]
+    pub tile: Option<u32>,
     /// Lease length in milliseconds; workers renew at a third of it.
     #[arg(long, env = "TESSERA_LEASE_MS", default_value_t = 30_000)]
     pub lease_ms: u64,
@@ -92,5 +119,57 @@ impl Config {
             max_pixels: self.max_texture_pixels,
             ..TextureLimits::default()
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn count(w: u32, h: u32, e: u32) -> u64 {
+        u64::from(w.div_ceil(e)) * u64::from(h.div_ceil(e))
+    }
+
+    /// The rule's two promises, checked over many sizes and costs: a tile carries
+    /// `TILE_RAYS` unless that would leave fewer than `MIN_AUTO_TILES` tiles (or the range
+    /// ends), and a job has `MIN_AUTO_TILES` tiles unless tiles are already the smallest.
+    #[test]
+    fn auto_tiles_carry_enough_rays_and_are_enough_in_number() {
+        let (lo, hi) = AUTO_TILE_RANGE;
+        for &(w, h) in &[(1, 1), (64, 64), (320, 180), (640, 480), (1920, 1080), (7680, 4320)] {
+            let mut last = u32::MAX;
+            for rays in [1, 4, 5, 9, 16, 64, 256, 4096] {
+                let e = auto_tile(w, h, rays);
+                assert!((lo..=hi).contains(&e) && e.is_power_of_two(), "{w}×{h} {rays}: {e}");
+                assert!(e <= last, "more rays per pixel never gives larger tiles");
+                last = e;
+                let carried = u64::from(e) * u64::from(e) * u64::from(rays);
+                let doubled = 2 * e;
+                // Either the tile carries enough rays, or a larger one would be too few tiles.
+                assert!(
+                    carried >= TILE_RAYS || e == hi || count(w, h, doubled) < MIN_AUTO_TILES,
+                    "{w}×{h} {rays}: {e}"
+                );
+                assert!(
+                    count(w, h, e) >= MIN_AUTO_TILES || e == lo,
+                    "{w}×{h} {rays}: {e} gives {} tiles",
+                    count(w, h, e)
+                );
+                // And no smaller tile would already carry enough.
+                if e > lo && count(w, h, e) >= MIN_AUTO_TILES {
+                    let half = u64::from(e / 2);
+                    assert!(half * half * u64::from(rays) < TILE_RAYS, "{w}×{h} {rays}: {e}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_1080p_frame_gets_large_tiles_at_one_ray_and_small_ones_at_sixteen() {
+        // 256² = 65,536 rays at one ray per pixel; 64² × 16 = 65,536 at 16.
+        assert_eq!(auto_tile(1920, 1080, 1), 256);
+        assert_eq!(auto_tile(1920, 1080, 16), 64);
+        // 640×480 at one ray: 256 px would be 6 tiles, 128 px is 20.
+        assert_eq!(auto_tile(640, 480, 1), 128);
     }
 }

@@ -201,7 +201,10 @@ pub async fn serve(
              --open-submit to accept that."
         )));
     }
-    if !(api::MIN_TILE..=api::MAX_TILE).contains(&cfg.tile) {
+    if cfg
+        .tile
+        .is_some_and(|t| !(api::MIN_TILE..=api::MAX_TILE).contains(&t))
+    {
         return Err(ServiceError::Config(format!(
             "--tile must be from {} to {}",
             api::MIN_TILE,
