@@ -6,8 +6,8 @@
 //!   tracer rendering the same image on the same threads in this process (`tessera-render`'s
 //!   code path), with the PNGs compared byte for byte;
 //! - scaling: one local worker against two;
-//! - tile size: the same job at several tile sizes (full mode), the measurement behind the
-//!   default;
+//! - tile size: both jobs at several tile sizes (full mode), the measurement behind the
+//!   service's automatic tile size;
 //! - queue: claims plus results per second with no-op workers (they post black tiles);
 //! - memory: the service process's peak resident memory while it takes in and assembles a
 //!   7680×4320 image, against the image's RGBA8 size.
@@ -130,6 +130,17 @@ impl Service {
         scene: &str,
         query: &str,
     ) -> Result<(Vec<u8>, Duration)> {
+        self.render_job(http, scene, query)
+            .map(|(png, t, _)| (png, t))
+    }
+
+    /// As [`Service::render`], also returning the tile edge the service used.
+    fn render_job(
+        &self,
+        http: &reqwest::blocking::Client,
+        scene: &str,
+        query: &str,
+    ) -> Result<(Vec<u8>, Duration, u64)> {
         let start = Instant::now();
         let r = http
             .post(format!("{}/jobs{query}", self.url))
@@ -140,6 +151,7 @@ impl Service {
         }
         let job: Value = r.json()?;
         let id = job["id"].as_str().context("job id")?.to_string();
+        let tile = job["tile"].as_u64().context("job tile")?;
         loop {
             let j: Value = http.get(format!("{}/jobs/{id}", self.url)).send()?.json()?;
             match j["state"].as_str() {
@@ -153,7 +165,7 @@ impl Service {
             .send()?
             .bytes()?
             .to_vec();
-        Ok((png, start.elapsed()))
+        Ok((png, start.elapsed(), tile))
     }
 }
 
@@ -256,11 +268,16 @@ pub fn run(args: &Args) -> Result<()> {
         if args.wants("overhead") {
             let (local_png, t_local) = runs(reps, || local(&scene, threads, samples))?;
             let svc = Service::start(&["--local-workers", &threads.to_string()])?;
-            let (farm_png, t_farm) = runs(reps, || svc.render(&http, &scene, &query))?;
+            let mut tile = 0;
+            let (farm_png, t_farm) = runs(reps, || {
+                let (png, t, edge) = svc.render_job(&http, &scene, &query)?;
+                tile = edge;
+                Ok((png, t))
+            })?;
             drop(svc);
             let pct = (t_farm.as_secs_f64() / t_local.as_secs_f64() - 1.0) * 100.0;
             println!(
-                "  overhead ({label}): tessera-render path {:.3} s, farm (64 px tiles, {threads} local workers) {:.3} s: {pct:+.1} %  (PNG identical: {})",
+                "  overhead ({label}): tessera-render path {:.3} s, farm ({tile} px tiles, the service's choice; {threads} local workers) {:.3} s: {pct:+.1} %  (PNG identical: {})",
                 t_local.as_secs_f64(),
                 t_farm.as_secs_f64(),
                 if local_png == farm_png { "yes" } else { "NO" }
@@ -268,6 +285,18 @@ pub fn run(args: &Args) -> Result<()> {
             if local_png != farm_png {
                 bail!("the farm's PNG differs from the local render");
             }
+        }
+        if !args.quick && args.wants("tiles") {
+            // The measurement behind the automatic tile size (`auto_tile` in the service).
+            let svc = Service::start(&["--local-workers", &threads.to_string()])?;
+            let mut line = format!("  tile size ({label}):");
+            for tile in [32, 64, 128, 256] {
+                let sep = if query.is_empty() { '?' } else { '&' };
+                let q = format!("{query}{sep}tile={tile}");
+                let (_, t) = runs(reps, || svc.render(&http, &scene, &q))?;
+                line.push_str(&format!("  {tile} px {:.3} s", t.as_secs_f64()));
+            }
+            println!("{line}");
         }
         if args.wants("scaling") {
             let one = Service::start(&["--local-workers", "1"])?;
@@ -283,16 +312,6 @@ pub fn run(args: &Args) -> Result<()> {
                 t2.as_secs_f64(),
             );
         }
-    }
-
-    if !args.quick && args.wants("tiles") {
-        let svc = Service::start(&["--local-workers", &threads.to_string()])?;
-        let mut line = String::from("  tile size:");
-        for tile in [16, 32, 64, 128, 256] {
-            let (_, t) = runs(reps, || svc.render(&http, &scene, &format!("?tile={tile}")))?;
-            line.push_str(&format!("  {tile} px {:.3} s", t.as_secs_f64()));
-        }
-        println!("{line}");
     }
 
     if args.wants("queue") {

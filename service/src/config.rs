@@ -136,11 +136,21 @@ mod tests {
     #[test]
     fn auto_tiles_carry_enough_rays_and_are_enough_in_number() {
         let (lo, hi) = AUTO_TILE_RANGE;
-        for &(w, h) in &[(1, 1), (64, 64), (320, 180), (640, 480), (1920, 1080), (7680, 4320)] {
+        for &(w, h) in &[
+            (1, 1),
+            (64, 64),
+            (320, 180),
+            (640, 480),
+            (1920, 1080),
+            (7680, 4320),
+        ] {
             let mut last = u32::MAX;
             for rays in [1, 4, 5, 9, 16, 64, 256, 4096] {
                 let e = auto_tile(w, h, rays);
-                assert!((lo..=hi).contains(&e) && e.is_power_of_two(), "{w}×{h} {rays}: {e}");
+                assert!(
+                    (lo..=hi).contains(&e) && e.is_power_of_two(),
+                    "{w}×{h} {rays}: {e}"
+                );
                 assert!(e <= last, "more rays per pixel never gives larger tiles");
                 last = e;
                 let carried = u64::from(e) * u64::from(e) * u64::from(rays);
@@ -158,7 +168,10 @@ mod tests {
                 // And no smaller tile would already carry enough.
                 if e > lo && count(w, h, e) >= MIN_AUTO_TILES {
                     let half = u64::from(e / 2);
-                    assert!(half * half * u64::from(rays) < TILE_RAYS, "{w}×{h} {rays}: {e}");
+                    assert!(
+                        half * half * u64::from(rays) < TILE_RAYS,
+                        "{w}×{h} {rays}: {e}"
+                    );
                 }
             }
         }

@@ -314,3 +314,35 @@ fn a_stopped_worker_gives_back_the_tile_it_claimed_ahead() {
     }
     assert_eq!(claimed.len() as u64, total - done);
 }
+
+/// Tile sizes: a job's `?tile=` wins over `--tile`, which wins over the service's own pick;
+/// whichever is used, the job's tiles cover its image exactly once.
+#[test]
+fn tile_size_comes_from_the_job_then_the_flag_then_the_service() {
+    let scene = read("thesis.ray");
+    let covers = |job: &Value| {
+        let (w, h, t) = (
+            job["width"].as_u64().expect("width"),
+            job["height"].as_u64().expect("height"),
+            job["tile"].as_u64().expect("tile"),
+        );
+        assert_eq!(
+            job["tiles_total"].as_u64(),
+            Some(w.div_ceil(t) * h.div_ceil(t)),
+            "{job}"
+        );
+        t
+    };
+    let dir = TempDir::new("tileflag");
+    let svc = Service::start(&dir, &["--local-workers", "0", "--tile", "48"]);
+    assert_eq!(covers(&svc.submit(&scene, "")), 48);
+    assert_eq!(covers(&svc.submit(&scene, "?tile=40")), 40);
+
+    let dir = TempDir::new("tileauto");
+    let svc = Service::start(&dir, &["--local-workers", "0"]);
+    // thesis.ray: 640×480 at one ray per pixel. 256 px tiles carry the 65,536 rays a picked
+    // tile should but would be only 3 × 2 = 6 tiles (under 16), so 128 px: 5 × 4 = 20.
+    assert_eq!(covers(&svc.submit(&scene, "")), 128);
+    // With 8×8 jitter, 32² × 64 rays is enough already.
+    assert_eq!(covers(&svc.submit(&scene, "?sampler=jitter&samples=8")), 32);
+}
