@@ -156,7 +156,8 @@ impl Service {
             let j: Value = http.get(format!("{}/jobs/{id}", self.url)).send()?.json()?;
             match j["state"].as_str() {
                 Some("done") => break,
-                Some("queued" | "running") => std::thread::sleep(Duration::from_millis(10)),
+                // Every 25 ms: on average 12 ms late, and light on the service it measures.
+                Some("queued" | "running") => std::thread::sleep(Duration::from_millis(25)),
                 _ => bail!("job ended: {j}"),
             }
         }

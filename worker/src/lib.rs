@@ -224,8 +224,8 @@ struct Pipeline {
     claim: Option<ClaimTask>,
     /// The next claim's answer, waiting for the current tile to finish.
     next: Option<Result<Option<Claim>, ClientError>>,
-    /// The previous tile's post.
-    post: Option<PostTask>,
+    /// Posts of earlier tiles still under way, oldest first (at most [`POSTS_IN_FLIGHT`]).
+    posts: std::collections::VecDeque<PostTask>,
 }
 
 impl Pipeline {
@@ -248,9 +248,21 @@ impl Pipeline {
         }
     }
 
-    /// Waits for the previous post, passing on a refusal that retrying cannot fix.
-    async fn finish_post(&mut self) -> Result<(), ClientError> {
-        match self.post.take() {
+    /// Starts posting a rendered tile without waiting for earlier posts, unless
+    /// [`POSTS_IN_FLIGHT`] are still under way (the service is slow or unreachable): then
+    /// the oldest is waited for first. A refusal that retrying cannot fix is passed on.
+    async fn start_post(&mut self, task: PostTask) -> Result<(), ClientError> {
+        while self.posts.front().is_some_and(JoinHandle::is_finished)
+            || self.posts.len() >= POSTS_IN_FLIGHT
+        {
+            self.finish_oldest_post().await?;
+        }
+        self.posts.push_back(task);
+        Ok(())
+    }
+
+    async fn finish_oldest_post(&mut self) -> Result<(), ClientError> {
+        match self.posts.pop_front() {
             Some(task) => task.await.unwrap_or_else(|e| {
                 warn!("post task ended abnormally: {e}");
                 Ok(())
@@ -258,7 +270,23 @@ impl Pipeline {
             None => Ok(()),
         }
     }
+
+    /// Waits for every post under way; the first refusal is passed on.
+    async fn finish_posts(&mut self) -> Result<(), ClientError> {
+        let mut first = Ok(());
+        while !self.posts.is_empty() {
+            let r = self.finish_oldest_post().await;
+            if first.is_ok() {
+                first = r;
+            }
+        }
+        first
+    }
 }
+
+/// Posts a slot may have under way at once: the next render never waits for the service
+/// unless this many are stuck.
+const POSTS_IN_FLIGHT: usize = 4;
 
 async fn slot(
     shared: Arc<Shared>,
@@ -332,7 +360,7 @@ async fn slot(
 /// On the way out: the last post is finished, and a tile claimed ahead (or still being
 /// claimed) is given back at once rather than left to its lease.
 async fn drain(shared: &Shared, mut pipe: Pipeline) -> Result<(), ClientError> {
-    let posted = pipe.finish_post().await;
+    let posted = pipe.finish_posts().await;
     if let Some(mut task) = pipe.claim.take() {
         // The claim waits at most `idle_max` at the service; past that and a margin, the
         // answer is abandoned and the tile, if any, comes back when its lease runs out.
@@ -511,10 +539,8 @@ async fn work(
     };
     debug!(job = %c.job, tile = c.idx, ms = started.elapsed().as_millis() as u64, "rendered");
     let blob = encode_tile(rect, &rgb);
-    // One post in flight per slot: the previous one has had a whole render to finish.
-    pipe.finish_post().await?;
-    pipe.post = Some(tokio::spawn(post(shared.clone(), c, blob)));
-    Ok(())
+    pipe.start_post(tokio::spawn(post(shared.clone(), c, blob)))
+        .await
 }
 
 /// Posts a rendered tile, riding through a service restart (it extends leases when it
