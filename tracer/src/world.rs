@@ -258,10 +258,11 @@ enum Accel {
 
 /// What testing a prim costs in the BVH's SAH, in units of one node visit (the two-lane
 /// test of two boxes, about 50 instructions). A sphere placed by a similarity is mostly
-/// rejected by its packed pre-test (about 20 instructions) before its object is touched;
-/// any other object carries the ray into its own space and solves its shape; a CSG tree
-/// does that for each child it reaches. Only the ratios matter, and only roughly: they
-/// decide how many items a leaf holds.
+/// rejected by its packed pre-test before its object is touched, and is costed as one
+/// visit (with the miss bookkeeping); any other object carries the ray into its own space
+/// and solves its shape; a CSG tree does that for each child it reaches. Only the ratios
+/// matter, and only roughly: they decide how many items a leaf holds. (Measured on the
+/// scaling scenes, a sphere cost of 0.3, 0.5 or 1 changed instructions per ray by under 1%.)
 fn prim_cost(prim: &Prim, objects: &[Object]) -> f64 {
     match prim {
         Prim::Object(o) if objects[*o as usize].sphere.is_some() => SPHERE_COST,
@@ -270,6 +271,7 @@ fn prim_cost(prim: &Prim, objects: &[Object]) -> f64 {
     }
 }
 
+/// SAH cost of a sphere placed by a similarity (see [`prim_cost`]).
 const SPHERE_COST: f64 = 1.0;
 
 impl Accel {
