@@ -194,9 +194,15 @@ impl Node {
     fn new(bounds: [Aabb; 2], child: [Child; 2]) -> Node {
         let mut b = [[[0.0f32; 2]; 3]; 2];
         for (c, bb) in bounds.iter().enumerate() {
-            for a in 0..3 {
-                b[0][a][c] = round_out(bb.min[a], false);
-                b[1][a][c] = round_out(bb.max[a], true);
+            for (a, (lo, hi)) in bb
+                .min
+                .to_array()
+                .into_iter()
+                .zip(bb.max.to_array())
+                .enumerate()
+            {
+                b[0][a][c] = round_out(lo, false);
+                b[1][a][c] = round_out(hi, true);
             }
         }
         Node { b, child }
