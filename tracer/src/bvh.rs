@@ -5,11 +5,13 @@
 //! **What it is for.** [`crate::world::Scene`] builds one over its *bounded* solids (lone
 //! objects and CSG trees with a finite box) when there are enough of them to gain
 //! ([`crate::world::BVH_MIN_PRIMS`]). The tree is built once, top-down with the surface area
-//! heuristic over [`BINS`] centroid bins (Wald 2007; pbrt §4.3.2), and stored as a flat array
-//! in depth-first order (a node's first child follows it). Traversal is iterative with a
-//! fixed stack, visits the nearer child first, and skips a subtree whose box starts beyond
-//! the caller's current limit, so a nearest-hit query stops opening boxes once it has a hit
-//! closer than everything left on the stack.
+//! heuristic over [`BINS`] centroid bins on each of the three axes (Wald 2007; pbrt §4.3.2),
+//! each item weighted by what testing it costs, and stored as a flat array of interior
+//! nodes in depth-first order. A node holds the boxes of *both* its children (in `f32`,
+//! rounded outwards: 64 bytes, one cache line), so a visit is one two-lane slab test in
+//! `f64`. Traversal is iterative with a fixed stack, goes to the nearer child first, and
+//! skips a subtree whose box starts beyond the caller's current limit, so a nearest-hit
+//! query stops opening boxes once it has a hit closer than everything left on the stack.
 //!
 //! **What it is not.** It knows nothing of shapes, hits or ties: items are caller indices,
 //! and the caller's callback tests them and says how far the search still has to go. Every
@@ -23,27 +25,29 @@ use std::ops::ControlFlow;
 
 use glam::DVec3;
 
-use crate::math::Aabb;
+use crate::math::{Aabb, gamma};
 
 /// Centroid bins per axis for the SAH split search. 16 is the usual choice: finer binning
 /// barely changes tree quality (Wald 2007) and costs build time.
 pub const BINS: usize = 16;
 
-/// Deepest leaf the builder makes; deeper subtrees become (larger) leaves. Binned SAH on
-/// sane scenes stays far shallower (≈ 2 log₂ n); the cap only bounds pathological inputs
-/// (exponentially spaced centroids) so the fixed traversal stack can never overflow.
+/// Deepest interior node the builder makes; a subtree that would go deeper becomes a
+/// (larger) leaf. Binned SAH on sane scenes stays far shallower (≈ 2 log₂ n); the cap only
+/// bounds pathological inputs (exponentially spaced centroids) so that the fixed traversal
+/// stack can never overflow.
 pub const MAX_DEPTH: usize = 60;
 
-/// Traversal stack: one pending far child per level at most, plus the root.
-const STACK: usize = MAX_DEPTH + 2;
+/// Traversal stack: at most one pending far child per interior level of the current path.
+const STACK: usize = MAX_DEPTH + 1;
 
-/// Leaves at most this large are always accepted; larger ones only when no split is
-/// cheaper by the SAH or the items cannot be separated (coincident centroids).
-const LEAF_MIN: usize = 2;
+/// Leaves at most this large are made whenever the SAH says a split does not pay; larger
+/// sets are split whenever their centroids can be told apart, since every ray that enters a
+/// leaf pays for all its items.
+pub const LEAF_MAX: usize = 8;
 
-/// Cost of one node visit (two box tests) relative to one item test in the SAH. An item
-/// test (carrying the ray into object space, solving the shape) costs several box tests.
-const TRAVERSAL_COST: f64 = 0.5;
+/// Cost of visiting an interior node (the two-lane test of both children's boxes) in the
+/// SAH, the unit in which item costs ([`Item::cost`]) are given.
+pub const NODE_COST: f64 = 1.0;
 
 /// Relative enlargement of every item box, and of the search limit when boxes are culled.
 ///
@@ -57,30 +61,75 @@ const TRAVERSAL_COST: f64 = 0.5;
 /// can never change an answer, only keep one from being lost.
 pub const SLACK: f64 = 1e-7;
 
-/// One node of the flattened tree.
+/// Widening of a slab's far distance (pbrt §3.9.2): `(b − o)·(1/d)` is two roundings off
+/// the exact `(b − o)/d` and `1/d` one more, so the computed far distance is within `γ(3)`
+/// of the true one; `1 + 2γ(3)` covers it with room to spare.
+const FAR_WIDEN: f64 = 1.0 + 2.0 * gamma(3);
+
+/// One item to build the tree over.
 #[derive(Debug, Clone, Copy)]
-struct Node {
-    bounds: Aabb,
-    /// Interior node: index of the second child (the first is the next node). Leaf: index of
-    /// its first item in [`Bvh::items`].
+pub struct Item {
+    /// The caller's id, reported back through [`Bvh::items`]. Several items may share an
+    /// id (pieces of one long object, each with its own box): the caller is then offered it
+    /// once per piece the ray enters, and must give the same answer each time.
+    pub id: u32,
+    pub bounds: Aabb,
+    /// What testing the item costs, in units of [`NODE_COST`]; the SAH weighs leaves by it.
+    pub cost: f64,
+}
+
+/// A child of an interior node, or the root: an interior node (`count == 0`, `index` into
+/// [`Bvh::nodes`]) or a leaf (`count` items from slot `index` of [`Bvh::items`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+struct Child {
     index: u32,
-    /// Number of items of a leaf; 0 for an interior node.
     count: u32,
 }
 
-/// A bounding volume hierarchy over caller items (indices with boxes).
-#[derive(Debug, Clone, Default)]
-pub struct Bvh {
-    nodes: Vec<Node>,
-    items: Vec<u32>,
+/// An interior node: the boxes of its two children, side by side so that one cache line
+/// (64 bytes) answers for both, and both are tested in one pass of two-lane arithmetic.
+///
+/// `b[0]` holds the minima and `b[1]` the maxima, each as `[axis][child]`. The corners are
+/// stored as `f32`, rounded *outwards* from the `f64` boxes (see [`round_out`]), so a stored
+/// box always contains the `f64` one and culling stays conservative; the slab test widens
+/// them back to `f64`, exactly, and does its arithmetic there.
+#[derive(Debug, Clone, Copy)]
+#[repr(C, align(64))]
+struct Node {
+    b: [[[f32; 2]; 3]; 2],
+    child: [Child; 2],
 }
 
-/// An item during the build: its id, enlarged box and centroid.
+/// A bounding volume hierarchy over caller items (indices with boxes).
+#[derive(Debug, Clone)]
+pub struct Bvh {
+    /// Interior nodes in depth-first order: a node's first child, when interior, follows it.
+    nodes: Vec<Node>,
+    items: Vec<u32>,
+    root: Child,
+    /// Box of the whole tree (padded, `f64`), tested once per ray.
+    root_bounds: Aabb,
+}
+
+impl Default for Bvh {
+    /// The empty tree: every query returns at once.
+    fn default() -> Bvh {
+        Bvh {
+            nodes: Vec::new(),
+            items: Vec::new(),
+            root: Child::default(),
+            root_bounds: Aabb::EMPTY,
+        }
+    }
+}
+
+/// An item during the build: its id, enlarged box, centroid and cost.
 #[derive(Debug, Clone, Copy)]
 struct BuildItem {
     id: u32,
     bounds: Aabb,
     centroid: DVec3,
+    cost: f64,
 }
 
 /// The enlarged box of an item: every face moved out by [`SLACK`] of the box's largest
@@ -97,29 +146,149 @@ pub fn padded(b: &Aabb) -> Option<Aabb> {
     (p.min.is_finite() && p.max.is_finite()).then_some(p)
 }
 
-impl Bvh {
-    /// Builds the tree over `(id, box)` pairs. Boxes are enlarged with [`padded`]; items
-    /// whose box is empty or not finite are left out and returned, for the caller to test
-    /// every time.
-    pub fn build(items: &[(u32, Aabb)]) -> (Bvh, Vec<u32>) {
-        let mut build = Vec::with_capacity(items.len());
-        let mut left_out = Vec::new();
-        for &(id, b) in items {
-            match padded(&b) {
-                Some(bounds) => build.push(BuildItem {
-                    id,
-                    bounds,
-                    centroid: bounds.centroid(),
-                }),
-                None => left_out.push(id),
+/// `x` as an `f32` no greater (`up = false`) or no less (`up = true`) than `x`.
+///
+/// `as f32` rounds to nearest (and saturates to ±∞ beyond `f32::MAX`, which only ever lies
+/// further out); the result is then stepped one `f32` ulp outwards if it fell on the wrong
+/// side. The comparison is exact (`f32 → f64` is), so the result bounds `x` in every case:
+/// subnormal results step to the next subnormal or through zero to `∓f32::from_bits(1)`.
+pub fn round_out(x: f64, up: bool) -> f32 {
+    let r = x as f32;
+    if up && f64::from(r) < x {
+        r.next_up()
+    } else if !up && f64::from(r) > x {
+        r.next_down()
+    } else {
+        r
+    }
+}
+
+/// A ray prepared for the two-lane slab test: origin, `1/d`, and per axis which of a box's
+/// two planes it meets first (`0`: the minimum, for `1/d ≥ +0`; `1`: the maximum).
+///
+/// [`crate::math::Ray::inv_dir`] has turned `−0` components into `+0`, so a zero direction
+/// component gives `1/d = +∞` and picks the minimum as near plane, which is what
+/// [`Aabb::hit_interval`]'s swap picks too (it swaps only when `near > far`, never for a
+/// NaN). Choosing by sign instead of comparing gives the same two numbers without a
+/// data-dependent branch per box.
+#[derive(Debug, Clone, Copy)]
+struct SlabRay {
+    origin: [f64; 3],
+    inv: [f64; 3],
+    near: [usize; 3],
+}
+
+impl SlabRay {
+    #[inline]
+    fn new(origin: DVec3, inv_dir: DVec3) -> SlabRay {
+        let near = |i: f64| usize::from(i < 0.0);
+        SlabRay {
+            origin: origin.to_array(),
+            inv: inv_dir.to_array(),
+            near: [near(inv_dir.x), near(inv_dir.y), near(inv_dir.z)],
+        }
+    }
+}
+
+impl Node {
+    fn new(bounds: [Aabb; 2], child: [Child; 2]) -> Node {
+        let mut b = [[[0.0f32; 2]; 3]; 2];
+        for (c, bb) in bounds.iter().enumerate() {
+            for (a, (lo, hi)) in bb
+                .min
+                .to_array()
+                .into_iter()
+                .zip(bb.max.to_array())
+                .enumerate()
+            {
+                b[0][a][c] = round_out(lo, false);
+                b[1][a][c] = round_out(hi, true);
             }
         }
+        Node { b, child }
+    }
+
+    /// The slab test of both children's boxes against `[0, limit]`: for each, whether the
+    /// ray enters it there, and its entry distance.
+    ///
+    /// Per lane this is [`Aabb::hit_interval`] with the near plane chosen by the ray's sign
+    /// (see [`SlabRay`]): the same products, so the same treatment of the special values.
+    /// A zero direction component gives `±∞` distances of the right signs, so the slab
+    /// either constrains nothing or rejects everything; an origin exactly in a plane with
+    /// a zero component gives `0·∞ = NaN`, which fails both comparisons and leaves the
+    /// interval alone (the ray lies in the closed slab for every `t`); an empty box (a
+    /// minimum above its maximum) gives `near > far` along that axis and so no hit.
+    #[inline(always)]
+    fn hit(&self, r: &SlabRay, limit: f64) -> ([bool; 2], [f64; 2]) {
+        let mut t0 = [0.0f64; 2];
+        let mut t1 = [limit; 2];
+        for a in 0..3 {
+            let near = &self.b[r.near[a]][a];
+            let far = &self.b[1 - r.near[a]][a];
+            for c in 0..2 {
+                let tn = (f64::from(near[c]) - r.origin[a]) * r.inv[a];
+                let tf = (f64::from(far[c]) - r.origin[a]) * r.inv[a] * FAR_WIDEN;
+                if tn > t0[c] {
+                    t0[c] = tn;
+                }
+                if tf < t1[c] {
+                    t1[c] = tf;
+                }
+            }
+        }
+        ([t0[0] <= t1[0], t0[1] <= t1[1]], t0)
+    }
+}
+
+impl Bvh {
+    /// Builds the tree over `(id, box)` pairs, each of unit cost. Boxes are enlarged with
+    /// [`padded`]; items whose box is empty or not finite are left out and returned, for
+    /// the caller to test every time.
+    pub fn build(items: &[(u32, Aabb)]) -> (Bvh, Vec<u32>) {
+        let items: Vec<Item> = items
+            .iter()
+            .map(|&(id, bounds)| Item {
+                id,
+                bounds,
+                cost: 1.0,
+            })
+            .collect();
+        Bvh::build_items(&items)
+    }
+
+    /// Builds the tree over items with their own costs (see [`Item`]); as [`Self::build`]
+    /// otherwise. A left-out id is returned once however many of its items were left out.
+    pub fn build_items(items: &[Item]) -> (Bvh, Vec<u32>) {
+        let mut build = Vec::with_capacity(items.len());
+        let mut left_out = Vec::new();
+        for it in items {
+            match padded(&it.bounds) {
+                Some(bounds) => build.push(BuildItem {
+                    id: it.id,
+                    bounds,
+                    centroid: bounds.centroid(),
+                    // A cost that is not a positive finite number would break the SAH's
+                    // comparisons; such an item is costed as one node visit.
+                    cost: if it.cost > 0.0 && it.cost.is_finite() {
+                        it.cost
+                    } else {
+                        NODE_COST
+                    },
+                }),
+                None => left_out.push(it.id),
+            }
+        }
+        left_out.sort_unstable();
+        left_out.dedup();
         let mut bvh = Bvh {
-            nodes: Vec::with_capacity(2 * build.len()),
+            nodes: Vec::with_capacity(build.len()),
             items: Vec::with_capacity(build.len()),
+            ..Bvh::default()
         };
         if !build.is_empty() {
-            bvh.build_node(&mut build, 0);
+            let bounds = bounds_of(&build);
+            bvh.root_bounds = bounds;
+            bvh.root = bvh.build_node(&mut build, &bounds, 0);
         }
         (bvh, left_out)
     }
@@ -140,66 +309,64 @@ impl Bvh {
         self.items.is_empty()
     }
 
-    /// Number of nodes (for tests and statistics).
+    /// Number of interior nodes (for tests and statistics).
     pub fn node_count(&self) -> usize {
         self.nodes.len()
     }
 
-    /// Depth of the deepest leaf (the root is depth 0).
+    /// Depth of the deepest leaf (a root leaf is depth 0).
     pub fn depth(&self) -> usize {
-        fn go(nodes: &[Node], i: usize) -> usize {
-            let n = &nodes[i];
-            if n.count > 0 {
+        fn go(nodes: &[Node], c: Child) -> usize {
+            if c.count > 0 {
                 0
             } else {
-                1 + go(nodes, i + 1).max(go(nodes, n.index as usize))
+                let n = &nodes[c.index as usize];
+                1 + go(nodes, n.child[0]).max(go(nodes, n.child[1]))
             }
         }
-        if self.nodes.is_empty() {
+        if self.items.is_empty() {
             0
         } else {
-            go(&self.nodes, 0)
+            go(&self.nodes, self.root)
         }
     }
 
-    /// Appends the node for `items` (and its subtree); returns its index.
-    fn build_node(&mut self, items: &mut [BuildItem], depth: usize) -> usize {
-        let bounds = items
-            .iter()
-            .fold(Aabb::EMPTY, |acc, it| acc.union(&it.bounds));
-        let here = self.nodes.len();
-        self.nodes.push(Node {
-            bounds,
-            index: 0,
-            count: 0,
-        });
-        let split = if items.len() <= LEAF_MIN || depth >= MAX_DEPTH {
+    /// The subtree for `items` (whose union box is `bounds`): a leaf, or an interior node
+    /// appended before its children.
+    fn build_node(&mut self, items: &mut [BuildItem], bounds: &Aabb, depth: usize) -> Child {
+        let split = if items.len() <= 1 || depth >= MAX_DEPTH {
             None
         } else {
-            sah_split(items, &bounds)
+            sah_split(items, bounds)
         };
-        match split {
-            None => {
-                // `as u32`: item counts fit, the scene refuses more than u32::MAX objects.
-                self.nodes[here].index = self.items.len() as u32;
-                self.nodes[here].count = items.len() as u32;
-                self.items.extend(items.iter().map(|it| it.id));
-            }
-            Some(mid) => {
-                let (left, right) = items.split_at_mut(mid);
-                self.build_node(left, depth + 1);
-                let second = self.build_node(right, depth + 1);
-                self.nodes[here].index = second as u32;
-            }
+        let Some(mid) = split else {
+            // `as u32`: item counts fit, the scene refuses more than u32::MAX objects and
+            // splits each into a bounded number of pieces (see `world::Accel`).
+            let leaf = Child {
+                index: self.items.len() as u32,
+                count: items.len() as u32,
+            };
+            self.items.extend(items.iter().map(|it| it.id));
+            return leaf;
+        };
+        let here = self.nodes.len();
+        let (left, right) = items.split_at_mut(mid);
+        let boxes = [bounds_of(left), bounds_of(right)];
+        self.nodes.push(Node::new(boxes, [Child::default(); 2]));
+        let a = self.build_node(left, &boxes[0], depth + 1);
+        let b = self.build_node(right, &boxes[1], depth + 1);
+        self.nodes[here].child = [a, b];
+        Child {
+            index: here as u32,
+            count: 0,
         }
-        here
     }
 
-    /// Calls `test` with the slot (index into [`Self::items`]) of every item whose box the ray (`origin`, `inv_dir` from
-    /// [`crate::math::Ray::inv_dir`]) enters with `0 ≤ t ≤ limit`, nearest boxes first,
-    /// skipping subtrees that start beyond the limit. `test` returns the new limit (the
-    /// search only ever narrows, so it must not grow), or `Break` to stop at once (an
-    /// any-hit query). Returns whether `test` broke off.
+    /// Calls `test` with the slot (index into [`Self::items`]) of every item whose box the
+    /// ray (`origin`, `inv_dir` from [`crate::math::Ray::inv_dir`]) enters with
+    /// `0 ≤ t ≤ limit`, nearest boxes first, skipping subtrees that start beyond the limit.
+    /// `test` returns the new limit (the search only ever narrows, so it must not grow), or
+    /// `Break` to stop at once (an any-hit query). Returns whether `test` broke off.
     ///
     /// A box starting exactly at the limit is still visited (`≤`): the caller may have to
     /// see an item hit at the very same `t` as its current best, to break the tie by its own
@@ -212,125 +379,144 @@ impl Bvh {
         mut limit: f64,
         mut test: impl FnMut(usize) -> ControlFlow<(), f64>,
     ) -> bool {
-        if self.nodes.is_empty() {
+        if self.items.is_empty() {
             return false;
         }
         // The culling limit, enlarged by SLACK (see there). `limit` is ≥ 0 or +∞, so this
         // only ever grows it, and ∞ stays ∞.
         let loose = |l: f64| l + l * SLACK;
-        let mut stack = [(0u32, 0.0f64); STACK];
-        let Some((t0, _)) = self.nodes[0]
-            .bounds
+        if self
+            .root_bounds
             .hit_interval(origin, inv_dir, loose(limit))
-        else {
+            .is_none()
+        {
             return false;
-        };
-        stack[0] = (0, t0);
-        let mut sp = 1;
-        while sp > 0 {
-            sp -= 1;
-            let (mut at, t_enter) = stack[sp];
-            if t_enter > loose(limit) {
-                continue;
-            }
-            loop {
-                let node = &self.nodes[at as usize];
-                if node.count > 0 {
-                    let first = node.index as usize;
-                    for slot in first..first + node.count as usize {
-                        match test(slot) {
-                            ControlFlow::Break(()) => return true,
-                            ControlFlow::Continue(l) => limit = l,
-                        }
+        }
+        let ray = SlabRay::new(origin, inv_dir);
+        let mut stack = [(Child::default(), 0.0f64); STACK];
+        let mut sp = 0;
+        let mut at = self.root;
+        'visit: loop {
+            if at.count > 0 {
+                let first = at.index as usize;
+                for slot in first..first + at.count as usize {
+                    match test(slot) {
+                        ControlFlow::Break(()) => return true,
+                        ControlFlow::Continue(l) => limit = l,
                     }
-                    break;
                 }
-                let (a, b) = (at + 1, node.index);
-                let l = loose(limit);
-                let ea = self.nodes[a as usize]
-                    .bounds
-                    .hit_interval(origin, inv_dir, l);
-                let eb = self.nodes[b as usize]
-                    .bounds
-                    .hit_interval(origin, inv_dir, l);
-                match (ea, eb) {
-                    (Some((ta, _)), Some((tb, _))) => {
-                        let (near, far, t_far) = if ta <= tb { (a, b, tb) } else { (b, a, ta) };
-                        // Cannot overflow: the builder caps the depth at MAX_DEPTH, and each
-                        // level leaves at most one far child on the stack.
+            } else {
+                let node = &self.nodes[at.index as usize];
+                match node.hit(&ray, loose(limit)) {
+                    ([true, true], [ta, tb]) => {
+                        // Nearer entry first; on a tie, the first child.
+                        let (near, far, t_far) = if ta <= tb {
+                            (node.child[0], node.child[1], tb)
+                        } else {
+                            (node.child[1], node.child[0], ta)
+                        };
+                        // Cannot overflow: the builder caps the interior depth at MAX_DEPTH,
+                        // and each interior level of the path leaves at most one entry.
                         stack[sp] = (far, t_far);
                         sp += 1;
                         at = near;
+                        continue 'visit;
                     }
-                    (Some(_), None) => at = a,
-                    (None, Some(_)) => at = b,
-                    (None, None) => break,
+                    ([true, false], _) => {
+                        at = node.child[0];
+                        continue 'visit;
+                    }
+                    ([false, true], _) => {
+                        at = node.child[1];
+                        continue 'visit;
+                    }
+                    ([false, false], _) => {}
+                }
+            }
+            // Next pending subtree that may still start before the limit.
+            loop {
+                if sp == 0 {
+                    return false;
+                }
+                sp -= 1;
+                let (next, t_enter) = stack[sp];
+                if t_enter <= loose(limit) {
+                    at = next;
+                    continue 'visit;
                 }
             }
         }
-        false
     }
 }
 
-/// The best SAH split of `items` (which it partitions): the number of items that go left,
-/// or `None` when a leaf is cheaper or the items cannot be told apart by their centroids.
+/// The union of the items' boxes.
+fn bounds_of(items: &[BuildItem]) -> Aabb {
+    items
+        .iter()
+        .fold(Aabb::EMPTY, |acc, it| acc.union(&it.bounds))
+}
+
+/// The best SAH split of `items` (which it partitions) over [`BINS`] centroid bins on each
+/// axis: the number of items that go first, or `None` when a leaf is cheaper (and at most
+/// [`LEAF_MAX`] items) or the items cannot be told apart by their centroids.
+///
+/// Costs are compared multiplied by the node's area (`NODE_COST·A + Σ A_side·C_side`
+/// against `C_leaf·A`), so a box of zero area needs no division: it is a leaf when small
+/// enough, else split like any other.
 fn sah_split(items: &mut [BuildItem], bounds: &Aabb) -> Option<usize> {
     let cb = items
         .iter()
         .fold(Aabb::EMPTY, |acc, it| acc.grow(it.centroid));
-    let extent = cb.max - cb.min;
-    let axis = if extent.x >= extent.y && extent.x >= extent.z {
-        0
-    } else if extent.y >= extent.z {
-        1
-    } else {
-        2
-    };
-    // All centroids equal (coincident solids): no plane separates them.
-    if !(extent[axis] > 0.0) {
-        return None;
-    }
-    let (lo, scale) = (cb.min[axis], BINS as f64 / extent[axis]);
-    // `as usize` saturates, and the `min` keeps the maximum centroid in the last bin.
-    let bin_of = |it: &BuildItem| (((it.centroid[axis] - lo) * scale) as usize).min(BINS - 1);
-    let mut counts = [0usize; BINS];
-    let mut boxes = [Aabb::EMPTY; BINS];
-    for it in items.iter() {
-        let b = bin_of(it);
-        counts[b] += 1;
-        boxes[b] = boxes[b].union(&it.bounds);
-    }
-    // Sweep from the right: area × count of everything right of each plane.
-    let mut right_cost = [0.0f64; BINS];
-    let (mut acc, mut n) = (Aabb::EMPTY, 0usize);
-    for i in (1..BINS).rev() {
-        acc = acc.union(&boxes[i]);
-        n += counts[i];
-        right_cost[i] = acc.surface_area() * n as f64;
-    }
-    let (mut acc, mut n) = (Aabb::EMPTY, 0usize);
-    let mut best: Option<(f64, usize)> = None;
-    for i in 0..BINS - 1 {
-        acc = acc.union(&boxes[i]);
-        n += counts[i];
-        // A plane with nothing on one side is no split at all.
-        if n == 0 || n == items.len() {
+    let mut best: Option<(f64, usize, usize)> = None;
+    for axis in 0..3 {
+        let extent = cb.max[axis] - cb.min[axis];
+        // All centroids in one plane across this axis: no plane on it separates them.
+        if !(extent > 0.0) {
             continue;
         }
-        let cost = acc.surface_area() * n as f64 + right_cost[i + 1];
-        if best.is_none_or(|(c, _)| cost < c) {
-            best = Some((cost, i));
+        let (lo, scale) = (cb.min[axis], BINS as f64 / extent);
+        // `as usize` saturates, and the `min` keeps the maximum centroid in the last bin.
+        let bin_of = |it: &BuildItem| (((it.centroid[axis] - lo) * scale) as usize).min(BINS - 1);
+        let mut counts = [0usize; BINS];
+        let mut costs = [0.0f64; BINS];
+        let mut boxes = [Aabb::EMPTY; BINS];
+        for it in items.iter() {
+            let b = bin_of(it);
+            counts[b] += 1;
+            costs[b] += it.cost;
+            boxes[b] = boxes[b].union(&it.bounds);
+        }
+        // Sweep from the right: area × cost of everything right of each plane.
+        let mut right = [0.0f64; BINS];
+        let (mut acc, mut c) = (Aabb::EMPTY, 0.0f64);
+        for i in (1..BINS).rev() {
+            acc = acc.union(&boxes[i]);
+            c += costs[i];
+            right[i] = acc.surface_area() * c;
+        }
+        let (mut acc, mut c, mut n) = (Aabb::EMPTY, 0.0f64, 0usize);
+        for i in 0..BINS - 1 {
+            acc = acc.union(&boxes[i]);
+            c += costs[i];
+            n += counts[i];
+            // A plane with nothing on one side is no split at all.
+            if n == 0 || n == items.len() {
+                continue;
+            }
+            let cost = acc.surface_area() * c + right[i + 1];
+            if best.is_none_or(|(b, _, _)| cost < b) {
+                best = Some((cost, axis, i));
+            }
         }
     }
-    let (cost, plane) = best?;
+    let (cost, axis, plane) = best?;
     let area = bounds.surface_area();
-    let leaf_cost = items.len() as f64;
-    let split_cost = TRAVERSAL_COST + cost / area;
-    // Keep a leaf when it is cheaper, unless it would be large: a large leaf costs every ray
-    // that enters it all its tests, and a split is then worth it for the rays it spares.
-    if split_cost >= leaf_cost && items.len() <= 8 && area > 0.0 {
+    let leaf_cost: f64 = items.iter().map(|it| it.cost).sum();
+    if items.len() <= LEAF_MAX && NODE_COST * area + cost >= leaf_cost * area {
         return None;
     }
+    let (lo, scale) = (cb.min[axis], BINS as f64 / (cb.max[axis] - cb.min[axis]));
+    let bin_of = |it: &BuildItem| (((it.centroid[axis] - lo) * scale) as usize).min(BINS - 1);
     let mut mid = 0;
     for j in 0..items.len() {
         if bin_of(&items[j]) <= plane {
@@ -435,5 +621,165 @@ mod tests {
             ControlFlow::Continue(f64::INFINITY)
         });
         assert!(seen > 0);
+    }
+    /// `round_out` bounds its argument on the requested side, including where rounding to
+    /// nearest would not: halfway and subnormal values, zero of either sign, and values
+    /// beyond the `f32` range (which go to ±∞ only outwards).
+    #[test]
+    fn round_out_bounds_on_the_requested_side() {
+        let tiny = f64::from(f32::from_bits(1));
+        let cases = [
+            0.0,
+            -0.0,
+            1.0,
+            -1.0,
+            0.1,
+            -0.1,
+            1.0 + f64::EPSILON,
+            1e-40,
+            -1e-40,
+            tiny * 0.5,
+            -tiny * 0.5,
+            tiny * 1.5,
+            1e-300,
+            -1e-300,
+            f64::from(f32::MAX),
+            f64::from(f32::MAX) * 1.0000001,
+            -f64::from(f32::MAX) * 1.0000001,
+            1e300,
+            -1e300,
+            123_456.789_012_345,
+        ];
+        for x in cases {
+            let (lo, hi) = (round_out(x, false), round_out(x, true));
+            assert!(
+                f64::from(lo) <= x && x <= f64::from(hi),
+                "{x}: [{lo}, {hi}]"
+            );
+            // And no looser than one f32 step: the neighbours outside no longer bound it
+            // (unless the bound is exact, when both are `x`).
+            if f64::from(lo) < x {
+                assert!(
+                    f64::from(lo.next_up()) >= x,
+                    "{x}: {lo} is not the nearest below"
+                );
+            }
+            if f64::from(hi) > x {
+                assert!(
+                    f64::from(hi.next_down()) <= x,
+                    "{x}: {hi} is not the nearest above"
+                );
+            }
+        }
+        assert_eq!(round_out(1e300, true), f32::INFINITY);
+        assert_eq!(round_out(1e300, false), f32::MAX);
+        assert_eq!(round_out(-1e300, false), f32::NEG_INFINITY);
+    }
+
+    /// The stored `f32` lane test accepts every ray the exact-box `f64` test accepts, on
+    /// the cases that break slab tests: rays parallel to slab planes (zero components of
+    /// either sign), origins exactly on a face or edge, `0·∞` from an origin in a plane of
+    /// a slab it is parallel to, flat (zero-thickness) boxes and limits that end exactly at
+    /// a face.
+    #[test]
+    fn lane_test_accepts_what_the_exact_box_test_accepts() {
+        let mut rng = Rng::new(31);
+        let flat = Aabb::new(DVec3::new(-1.0, 0.5, -1.0), DVec3::new(1.0, 0.5, 1.0));
+        let unit = Aabb::new(DVec3::splat(-1.0), DVec3::splat(1.0));
+        let mut accepted = 0;
+        for k in 0..20000 {
+            let b = match k % 4 {
+                0 => unit,
+                1 => flat,
+                _ => {
+                    let c = rng.in_ball(3.0);
+                    let h = DVec3::new(rng.range(0.0, 1.0), rng.range(0.0, 1.0), 0.0);
+                    Aabb::new(c - h, c + h)
+                }
+            };
+            // Origins on the box's planes and corners, or anywhere.
+            let pick = |rng: &mut Rng, i: usize| match rng.range(0.0, 3.0) as u32 {
+                0 => b.min[i],
+                1 => b.max[i],
+                _ => rng.range(-4.0, 4.0),
+            };
+            let o = DVec3::new(pick(&mut rng, 0), pick(&mut rng, 1), pick(&mut rng, 2));
+            let mut d = rng.in_ball(1.0);
+            for i in 0..3 {
+                if rng.range(0.0, 3.0) < 1.0 {
+                    d[i] = if rng.range(0.0, 1.0) < 0.5 { 0.0 } else { -0.0 };
+                }
+            }
+            let inv = Ray::new(o, d).inv_dir();
+            let limit = if rng.range(0.0, 4.0) < 1.0 {
+                f64::INFINITY
+            } else {
+                rng.range(0.0, 6.0)
+            };
+            let node = Node::new([b, Aabb::EMPTY], [Child::default(); 2]);
+            let (hit, t) = node.hit(&SlabRay::new(o, inv), limit);
+            assert!(!hit[1], "the empty lane was hit by {o:?} {d:?}");
+            if let Some((t0, _)) = b.hit_interval(o, inv, limit) {
+                assert!(hit[0], "box {b:?}, ray {o:?} {d:?}, limit {limit}");
+                assert!(t[0] <= t0, "entry {} after the exact {t0}", t[0]);
+                accepted += 1;
+            }
+        }
+        assert!(accepted > 3000, "{accepted}");
+        // The `0·∞` cases by hand: along +x in the plane y = 1 of the unit box's face (and
+        // in the plane of the flat box), entering and starting inside.
+        for (b, y) in [(unit, 1.0), (unit, -1.0), (flat, 0.5)] {
+            for x in [-5.0, 0.0, 1.0] {
+                let o = DVec3::new(x, y, 0.0);
+                let inv = Ray::new(o, DVec3::X).inv_dir();
+                let node = Node::new([b, b], [Child::default(); 2]);
+                assert_eq!(
+                    node.hit(&SlabRay::new(o, inv), f64::INFINITY).0,
+                    [true, true],
+                    "{b:?} from {o:?}"
+                );
+            }
+        }
+    }
+
+    /// Items with weights, shared ids and non-finite or zero costs build into a tree that
+    /// still offers every item whose box the ray enters, once per item.
+    #[test]
+    fn weighted_items_and_shared_ids_are_all_offered() {
+        let mut rng = Rng::new(12);
+        let boxes = random_boxes(&mut rng, 300);
+        let items: Vec<Item> = boxes
+            .iter()
+            .enumerate()
+            .map(|(k, &(_, bounds))| Item {
+                // Pairs of items share an id, as the pieces of one object do.
+                id: (k / 2) as u32,
+                bounds,
+                cost: [0.1, 1.0, 7.0, 0.0, f64::NAN, f64::INFINITY][k % 6],
+            })
+            .collect();
+        let (bvh, left_out) = Bvh::build_items(&items);
+        assert!(left_out.is_empty());
+        assert_eq!(bvh.len(), 300);
+        assert!(bvh.depth() <= MAX_DEPTH);
+        for _ in 0..500 {
+            let o = rng.in_ball(15.0);
+            let r = Ray::new(o, rng.in_ball(1.0));
+            let mut offered = vec![0u32; 150];
+            bvh.traverse(o, r.inv_dir(), f64::INFINITY, |slot| {
+                offered[bvh.items()[slot] as usize] += 1;
+                ControlFlow::Continue(f64::INFINITY)
+            });
+            for (k, it) in items.iter().enumerate() {
+                if it
+                    .bounds
+                    .hit_interval(o, r.inv_dir(), f64::INFINITY)
+                    .is_some()
+                {
+                    assert!(offered[it.id as usize] >= 1, "item {k} not offered");
+                }
+            }
+            assert!(offered.iter().all(|&n| n <= 2));
+        }
     }
 }

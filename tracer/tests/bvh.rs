@@ -257,6 +257,24 @@ fn small_spheres_bench_scene_is_identical() {
     assert!(s.render_rect(rect) == linear.render_rect(rect));
 }
 
+/// The fan of thin rods, whose cylinders the BVH holds as several slices each: the same
+/// bytes as testing every rod, and shadows included.
+#[test]
+fn thin_cylinders_bench_scene_is_identical() {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/scenes/thin-cylinders.ray");
+    let src = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path:?}: {e}"));
+    let s = common::scene(&src);
+    assert!(s.uses_bvh());
+    let rect = Rect::full(s.width, s.height);
+    let linear = s.clone().without_acceleration();
+    let ((a, sa), (b, sb)) = (s.render_rect_stats(rect), linear.render_rect_stats(rect));
+    assert_eq!(sa, sb);
+    // Every lit rod pixel casts one (955 in all).
+    assert!(sa.shadow > 500, "{sa:?}");
+    assert!(a == b);
+}
+
 /// Small scenes stay linear under the default mode; the threshold is the one documented.
 #[test]
 fn few_prims_stay_linear() {
