@@ -4,10 +4,11 @@
 use clap::Parser;
 use tessera_tracer::{Limits, TextureLimits};
 
-/// Primary rays a tile should carry when the service picks its size: about 20 ms of tracing
-/// on the bench machine, some fifty times the service's and worker's own cost per tile
-/// (claim, post, store; about 0.4 ms of CPU in all, see README "The farm's figures").
-pub const TILE_RAYS: u64 = 65_536;
+/// Primary rays a tile should carry when the service picks its size: some 70 ms of tracing
+/// (mirrors bench scene, one core of the bench machine), against about 2 ms of CPU that
+/// the service and the worker spend per tile on a loaded machine (claim, post, store; see
+/// README "The farm's figures"): about 3 %.
+pub const TILE_RAYS: u64 = 262_144;
 
 /// Tiles a job should have at least when the service picks their size, so that a handful of
 /// workers can share even a small image and finish together.
@@ -20,7 +21,7 @@ pub const AUTO_TILE_RANGE: (u32, u32) = (32, 256);
 /// primary rays, when neither the job nor `--tile` sets one: the smallest power of two whose
 /// tile carries [`TILE_RAYS`], then halved while the job would have fewer than
 /// [`MIN_AUTO_TILES`] tiles, always within [`AUTO_TILE_RANGE`]. A 1080p frame gets 256 px
-/// tiles at one ray per pixel (40 tiles) and 64 px tiles at 16 (510 tiles).
+/// tiles at one ray per pixel (40 tiles) and 128 px tiles at 16 (135 tiles).
 pub fn auto_tile(width: u32, height: u32, rays_per_pixel: u32) -> u32 {
     let (lo, hi) = AUTO_TILE_RANGE;
     let rays = u64::from(rays_per_pixel.max(1));
@@ -179,9 +180,10 @@ mod tests {
 
     #[test]
     fn a_1080p_frame_gets_large_tiles_at_one_ray_and_small_ones_at_sixteen() {
-        // 256² = 65,536 rays at one ray per pixel; 64² × 16 = 65,536 at 16.
+        // 512² would be 262,144 rays at one ray per pixel, but the range ends at 256;
+        // 128² × 16 = 262,144 at 16.
         assert_eq!(auto_tile(1920, 1080, 1), 256);
-        assert_eq!(auto_tile(1920, 1080, 16), 64);
+        assert_eq!(auto_tile(1920, 1080, 16), 128);
         // 640×480 at one ray: 256 px would be 6 tiles, 128 px is 20.
         assert_eq!(auto_tile(640, 480, 1), 128);
     }

@@ -111,7 +111,14 @@ pub struct KeepAway {
 /// The queue over one SQLite database.
 #[derive(Debug, Clone)]
 pub struct Queue {
+    /// Readers: several connections, which WAL lets read while the writer writes.
     pool: SqlitePool,
+    /// The one writing connection. SQLite admits one writer at a time; with writers on
+    /// several connections, the losers of each race get `SQLITE_BUSY` and sleep in SQLite's
+    /// busy handler (1, 2, 5, 10 … ms) even when the winner needs only microseconds, which
+    /// under load left workers waiting milliseconds for claims. One connection makes writers
+    /// queue in the pool instead, in order, and wake as soon as the connection is free.
+    writer: SqlitePool,
 }
 
 impl Queue {
@@ -132,16 +139,23 @@ impl Queue {
             .busy_timeout(Duration::from_secs(10))
             .foreign_keys(true);
         let in_memory = url.contains(":memory:");
-        let pool = SqlitePoolOptions::new()
-            // An in-memory database exists once per connection: keep exactly one.
-            .max_connections(if in_memory { 1 } else { 8 })
-            .min_connections(1)
-            .idle_timeout(None)
-            .max_lifetime(None)
-            .connect_with(opts)
-            .await?;
-        MIGRATOR.run(&pool).await?;
-        Ok(Queue { pool })
+        let connect = |n: u32, opts: SqliteConnectOptions| {
+            SqlitePoolOptions::new()
+                .max_connections(n)
+                .min_connections(1)
+                .idle_timeout(None)
+                .max_lifetime(None)
+                .connect_with(opts)
+        };
+        let writer = connect(1, opts.clone()).await?;
+        MIGRATOR.run(&writer).await?;
+        // An in-memory database exists once per connection: it has only the writer's.
+        let pool = if in_memory {
+            writer.clone()
+        } else {
+            connect(8, opts).await?
+        };
+        Ok(Queue { pool, writer })
     }
 
     /// Answers when the database does.
@@ -157,7 +171,7 @@ impl Queue {
         tiles: &[Rect],
         assets: &[(String, Vec<u8>)],
     ) -> Result<JobRow> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
         sqlx::query(
             "INSERT INTO jobs (id, seq, state, scene, name, width, height, tile, sampler, samples,
                                threshold, tiles_total, created_at)
@@ -224,7 +238,7 @@ impl Queue {
     /// Cancels a queued or running job (its tiles are no longer handed out and results for
     /// it are refused) and drops its partial pixels. Returns the job's state before.
     pub async fn cancel(&self, id: &str, now: i64) -> Result<Option<String>> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
         let before: Option<String> = sqlx::query_scalar("SELECT state FROM jobs WHERE id = ?1")
             .bind(id)
             .fetch_optional(&mut *tx)
@@ -248,7 +262,7 @@ impl Queue {
     pub async fn delete(&self, id: &str) -> Result<bool> {
         let r = sqlx::query("DELETE FROM jobs WHERE id = ?1")
             .bind(id)
-            .execute(&self.pool)
+            .execute(&self.writer)
             .await?;
         Ok(r.rows_affected() > 0)
     }
@@ -288,7 +302,7 @@ impl Queue {
         .bind(now.saturating_add(lease_ms as i64))
         .bind(now)
         .bind(i64::from(max_attempts))
-        .fetch_optional(&self.pool)
+        .fetch_optional(&self.writer)
         .await?;
         let Some(row) = row else { return Ok(None) };
         let job: String = row.try_get(0)?;
@@ -312,7 +326,7 @@ impl Queue {
             )
             .bind(&job)
             .bind(now)
-            .execute(&self.pool)
+            .execute(&self.writer)
             .await?;
         }
         Ok(Some(claim))
@@ -337,7 +351,7 @@ impl Queue {
         .bind(i64::from(idx))
         .bind(lease)
         .bind(now.saturating_add(lease_ms as i64))
-        .fetch_optional(&self.pool)
+        .fetch_optional(&self.writer)
         .await?;
         Ok(worker.map(Option::unwrap_or_default))
     }
@@ -372,7 +386,7 @@ impl Queue {
         lease: &str,
         rgb: &[u8],
     ) -> Result<Completion> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
         let r = sqlx::query(
             "UPDATE tiles SET state = 'done', lease_expires = NULL
              WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'
@@ -437,7 +451,7 @@ impl Queue {
         max_attempts: u32,
         keep: KeepAway,
     ) -> Result<bool> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
         let r = sqlx::query(
             "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL,
                               failures = failures + 1, last_error = ?4
@@ -476,7 +490,7 @@ impl Queue {
         .bind(job)
         .bind(i64::from(idx))
         .bind(lease)
-        .execute(&self.pool)
+        .execute(&self.writer)
         .await?;
         Ok(r.rows_affected() == 1)
     }
@@ -484,7 +498,7 @@ impl Queue {
     /// Requeues tiles whose lease expired (one failure each, counted against their worker
     /// too) and fails jobs with a tile out of attempts. Returns the number of tiles requeued.
     pub async fn reap(&self, now: i64, max_attempts: u32, keep: KeepAway) -> Result<u64> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
         sqlx::query(
             "INSERT INTO keep_away (job_id, worker, failures, until)
              SELECT job_id, worker, 1, 0 FROM tiles
@@ -587,7 +601,7 @@ impl Queue {
             )
             .bind(job)
             .bind(now)
-            .execute(&self.pool)
+            .execute(&self.writer)
             .await?;
             failed += r.rows_affected();
         }
@@ -599,7 +613,7 @@ impl Queue {
     pub async fn extend_leases(&self, now: i64, lease_ms: u64) -> Result<u64> {
         let r = sqlx::query("UPDATE tiles SET lease_expires = ?1 WHERE state = 'leased'")
             .bind(now.saturating_add(lease_ms as i64))
-            .execute(&self.pool)
+            .execute(&self.writer)
             .await?;
         Ok(r.rows_affected())
     }
@@ -672,7 +686,7 @@ impl Queue {
     pub async fn clear_image(&self, id: &str) -> Result<()> {
         sqlx::query("DELETE FROM image_chunks WHERE job_id = ?1")
             .bind(id)
-            .execute(&self.pool)
+            .execute(&self.writer)
             .await?;
         Ok(())
     }
@@ -682,7 +696,7 @@ impl Queue {
             .bind(id)
             .bind(i64::from(seq))
             .bind(bytes)
-            .execute(&self.pool)
+            .execute(&self.writer)
             .await?;
         Ok(())
     }
@@ -690,7 +704,7 @@ impl Queue {
     /// Marks an assembled job done and drops its tile pixels. False (and the image dropped)
     /// when the job was cancelled meanwhile.
     pub async fn finish_image(&self, id: &str, png_bytes: u64, now: i64) -> Result<bool> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
         let r = sqlx::query(
             "UPDATE jobs SET state = 'done', finished_at = ?2, png_bytes = ?3
              WHERE id = ?1 AND state IN ('queued', 'running') AND tiles_done = tiles_total",
@@ -724,7 +738,7 @@ impl Queue {
         .bind(id)
         .bind(reason)
         .bind(now)
-        .execute(&self.pool)
+        .execute(&self.writer)
         .await?;
         Ok(())
     }

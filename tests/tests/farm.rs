@@ -277,9 +277,11 @@ fn a_killed_workers_tile_is_handed_out_again() {
 fn a_stopped_worker_gives_back_the_tile_it_claimed_ahead() {
     let dir = TempDir::new("ahead");
     let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "600000"]);
-    // Small tiles at 8×8 jitter: hundreds of tiles, each long enough that the worker is
-    // always mid-render with one claimed ahead.
-    let job = svc.submit(&read("thesis.ray"), "?tile=16&sampler=jitter&samples=8");
+    // 32 px tiles at 8×8 jitter: 300 tiles, each long enough (65,536 rays) that the worker
+    // is nearly always mid-render with the next tile claimed and queued. (Stopped between
+    // a claim and its answer instead, it gives that tile back on the way out; both are
+    // checked the same way below.)
+    let job = svc.submit(&read("thesis.ray"), "?tile=32&sampler=jitter&samples=8");
     let id = job["id"].as_str().expect("id").to_string();
     let total = job["tiles_total"].as_u64().expect("tiles_total");
 
@@ -340,9 +342,9 @@ fn tile_size_comes_from_the_job_then_the_flag_then_the_service() {
 
     let dir = TempDir::new("tileauto");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
-    // thesis.ray: 640×480 at one ray per pixel. 256 px tiles carry the 65,536 rays a picked
-    // tile should but would be only 3 × 2 = 6 tiles (under 16), so 128 px: 5 × 4 = 20.
+    // thesis.ray: 640×480 at one ray per pixel. 256 px tiles, the largest picked, would be
+    // only 3 × 2 = 6 tiles (under 16), so 128 px: 5 × 4 = 20.
     assert_eq!(covers(&svc.submit(&scene, "")), 128);
-    // With 8×8 jitter, 32² × 64 rays is enough already.
-    assert_eq!(covers(&svc.submit(&scene, "?sampler=jitter&samples=8")), 32);
+    // With 8×8 jitter, 64² × 64 rays is the 262,144 a picked tile carries.
+    assert_eq!(covers(&svc.submit(&scene, "?sampler=jitter&samples=8")), 64);
 }

@@ -15,11 +15,11 @@ pub mod protocol;
 
 use std::future::Future;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use tessera_tracer::{Limits, MemoryAssets, Sampler, Scene, TextureLimits};
-use tokio::sync::{Mutex, watch};
+use tessera_tracer::{Limits, MemoryAssets, Rect, Sampler, Scene, TextureLimits};
+use tokio::sync::{Mutex, oneshot, watch};
 use tokio::task::JoinHandle;
 use tracing::{debug, info, warn};
 
@@ -79,6 +79,8 @@ pub enum WorkerError {
     Client(#[from] ClientError),
     #[error("worker must have at least one thread")]
     NoThreads,
+    #[error("cannot start a render thread: {0}")]
+    Thread(#[source] std::io::Error),
 }
 
 /// What a worker did, reported when it stops.
@@ -147,7 +149,13 @@ pub async fn run(
     });
     let mut slots = Vec::new();
     for i in 0..shared.cfg.threads {
-        slots.push(tokio::spawn(slot(shared.clone(), i, stop_rx.clone())));
+        let renderer = Renderer::start(i).map_err(WorkerError::Thread)?;
+        slots.push(tokio::spawn(slot(
+            shared.clone(),
+            renderer,
+            i,
+            stop_rx.clone(),
+        )));
     }
     let mut first_err = None;
     for s in slots {
@@ -213,30 +221,123 @@ type ClaimTask = JoinHandle<Result<Option<Claim>, ClientError>>;
 /// A rendered tile on its way to the service.
 type PostTask = JoinHandle<Result<(), ClientError>>;
 
+/// What a render thread sends back: the tile's sRGB bytes, or why it could not render.
+type Rendered = Result<Vec<u8>, String>;
+
+/// A tile for a render thread.
+struct RenderJob {
+    /// The job's scene, or `None` for a no-op worker's black tile.
+    scene: Option<Arc<Prepared>>,
+    rect: Rect,
+    /// Set when the tile is no longer ours: the thread skips it if it has not started.
+    cancel: Arc<AtomicBool>,
+    reply: oneshot::Sender<Rendered>,
+}
+
+/// A slot's own render thread. Tiles are handed to it through a queue, so the slot can put
+/// the next tile in line while the current one renders: the thread goes from one tile to the
+/// next without waiting for the async side (which, on a machine whose cores are all
+/// rendering, may wait milliseconds for a time slice). The thread ends when its slot drops
+/// the queue.
+struct Renderer {
+    queue: std::sync::mpsc::Sender<RenderJob>,
+}
+
+impl Renderer {
+    fn start(index: usize) -> std::io::Result<Renderer> {
+        let (queue, jobs) = std::sync::mpsc::channel::<RenderJob>();
+        std::thread::Builder::new()
+            .name(format!("tessera-render-{index}"))
+            .spawn(move || {
+                for job in jobs {
+                    if job.cancel.load(Ordering::Relaxed) {
+                        continue;
+                    }
+                    let rect = job.rect;
+                    let rendered = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                        match &job.scene {
+                            // The same bytes `tessera-render` writes: a pixel's value does
+                            // not depend on its tile.
+                            Some(p) => p.scene.render_rect_stats_with(rect, &p.sampler).0,
+                            None => vec![0u8; rect.pixel_count() * 3],
+                        }
+                    }))
+                    .map_err(|panic| {
+                        let what = panic
+                            .downcast_ref::<&str>()
+                            .map(|s| s.to_string())
+                            .or_else(|| panic.downcast_ref::<String>().cloned())
+                            .unwrap_or_else(|| "unknown panic".into());
+                        format!("rendering panicked: {what}")
+                    });
+                    // The slot may have given the tile up meanwhile: nobody to tell.
+                    let _ = job.reply.send(rendered);
+                }
+            })?;
+        Ok(Renderer { queue })
+    }
+
+    /// Puts a claimed tile in line.
+    fn submit(&self, claim: Claim, scene: Option<Arc<Prepared>>) -> Ticket {
+        let (reply, rendered) = oneshot::channel();
+        let cancel = Arc::new(AtomicBool::new(false));
+        let job = RenderJob {
+            scene,
+            rect: claim.rect(),
+            cancel: cancel.clone(),
+            reply,
+        };
+        // If the thread is gone (it cannot panic: renders are caught), the reply's sender
+        // is dropped with the job and the ticket reads as a failed render.
+        let _ = self.queue.send(job);
+        Ticket {
+            claim,
+            rendered,
+            cancel,
+        }
+    }
+}
+
+/// A claimed tile in a render thread's queue.
+struct Ticket {
+    claim: Claim,
+    rendered: oneshot::Receiver<Rendered>,
+    cancel: Arc<AtomicBool>,
+}
+
+impl Ticket {
+    /// Gives the tile back to the service: the render thread skips it if not yet started.
+    async fn release(self, shared: &Shared) -> Result<(), ClientError> {
+        self.cancel.store(true, Ordering::Relaxed);
+        shared.released.fetch_add(1, Ordering::Relaxed);
+        shared
+            .client
+            .release(&self.claim)
+            .await
+            .or_else(ignore_transient)
+    }
+}
+
 /// What a slot has in flight besides the tile it renders. While tile N renders, the claim
-/// for tile N + 1 is already asked for and tile N − 1's pixels are being posted, so the
-/// round trips to the service overlap with tracing instead of leaving the core idle between
-/// tiles. Each slot holds at most one tile ahead, which bounds what a job's last moments can
-/// wait for to one tile per slot.
+/// for tile N + 1 is already asked for and, once answered, put in the render thread's
+/// queue; tile N − 1's pixels are being posted. The round trips to the service thus overlap
+/// with tracing instead of leaving the core idle between tiles. Each slot holds at most one
+/// tile ahead, which bounds what a job's last moments can wait for to one tile per slot.
 #[derive(Default)]
 struct Pipeline {
     /// The next claim, still on its way.
     claim: Option<ClaimTask>,
-    /// The next claim's answer, waiting for the current tile to finish.
+    /// A claim answer that gave no tile to queue (no work, or an error), for the slot loop.
     next: Option<Result<Option<Claim>, ClientError>>,
+    /// The next tile, in the render thread's queue.
+    queued: Option<Ticket>,
+    /// When this slot's previous render ended: the gap to the next start is logged (debug).
+    render_ended: Option<Instant>,
     /// Posts of earlier tiles still under way, oldest first (at most [`POSTS_IN_FLIGHT`]).
     posts: std::collections::VecDeque<PostTask>,
 }
 
 impl Pipeline {
-    /// The claim held ahead, if its answer is in and gave a tile.
-    fn held(&self) -> Option<&Claim> {
-        match &self.next {
-            Some(Ok(Some(c))) => Some(c),
-            _ => None,
-        }
-    }
-
     /// Waits for the claim in flight, if any (forever if none: for `select!`).
     async fn claim_answer(&mut self) -> Result<Option<Claim>, ClientError> {
         match &mut self.claim {
@@ -290,6 +391,7 @@ const POSTS_IN_FLIGHT: usize = 4;
 
 async fn slot(
     shared: Arc<Shared>,
+    renderer: Renderer,
     index: usize,
     mut stop: watch::Receiver<bool>,
 ) -> Result<(), ClientError> {
@@ -300,6 +402,12 @@ async fn slot(
     let outcome = loop {
         if *stop.borrow() {
             break Ok(());
+        }
+        if let Some(ticket) = pipe.queued.take() {
+            if let Err(e) = work(&shared, &renderer, ticket, &mut stop, &mut pipe).await {
+                break Err(e);
+            }
+            continue;
         }
         let claimed = if let Some(answer) = pipe.next.take() {
             answer
@@ -326,7 +434,12 @@ async fn slot(
                     );
                 }
                 idle = 0;
-                if let Err(e) = work(&shared, c, &mut stop, &mut pipe).await {
+                let ticket = match submit(&shared, &renderer, c).await {
+                    Ok(Some(t)) => t,
+                    Ok(None) => continue,
+                    Err(e) => break Err(e),
+                };
+                if let Err(e) = work(&shared, &renderer, ticket, &mut stop, &mut pipe).await {
                     break Err(e);
                 }
             }
@@ -357,10 +470,13 @@ async fn slot(
     outcome.and(drained)
 }
 
-/// On the way out: the last post is finished, and a tile claimed ahead (or still being
+/// On the way out: the last posts are finished, and a tile claimed ahead (or still being
 /// claimed) is given back at once rather than left to its lease.
 async fn drain(shared: &Shared, mut pipe: Pipeline) -> Result<(), ClientError> {
     let posted = pipe.finish_posts().await;
+    if let Some(ticket) = pipe.queued.take() {
+        ticket.release(shared).await?;
+    }
     if let Some(mut task) = pipe.claim.take() {
         // The claim waits at most `idle_max` at the service; past that and a margin, the
         // answer is abandoned and the tile, if any, comes back when its lease runs out.
@@ -371,11 +487,45 @@ async fn drain(shared: &Shared, mut pipe: Pipeline) -> Result<(), ClientError> {
             Err(_) => task.abort(),
         }
     }
-    if let Some(c) = pipe.held() {
+    if let Some(Ok(Some(c))) = &pipe.next {
         shared.released.fetch_add(1, Ordering::Relaxed);
         shared.client.release(c).await.or_else(ignore_transient)?;
     }
     posted
+}
+
+/// Puts a claimed tile in the render thread's queue, with its scene (from the cache, or
+/// fetched and built). `None` when the tile cannot be rendered here and has been dealt with
+/// (its job is gone, its scene does not build: reported, or the service is unreachable: its
+/// lease will run out).
+async fn submit(
+    shared: &Shared,
+    renderer: &Renderer,
+    c: Claim,
+) -> Result<Option<Ticket>, ClientError> {
+    if shared.cfg.noop {
+        return Ok(Some(renderer.submit(c, None)));
+    }
+    match prepared(shared, &c.job).await {
+        Ok(p) => Ok(Some(renderer.submit(c, Some(p)))),
+        Err(Unusable::Gone) => Ok(None),
+        Err(Unusable::Invalid(reason)) => {
+            warn!(job = %c.job, "cannot build scene: {reason}");
+            shared.failed.fetch_add(1, Ordering::Relaxed);
+            shared
+                .client
+                .fail(&c, &shared.cfg.name, &reason)
+                .await
+                .or_else(ignore_transient)?;
+            Ok(None)
+        }
+        Err(Unusable::Client(e)) if e.is_transient() => {
+            // The lease runs out and the tile goes to whoever asks next.
+            warn!(job = %c.job, "cannot fetch scene: {e}");
+            Ok(None)
+        }
+        Err(Unusable::Client(e)) => Err(e),
+    }
 }
 
 /// The scene of `job`, from the cache or fetched and built.
@@ -428,54 +578,36 @@ async fn prepared(shared: &Shared, job: &str) -> Result<Arc<Prepared>, Unusable>
     Ok(p)
 }
 
-/// Renders one claimed tile, renewing its lease (and that of a tile claimed ahead)
-/// meanwhile, and starts posting it; asks for the next tile as the render starts.
+/// Waits for a queued tile's render, renewing its lease (and that of the tile queued after
+/// it) meanwhile, then starts posting it. The next claim is asked for as this wait begins,
+/// and put in the render thread's queue as soon as it is answered.
 async fn work(
     shared: &Arc<Shared>,
-    c: Claim,
+    renderer: &Renderer,
+    mut t: Ticket,
     stop: &mut watch::Receiver<bool>,
     pipe: &mut Pipeline,
 ) -> Result<(), ClientError> {
     let client = &shared.client;
-    let rect = c.rect();
-    let render = if shared.cfg.noop {
-        let n = rect.pixel_count() * 3;
-        tokio::task::spawn_blocking(move || vec![0u8; n])
-    } else {
-        let p = match prepared(shared, &c.job).await {
-            Ok(p) => p,
-            Err(Unusable::Gone) => return Ok(()),
-            Err(Unusable::Invalid(reason)) => {
-                warn!(job = %c.job, "cannot build scene: {reason}");
-                shared.failed.fetch_add(1, Ordering::Relaxed);
-                return client
-                    .fail(&c, &shared.cfg.name, &reason)
-                    .await
-                    .or_else(ignore_transient);
-            }
-            Err(Unusable::Client(e)) if e.is_transient() => {
-                // The lease runs out and the tile goes to whoever asks next.
-                warn!(job = %c.job, "cannot fetch scene: {e}");
-                return Ok(());
-            }
-            Err(Unusable::Client(e)) => return Err(e),
-        };
-        // The same bytes `tessera-render` writes: a pixel's value does not depend on its tile.
-        tokio::task::spawn_blocking(move || p.scene.render_rect_stats_with(rect, &p.sampler).0)
-    };
-    tokio::pin!(render);
-    if pipe.claim.is_none() && pipe.next.is_none() && !*stop.borrow() {
+    if let Some(ended) = pipe.render_ended.take() {
+        debug!(
+            gap_us = ended.elapsed().as_micros() as u64,
+            "between renders"
+        );
+    }
+    if pipe.claim.is_none() && pipe.next.is_none() && pipe.queued.is_none() && !*stop.borrow() {
         let client = client.clone();
         let (name, wait) = (shared.cfg.name.clone(), shared.cfg.idle_max);
         pipe.claim = Some(tokio::spawn(async move { client.claim(&name, wait).await }));
     }
 
+    let c = t.claim.clone();
     let renew_every = Duration::from_millis((c.lease_ms / 3).max(10));
     let mut ticker =
         tokio::time::interval_at(tokio::time::Instant::now() + renew_every, renew_every);
     let mut deadline: Option<tokio::time::Instant> = None;
     let started = Instant::now();
-    let rgb = loop {
+    let rendered = loop {
         let give_up = async {
             match deadline {
                 Some(d) => tokio::time::sleep_until(d).await,
@@ -483,26 +615,36 @@ async fn work(
             }
         };
         tokio::select! {
-            r = &mut render => break r,
+            r = &mut t.rendered => break r,
             answer = pipe.claim_answer() => {
                 pipe.claim = None;
-                pipe.next = Some(answer);
+                match answer {
+                    Ok(Some(next)) if !*stop.borrow() => {
+                        pipe.queued = submit(shared, renderer, next).await?;
+                    }
+                    other => pipe.next = Some(other),
+                }
             }
             _ = ticker.tick() => {
                 match client.renew(&c).await {
                     Ok(true) => {}
                     Ok(false) => {
                         debug!(job = %c.job, tile = c.idx, "lease lost; dropping the tile");
+                        t.cancel.store(true, Ordering::Relaxed);
                         return Ok(());
                     }
                     // Unreachable: keep rendering; the service extends leases when it restarts.
                     Err(e) if e.is_transient() => debug!("renewal failed: {e}"),
                     Err(e) => return Err(e),
                 }
-                if let Some(ahead) = pipe.held() {
-                    match client.renew(ahead).await {
+                if let Some(queued) = &pipe.queued {
+                    match client.renew(&queued.claim).await {
                         Ok(true) => {}
-                        Ok(false) => pipe.next = None,
+                        Ok(false) => {
+                            if let Some(lost) = pipe.queued.take() {
+                                lost.cancel.store(true, Ordering::Relaxed);
+                            }
+                        }
                         Err(e) if e.is_transient() => debug!("renewal failed: {e}"),
                         Err(e) => return Err(e),
                     }
@@ -511,24 +653,26 @@ async fn work(
             changed = stop.changed(), if deadline.is_none() => {
                 if changed.is_err() || *stop.borrow() {
                     deadline = Some(tokio::time::Instant::now() + shared.cfg.grace);
-                    // The tile held ahead will not be rendered here: others may take it now.
-                    if let Some(Ok(Some(ahead))) = pipe.next.take() {
-                        shared.released.fetch_add(1, Ordering::Relaxed);
-                        client.release(&ahead).await.or_else(ignore_transient)?;
+                    // The tile queued next will not be rendered here: others may take it now.
+                    if let Some(queued) = pipe.queued.take() {
+                        queued.release(shared).await?;
                     }
                 }
             }
             _ = give_up => {
                 info!(job = %c.job, tile = c.idx, "shutting down: giving the tile back");
-                shared.released.fetch_add(1, Ordering::Relaxed);
-                return client.release(&c).await.or_else(ignore_transient);
+                return t.release(shared).await;
             }
         }
     };
-    let rgb = match rgb {
-        Ok(rgb) => rgb,
-        Err(e) => {
-            let reason = format!("rendering panicked: {e}");
+    pipe.render_ended = Some(Instant::now());
+    let rgb = match rendered {
+        Ok(Ok(rgb)) => rgb,
+        failed => {
+            let reason = match failed {
+                Ok(Err(reason)) => reason,
+                _ => "the render thread is gone".to_string(),
+            };
             warn!(job = %c.job, tile = c.idx, "{reason}");
             shared.failed.fetch_add(1, Ordering::Relaxed);
             return client
@@ -538,7 +682,7 @@ async fn work(
         }
     };
     debug!(job = %c.job, tile = c.idx, ms = started.elapsed().as_millis() as u64, "rendered");
-    let blob = encode_tile(rect, &rgb);
+    let blob = encode_tile(c.rect(), &rgb);
     pipe.start_post(tokio::spawn(post(shared.clone(), c, blob)))
         .await
 }
