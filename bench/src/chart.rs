@@ -4,10 +4,11 @@
 //! For each scene and configuration the chart records the median render time of repeated
 //! single-threaded runs (the image rendered in 32-pixel tiles, as the CLI does; the repeats
 //! interleaved across configurations), the primary and total rays per pixel, and the RMS
-//! and worst-pixel error in linear RGB. The reference is `n × n` stratified samples per pixel; it is also computed at `n/2`, and since its RMS
-//! error falls as `n^-3/2` (see `tessera_tracer::exact`), the difference between the two,
-//! divided by `2^1.5 − 1`, estimates the reference's own error, which is printed so that
-//! errors near it are read with care.
+//! and worst-pixel error in linear RGB. The reference is `n × n` stratified samples per
+//! pixel; it is also computed at `n/2`, and since its RMS error falls as `n^-3/2` (see
+//! `tessera_tracer::exact`), the difference between the two, divided by `2^1.5 − 1`,
+//! estimates the reference's own error, which is printed so that errors near it are read
+//! with care.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
