@@ -2,12 +2,13 @@
 //! scenes that stress sampling, measured against a high-rate reference of the exact image.
 //!
 //! For each scene and configuration the chart records the median render time of repeated
-//! single-threaded runs (the image rendered in 32-pixel tiles, as the CLI does), the primary
-//! and total rays per pixel, and the RMS and worst-pixel error in linear RGB. The reference is
-//! `n × n` stratified samples per pixel; it is also computed at `n/2`, and since its RMS
-//! error falls as `n^-3/2` (see `tessera_tracer::exact`), the difference between the two,
-//! divided by `2^1.5 − 1`, estimates the reference's own error, which is printed so that
-//! errors near it are read with care.
+//! single-threaded runs (the image rendered in 32-pixel tiles, as the CLI does; the repeats
+//! interleaved across configurations), the primary and total rays per pixel, and the RMS
+//! and worst-pixel error in linear RGB. The reference is `n × n` stratified samples per
+//! pixel; it is also computed at `n/2`, and since its RMS error falls as `n^-3/2` (see
+//! `tessera_tracer::exact`), the difference between the two, divided by `2^1.5 − 1`,
+//! estimates the reference's own error, which is printed so that errors near it are read
+//! with care.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -178,7 +179,7 @@ fn mark_pareto(points: &mut [Point]) {
 
 pub fn run(args: &Args) -> Result<()> {
     let quick = args.quick;
-    let (shrink, n_ref, repeats) = if quick { (4, 16, 1) } else { (1, 48, 3) };
+    let (shrink, n_ref, repeats) = if quick { (4, 16, 1) } else { (1, 48, 5) };
     let repeats = args.repeats.unwrap_or(repeats).max(1);
     let files = scene_files(&args.scenes)?;
     std::fs::create_dir_all(&args.out)
@@ -204,15 +205,21 @@ pub fn run(args: &Args) -> Result<()> {
             started.elapsed().as_secs_f64()
         );
         let pixels = f64::from(scene.width * scene.height);
-        let mut points = Vec::new();
-        for c in configs(quick) {
-            let mut times = Vec::new();
-            let mut result = None;
-            for _ in 0..repeats {
+        // Repeats go round the configurations rather than one configuration at a time, so
+        // that a burst of load from elsewhere on a shared machine spreads over many
+        // configurations' runs instead of landing on all of one configuration's.
+        let configs = configs(quick);
+        let mut times = vec![Vec::with_capacity(repeats); configs.len()];
+        let mut results = vec![None; configs.len()];
+        for _ in 0..repeats {
+            for (i, c) in configs.iter().enumerate() {
                 let (img, secs, primary, total) = render_timed(&scene, &c.sampler);
-                times.push(secs * 1e3);
-                result = Some((img, primary, total));
+                times[i].push(secs * 1e3);
+                results[i] = Some((img, primary, total));
             }
+        }
+        let mut points = Vec::new();
+        for ((c, t), result) in configs.into_iter().zip(times).zip(results) {
             let Some((img, primary, total)) = result else {
                 continue;
             };
@@ -223,7 +230,7 @@ pub fn run(args: &Args) -> Result<()> {
                 label: c.label,
                 primary_per_px: primary as f64 / pixels,
                 rays_per_px: total as f64 / pixels,
-                time_ms: median(times),
+                time_ms: median(t),
                 rmse,
                 worst,
                 pareto: false,

@@ -24,9 +24,13 @@ pub enum Sampler {
     Grid { n: u32 },
     /// `n × n` stratified rays, one placed by hash in each cell of the grid.
     Jitter { n: u32 },
-    /// A first pass of one jittered ray per pixel quadrant; where it varies by more than
-    /// `threshold`, or it or a neighbour's first pass meets more than one object, `max × max`
-    /// stratified rays (the first pass's included when `max` is even).
+    /// A first pass of one jittered ray per pixel quadrant, then more where the image needs
+    /// them, in stages that reuse every ray already traced, up to `max × max` stratified rays:
+    /// where the first pass varies by more than `threshold` or meets two objects, or where a
+    /// neighbour's first pass saw an edge, another object or another mean. For even
+    /// `max ≥ 6`, a pixel only a neighbour asked for takes one more ray per quadrant first and
+    /// stops there unless they disagree, and a pixel at 16 rays stops there once the standard
+    /// error of its mean is at most `threshold` (see `refine` in this module).
     Adaptive { max: u32, threshold: f64 },
 }
 
@@ -178,11 +182,12 @@ fn stratified<F: Fn(f64, f64) -> Sample>(
 ) -> Color {
     let mut sum = Color::ZERO;
     let inv = 1.0 / f64::from(n);
+    let hash = seed.map(|s| PixelHash::new(x, y, s));
     for j in 0..n {
         for i in 0..n {
-            let (ox, oy) = match seed {
+            let (ox, oy) = match hash {
                 None => (0.5, 0.5),
-                Some(s) => unit_pair(x, y, j * n + i, s),
+                Some(h) => h.pair(j * n + i),
             };
             let sx = f64::from(x) + (f64::from(i) + ox) * inv;
             let sy = f64::from(y) + (f64::from(j) + oy) * inv;
@@ -195,12 +200,28 @@ fn stratified<F: Fn(f64, f64) -> Sample>(
 /// Two numbers in `[0, 1)` from the pixel, the sample index and a seed.
 #[inline]
 pub fn unit_pair(x: u32, y: u32, index: u32, seed: u64) -> (f64, f64) {
-    let h = mix(seed ^ (u64::from(x) << 32 | u64::from(y)));
-    let h = mix(h ^ u64::from(index));
-    let a = (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
-    let h2 = mix(h);
-    let b = (h2 >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
-    (a, b)
+    PixelHash::new(x, y, seed).pair(index)
+}
+
+/// [`unit_pair`] for one pixel and seed, with the pixel's part of the hash mixed once rather
+/// than once per sample (the values are the same).
+#[derive(Clone, Copy)]
+struct PixelHash(u64);
+
+impl PixelHash {
+    #[inline]
+    fn new(x: u32, y: u32, seed: u64) -> PixelHash {
+        PixelHash(mix(seed ^ (u64::from(x) << 32 | u64::from(y))))
+    }
+
+    #[inline]
+    fn pair(self, index: u32) -> (f64, f64) {
+        let h = mix(self.0 ^ u64::from(index));
+        let a = (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
+        let h2 = mix(h);
+        let b = (h2 >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
+        (a, b)
+    }
 }
 
 /// SplitMix64's finaliser: a bijective 64-bit mix with full avalanche.
@@ -212,98 +233,228 @@ fn mix(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// First-pass result of one pixel for the adaptive sampler.
+/// The samples an adaptive pixel has taken so far: their sum, sum of squares, range and
+/// whether they met more than one object.
 #[derive(Clone, Copy)]
-struct FirstPass {
+struct Tally {
     sum: Color,
+    sum_sq: Color,
     min: Color,
     max: Color,
+    count: u32,
     object: u32,
     mixed: bool,
-    /// For even `n`, the cells of the `n × n` grid the four samples took (see
-    /// [`first_position`]), so refinement does not trace them again.
-    cells: [u32; 4],
 }
 
-/// Where first-pass sample `k` (quadrant `k`) of pixel `(x, y)` goes, as an offset inside the
-/// pixel, and the cell of the final `n × n` grid it stands for.
-///
-/// For even `n`, each quadrant of the pixel is `n/2 × n/2` cells of the final grid; the sample
-/// picks one of them by hash and sits at that cell's own jittered position. It is then exactly
-/// the sample refinement would trace in that cell, so a refined pixel is a plain `n × n`
-/// stratified estimate that reuses the first pass, and the first pass alone is still one
-/// uniform sample per quadrant. For odd `n` the quadrants do not align with the grid, and the
-/// first pass is an independent 2 × 2 jittered set.
-fn first_position(x: i64, y: i64, k: u32, n: u32) -> (f64, f64, u32) {
-    let (qx, qy) = (k % 2, k / 2);
-    // Border pixels left of or above the image have negative coordinates; their hash input
-    // wraps, which is as good a seed as any and the same in every tile.
-    let (hx, hy) = (x as u32, y as u32);
-    if n.is_multiple_of(2) {
-        let h = n / 2;
-        let (a, b) = unit_pair(hx, hy, k, SEED_FIRST);
-        let ci = qx * h + ((a * f64::from(h)) as u32).min(h - 1);
-        let cj = qy * h + ((b * f64::from(h)) as u32).min(h - 1);
-        let cell = cj * n + ci;
-        let (ox, oy) = unit_pair(hx, hy, cell, SEED_REFINE);
-        let inv = 1.0 / f64::from(n);
-        ((f64::from(ci) + ox) * inv, (f64::from(cj) + oy) * inv, cell)
-    } else {
-        let (ox, oy) = unit_pair(hx, hy, k, SEED_FIRST);
-        (
-            (f64::from(qx) + ox) * 0.5,
-            (f64::from(qy) + oy) * 0.5,
-            u32::MAX,
-        )
+impl Tally {
+    fn new() -> Tally {
+        Tally {
+            sum: Color::ZERO,
+            sum_sq: Color::ZERO,
+            min: Color::splat(f64::INFINITY),
+            max: Color::splat(f64::NEG_INFINITY),
+            count: 0,
+            object: 0,
+            mixed: false,
+        }
+    }
+
+    fn add(&mut self, s: Sample) {
+        if self.count == 0 {
+            self.object = s.object;
+        } else if s.object != self.object {
+            self.mixed = true;
+        }
+        self.sum += s.color;
+        self.sum_sq += s.color * s.color;
+        self.min = self.min.min(s.color);
+        self.max = self.max.max(s.color);
+        self.count += 1;
+    }
+
+    fn mean(&self) -> Color {
+        self.sum / f64::from(self.count)
+    }
+
+    /// Whether the samples disagree: more than `threshold` apart in a channel, or on
+    /// different objects.
+    fn contrast(&self, threshold: f64) -> bool {
+        self.mixed || (self.max - self.min).max_element() > threshold
+    }
+
+    /// The standard error of the mean, largest over the channels, as if the samples were
+    /// independent (stratification makes the true error smaller, so this errs on the side
+    /// of more samples).
+    fn standard_error(&self) -> f64 {
+        let n = f64::from(self.count);
+        let var = (self.sum_sq - self.sum * self.sum / n) / (n - 1.0);
+        (var.max_element().max(0.0) / n).sqrt()
     }
 }
 
-fn first_pass<F: Fn(f64, f64) -> Sample>(x: i64, y: i64, n: u32, trace: &F) -> FirstPass {
-    let mut fp = FirstPass {
-        sum: Color::ZERO,
-        min: Color::splat(f64::INFINITY),
-        max: Color::splat(f64::NEG_INFINITY),
-        object: 0,
-        mixed: false,
-        cells: [u32::MAX; 4],
+/// First-pass result of one pixel for the adaptive sampler: the tally of its four samples
+/// and, for even `n`, the cell offset each quadrant drew (see [`quadrant_cell`]).
+#[derive(Clone, Copy)]
+struct FirstPass {
+    tally: Tally,
+    offsets: [(u32, u32); 4],
+}
+
+/// The cell of the final `n × n` grid (`n` even, `h = n/2`) that quadrant `k` of a pixel takes
+/// as its sample number `rank`, given the quadrant's hashed offset `(a, b)` in `[0, h)²`.
+///
+/// Each quadrant is `h × h` cells. Its samples follow a fixed order of cells, shifted
+/// cyclically by the offset: rank 0 at the offset, rank 1 half the quadrant away diagonally,
+/// ranks 2 and 3 completing a 2 × 2 lattice, then every other cell. Since the offset is
+/// uniform, the cell of any rank is uniform over the quadrant, and its sample (at that cell's
+/// own hashed position, whatever the rank) is uniform over the quadrant too: the mean of any
+/// number of ranks per quadrant, the same in every quadrant, is an unbiased estimate of the
+/// pixel, and all `h²` ranks are exactly the `n × n` stratified set.
+fn quadrant_cell(k: u32, rank: u32, (a, b): (u32, u32), h: u32) -> u32 {
+    let s = h.div_ceil(2);
+    let (di, dj) = match rank {
+        0 => (0, 0),
+        1 => (s, s),
+        2 => (s, 0),
+        3 => (0, s),
+        _ => unreachable!("ranks beyond 3 are taken cell by cell in `finish`"),
     };
-    for k in 0..4u32 {
-        let (ox, oy, cell) = first_position(x, y, k, n);
-        let s = trace(x as f64 + ox, y as f64 + oy);
-        fp.sum += s.color;
-        fp.min = fp.min.min(s.color);
-        fp.max = fp.max.max(s.color);
-        fp.cells[k as usize] = cell;
-        if k == 0 {
-            fp.object = s.object;
-        } else if s.object != fp.object {
-            fp.mixed = true;
+    let n = 2 * h;
+    let ci = (k % 2) * h + (a + di) % h;
+    let cj = (k / 2) * h + (b + dj) % h;
+    cj * n + ci
+}
+
+/// The sample of cell `cell` of pixel `(x, y)`'s `n × n` grid, at the cell's hashed position.
+fn cell_sample<F: Fn(f64, f64) -> Sample>(
+    x: i64,
+    y: i64,
+    hash: PixelHash,
+    n: u32,
+    cell: u32,
+    trace: &F,
+) -> Sample {
+    let inv = 1.0 / f64::from(n);
+    let (ox, oy) = hash.pair(cell);
+    let (ci, cj) = (cell % n, cell / n);
+    trace(
+        x as f64 + (f64::from(ci) + ox) * inv,
+        y as f64 + (f64::from(cj) + oy) * inv,
+    )
+}
+
+/// The first pass of pixel `(x, y)`: one sample per quadrant.
+///
+/// For even `n` it is rank 0 of each quadrant (see [`quadrant_cell`]), so every later stage
+/// reuses it. For odd `n` the quadrants do not align with the grid, and the first pass is an
+/// independent 2 × 2 jittered set.
+fn first_pass<F: Fn(f64, f64) -> Sample>(x: i64, y: i64, n: u32, trace: &F) -> FirstPass {
+    // Border pixels left of or above the image have negative coordinates; their hash input
+    // wraps, which is as good a seed as any and the same in every tile.
+    let (hx, hy) = (x as u32, y as u32);
+    let first = PixelHash::new(hx, hy, SEED_FIRST);
+    let mut fp = FirstPass {
+        tally: Tally::new(),
+        offsets: [(0, 0); 4],
+    };
+    if n.is_multiple_of(2) {
+        let h = n / 2;
+        let refine = PixelHash::new(hx, hy, SEED_REFINE);
+        for k in 0..4u32 {
+            let (a, b) = first.pair(k);
+            let a = ((a * f64::from(h)) as u32).min(h - 1);
+            let b = ((b * f64::from(h)) as u32).min(h - 1);
+            fp.offsets[k as usize] = (a, b);
+            let cell = quadrant_cell(k, 0, (a, b), h);
+            fp.tally.add(cell_sample(x, y, refine, n, cell, trace));
+        }
+    } else {
+        for k in 0..4u32 {
+            let (ox, oy) = first.pair(k);
+            let (qx, qy) = (f64::from(k % 2), f64::from(k / 2));
+            fp.tally.add(trace(
+                x as f64 + (qx + ox) * 0.5,
+                y as f64 + (qy + oy) * 0.5,
+            ));
         }
     }
     fp
 }
 
-/// The `n × n` estimate of a pixel whose first pass asked for refinement.
-fn refine<F: Fn(f64, f64) -> Sample>(x: u32, y: u32, n: u32, fp: &FirstPass, trace: &F) -> Color {
-    if n.is_multiple_of(2) {
-        let inv = 1.0 / f64::from(n);
-        let mut sum = fp.sum;
-        for cell in 0..n * n {
-            if fp.cells.contains(&cell) {
-                continue;
-            }
-            let (ci, cj) = (cell % n, cell / n);
-            let (ox, oy) = unit_pair(x, y, cell, SEED_REFINE);
-            let sx = f64::from(x) + (f64::from(ci) + ox) * inv;
-            let sy = f64::from(y) + (f64::from(cj) + oy) * inv;
-            sum += trace(sx, sy).color;
-        }
-        sum / f64::from(n * n)
-    } else {
+/// The estimate of a pixel whose first pass, or a neighbour's, asked for more samples.
+///
+/// Even `n`, in stages of samples per quadrant, each stage reusing the ones before:
+/// - 2 (8 in all), when only a neighbour asked: the pixel stops there unless these samples
+///   disagree (contrast above `threshold`, or two objects);
+/// - 4 (16 in all), when `n ≥ 6`: the pixel stops there if the standard error of its mean is
+///   at most `threshold`;
+/// - `n²/4` (all `n × n` cells).
+///
+/// Odd `n`: `n × n` stratified samples besides the first pass, count-weighted with it.
+fn refine<F: Fn(f64, f64) -> Sample>(
+    x: u32,
+    y: u32,
+    n: u32,
+    threshold: f64,
+    own: bool,
+    fp: &FirstPass,
+    trace: &F,
+) -> Color {
+    if !n.is_multiple_of(2) {
         // Both sets are unbiased estimates of the pixel, so their count-weighted mean is too.
         let n2 = f64::from(n * n);
-        (fp.sum + stratified(x, y, n, Some(SEED_REFINE), trace) * n2) / (4.0 + n2)
+        let t = &fp.tally;
+        return (t.sum + stratified(x, y, n, Some(SEED_REFINE), trace) * n2) / (4.0 + n2);
     }
+    let h = n / 2;
+    let hash = PixelHash::new(x, y, SEED_REFINE);
+    let (xi, yi) = (i64::from(x), i64::from(y));
+    let mut tally = fp.tally;
+    let mut ranks = 1;
+    // Takes ranks `ranks..upto` of every quadrant.
+    let take = |tally: &mut Tally, from: u32, upto: u32| {
+        for rank in from..upto {
+            for k in 0..4 {
+                let cell = quadrant_cell(k, rank, fp.offsets[k as usize], h);
+                tally.add(cell_sample(xi, yi, hash, n, cell, trace));
+            }
+        }
+    };
+    if h >= 3 && !own {
+        take(&mut tally, ranks, 2);
+        ranks = 2;
+        if !tally.contrast(threshold) {
+            return tally.mean();
+        }
+    }
+    if h >= 3 {
+        take(&mut tally, ranks, 4);
+        ranks = 4;
+        if tally.standard_error() <= threshold {
+            return tally.mean();
+        }
+    }
+    // Every cell not yet taken: a cell's rank follows from its place in its quadrant.
+    let step = h.div_ceil(2);
+    for cj in 0..n {
+        for ci in 0..n {
+            let k = ci / h + 2 * (cj / h);
+            let (a, b) = fp.offsets[k as usize];
+            let di = (ci % h + h - a) % h;
+            let dj = (cj % h + h - b) % h;
+            let rank = match (di == 0, dj == 0, di == step, dj == step) {
+                (true, true, _, _) => 0,
+                (_, _, true, true) => 1,
+                (_, true, true, _) => 2,
+                (true, _, _, true) => 3,
+                _ => 4,
+            };
+            if rank >= ranks {
+                tally.add(cell_sample(xi, yi, hash, n, cj * n + ci, trace));
+            }
+        }
+    }
+    tally.mean()
 }
 
 fn adaptive<F: Fn(f64, f64) -> Sample>(
@@ -323,32 +474,42 @@ fn adaptive<F: Fn(f64, f64) -> Sample>(
         for bx in 0..bw {
             let px = i64::from(rect.x) - 1 + bx as i64;
             let py = i64::from(rect.y) - 1 + by as i64;
-            border.push(first_pass(px, py, max, trace));
+            // The corners are never looked at; a placeholder keeps the indexing plain.
+            let corner = (bx == 0 || bx == bw - 1) && (by == 0 || by == bh - 1);
+            border.push(if corner {
+                FirstPass {
+                    tally: Tally::new(),
+                    offsets: [(0, 0); 4],
+                }
+            } else {
+                first_pass(px, py, max, trace)
+            });
         }
     }
     let mut i = 0;
     for ry in 0..rect.height as usize {
         for rx in 0..rect.width as usize {
             let (bx, by) = (rx + 1, ry + 1);
-            let centre = border[by * bw + bx];
-            // Refine where the pixel's own samples disagree (contrast or a second object), or
-            // where a neighbour saw an edge, a different object or a different mean: an edge or
-            // a thin feature there may reach into this pixel between its own samples, and four
-            // samples that happen to agree inside fine texture (a checker near the horizon)
-            // still disagree with their neighbours'.
-            let mut refine_here =
-                centre.mixed || (centre.max - centre.min).max_element() > threshold;
+            let centre = &border[by * bw + bx];
+            let c = &centre.tally;
+            // More samples where the pixel's own samples disagree (contrast or a second
+            // object), or where a neighbour saw an edge, a different object or a different
+            // mean: an edge or a thin feature there may reach into this pixel between its own
+            // samples, and four samples that happen to agree inside fine texture (a checker
+            // near the horizon) still disagree with their neighbours'.
+            let own = c.contrast(threshold);
+            let mut near = false;
             for (nx, ny) in [(bx - 1, by), (bx + 1, by), (bx, by - 1), (bx, by + 1)] {
-                let n = &border[ny * bw + nx];
-                refine_here |= n.mixed
-                    || n.object != centre.object
-                    || ((n.sum - centre.sum) * 0.25).abs().max_element() > threshold;
+                let nb = &border[ny * bw + nx].tally;
+                near |= nb.mixed
+                    || nb.object != c.object
+                    || ((nb.sum - c.sum) * 0.25).abs().max_element() > threshold;
             }
             let (x, y) = (rect.x + rx as u32, rect.y + ry as u32);
-            out[i] = if refine_here {
-                refine(x, y, max, &centre, trace)
+            out[i] = if own || near {
+                refine(x, y, max, threshold, own, centre, trace)
             } else {
-                centre.sum * 0.25
+                c.mean()
             };
             i += 1;
         }
@@ -375,13 +536,25 @@ mod tests {
         }
     }
 
-    const ALL: [Sampler; 6] = [
+    const ALL: [Sampler; 9] = [
         Sampler::Center,
         Sampler::Thesis,
         Sampler::Grid { n: 3 },
         Sampler::Jitter { n: 4 },
         Sampler::Adaptive {
             max: 4,
+            threshold: 0.02,
+        },
+        Sampler::Adaptive {
+            max: 6,
+            threshold: 0.02,
+        },
+        Sampler::Adaptive {
+            max: 8,
+            threshold: 0.02,
+        },
+        Sampler::Adaptive {
+            max: 3,
             threshold: 0.02,
         },
         Sampler::Jitter { n: 1 },
@@ -483,13 +656,18 @@ mod tests {
         };
         let mut out = vec![Color::ZERO; 20];
         s.render_rect(Rect::new(0, 0, 20, 1), counting, &mut out);
-        // Each column holds three first passes (rows -1, 0, 1) of 4 samples; a refined pixel
-        // adds the 12 cells of its 4 × 4 grid that the first pass did not take. Only pixels
-        // at the edge (x = 10.3) and next to it may refine, and the two that the edge's first
-        // pass separates (9 is white, 10 is mixed or black) must.
+        // Each column inside the image holds three first passes (rows -1, 0, 1) of 4 samples;
+        // the border columns -1 and 20 only row 0's (the border's corners are never looked
+        // at). A refined pixel adds the 12 cells of its 4 × 4 grid that the first pass did
+        // not take. Only pixels at the edge (x = 10.3) and next to it may refine, and the two
+        // that the edge's first pass separates (9 is white, 10 is mixed or black) must.
         let counts = per_pixel.into_inner();
         for (i, &c) in counts.iter().enumerate() {
             let x = i as i64 - 1;
+            if x == -1 || x == 20 {
+                assert_eq!(c, 4, "border column {x}");
+                continue;
+            }
             let refined = c == 12 + 12;
             assert!(c == 12 || refined, "column {x}: {c} samples");
             assert!(!refined || (9..=11).contains(&x), "column {x} refined");
@@ -500,5 +678,122 @@ mod tests {
         assert!((out[10].x - 0.3).abs() <= 0.25);
         assert_eq!(out[0].x, 1.0);
         assert_eq!(out[19].x, 0.0);
+    }
+
+    /// Rays traced inside pixel `(px, py)` (border first passes of other pixels excluded).
+    fn rays_in(rays: &[(f64, f64)], px: u32, py: u32) -> Vec<(f64, f64)> {
+        rays.iter()
+            .copied()
+            .filter(|(x, y)| x.floor() == f64::from(px) && y.floor() == f64::from(py))
+            .collect()
+    }
+
+    #[test]
+    fn a_fully_refined_pixel_is_the_stratified_set_with_every_ray_reused() {
+        use std::cell::RefCell;
+        // Fine, high-contrast texture and two objects: every stage asks for more.
+        let busy = |x: f64, y: f64| {
+            let v = (x * 13.7 + y * 5.3).fract();
+            Sample {
+                color: Color::splat(v),
+                object: u32::from(v < 0.5),
+            }
+        };
+        for n in [2, 4, 6, 8] {
+            let rays = RefCell::new(Vec::new());
+            let trace = |x: f64, y: f64| {
+                rays.borrow_mut().push((x, y));
+                busy(x, y)
+            };
+            let s = Sampler::Adaptive {
+                max: n,
+                threshold: 0.01,
+            };
+            let mut out = [Color::ZERO];
+            s.render_rect(Rect::new(5, 7, 1, 1), trace, &mut out);
+            let mine = rays_in(&rays.into_inner(), 5, 7);
+            // Exactly one ray per cell of the n × n grid, at the cell's jittered position: no
+            // ray traced twice, none wasted.
+            assert_eq!(mine.len() as u32, n * n, "n = {n}");
+            let inv = 1.0 / f64::from(n);
+            let mut expected: Vec<(f64, f64)> = (0..n * n)
+                .map(|cell| {
+                    let (ox, oy) = unit_pair(5, 7, cell, SEED_REFINE);
+                    (
+                        5.0 + (f64::from(cell % n) + ox) * inv,
+                        7.0 + (f64::from(cell / n) + oy) * inv,
+                    )
+                })
+                .collect();
+            let mut got = mine.clone();
+            got.sort_by(|a, b| a.partial_cmp(b).expect("positions are finite"));
+            expected.sort_by(|a, b| a.partial_cmp(b).expect("positions are finite"));
+            assert_eq!(got, expected, "n = {n}");
+            // The estimate is their plain mean.
+            let mean =
+                mine.iter().map(|&(x, y)| busy(x, y).color.x).sum::<f64>() / mine.len() as f64;
+            assert!((out[0].x - mean).abs() < 1e-12, "n = {n}");
+        }
+    }
+
+    #[test]
+    fn a_pixel_only_a_neighbour_flags_takes_one_more_ray_per_quadrant_first() {
+        use std::cell::RefCell;
+        // An edge through the middle of pixel 10: its first pass has two samples on each side,
+        // so it is refined in full; 9 and 11 are flat but next to it; 8 and 12 are further.
+        let half = |x: f64, _y: f64| {
+            let white = x < 10.5;
+            Sample {
+                color: Color::splat(if white { 1.0 } else { 0.0 }),
+                object: u32::from(white),
+            }
+        };
+        let rays = RefCell::new(Vec::new());
+        let trace = |x: f64, y: f64| {
+            rays.borrow_mut().push((x, y));
+            half(x, y)
+        };
+        let s = Sampler::Adaptive {
+            max: 6,
+            threshold: 0.02,
+        };
+        let mut out = vec![Color::ZERO; 20];
+        s.render_rect(Rect::new(0, 0, 20, 1), trace, &mut out);
+        let rays = rays.into_inner();
+        let count = |x: u32| rays_in(&rays, x, 0).len();
+        assert_eq!(count(8), 4);
+        assert_eq!(count(9), 8);
+        assert_eq!(count(10), 36);
+        assert_eq!(count(11), 8);
+        assert_eq!(count(12), 4);
+        // The 6 × 6 grid puts exactly 3 columns of cells left of x = 10.5.
+        assert!((out[10].x - 0.5).abs() < 1e-12, "{}", out[10].x);
+        assert_eq!((out[9].x, out[11].x), (1.0, 0.0));
+    }
+
+    #[test]
+    fn sixteen_rays_are_enough_once_their_standard_error_is_below_the_threshold() {
+        use std::cell::RefCell;
+        // Low-contrast fine texture (values within 0.45..0.55): its first pass disagrees by
+        // more than either threshold, and the standard error of 16 samples of it cannot
+        // exceed 0.05 · √(16/15) / 4 < 0.013.
+        let texture = |x: f64, _y: f64| Sample {
+            color: Color::splat(0.5 + 0.05 * (97.0 * x).sin()),
+            object: 0,
+        };
+        let exact = 0.5 + 0.05 * ((97.0 * 5.0f64).cos() - (97.0 * 6.0f64).cos()) / 97.0;
+        for (threshold, rays_expected) in [(0.02, 16), (0.0005, 64)] {
+            let rays = RefCell::new(Vec::new());
+            let trace = |x: f64, y: f64| {
+                rays.borrow_mut().push((x, y));
+                texture(x, y)
+            };
+            let s = Sampler::Adaptive { max: 8, threshold };
+            let mut out = [Color::ZERO];
+            s.render_rect(Rect::new(5, 0, 1, 1), trace, &mut out);
+            assert_eq!(rays_in(&rays.into_inner(), 5, 0).len(), rays_expected);
+            // Within three of those standard errors of the pixel's exact mean.
+            assert!((out[0].x - exact).abs() < 0.04, "{} vs {exact}", out[0].x);
+        }
     }
 }
