@@ -1042,6 +1042,23 @@ mod tests {
     /// The sphere pre-test never rejects a ray the exact test hits: rays grazing the
     /// silhouette within 1e-9 of the radius (either side), from near and from 1e6 radii away,
     /// on spheres large and small, near the origin and far from it.
+    /// A plain white Lambertian object: the shape and placement are what a test varies.
+    fn white(shape: Shape, t: Transform) -> Object {
+        Object::new(
+            shape,
+            t,
+            DVec3::ONE,
+            Material {
+                color1: Color::ONE,
+                color2: None,
+                texture: None,
+                mirror: 0.0,
+                diffuse: 1.0,
+            },
+            false,
+        )
+    }
+
     #[test]
     fn sphere_pre_test_rejects_only_misses() {
         let mut rng = Rng::new(99);
@@ -1052,19 +1069,7 @@ mod tests {
             let t = Transform::from_op(crate::transform::TransformOp::Scale(DVec3::splat(r))).then(
                 &Transform::from_op(crate::transform::TransformOp::Translate(c)),
             );
-            let obj = Object::new(
-                Shape::Sphere,
-                t,
-                DVec3::ONE,
-                Material {
-                    color1: Color::ONE,
-                    color2: None,
-                    texture: None,
-                    mirror: 0.0,
-                    diffuse: 1.0,
-                },
-                false,
-            );
+            let obj = white(Shape::Sphere, t);
             let dist = r * 10f64.powf(rng.range(0.0, 6.0));
             let o = c + rng.direction() * dist;
             let to = c - o;
@@ -1142,19 +1147,7 @@ mod tests {
             ))))
             .then(&op(TransformOp::Rotate(rng.in_ball(180.0))))
             .then(&op(TransformOp::Translate(rng.in_ball(1e3))));
-            let obj = Object::new(
-                shape,
-                t,
-                DVec3::ONE,
-                Material {
-                    color1: Color::ONE,
-                    color2: None,
-                    texture: None,
-                    mirror: 0.0,
-                    diffuse: 1.0,
-                },
-                false,
-            );
+            let obj = white(shape, t);
             let pieces: Vec<Aabb> = obj
                 .pieces()
                 .iter()
