@@ -226,8 +226,7 @@ type Rendered = Result<Vec<u8>, String>;
 
 /// A tile for a render thread.
 struct RenderJob {
-    /// The job's scene, or `None` for a no-op worker's black tile.
-    scene: Option<Arc<Prepared>>,
+    scene: Arc<Prepared>,
     rect: Rect,
     /// Set when the tile is no longer ours: the thread skips it if it has not started.
     cancel: Arc<AtomicBool>,
@@ -254,13 +253,11 @@ impl Renderer {
                         continue;
                     }
                     let rect = job.rect;
+                    // The same bytes `tessera-render` writes: a pixel's value does not depend
+                    // on its tile.
+                    let p = &job.scene;
                     let rendered = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                        match &job.scene {
-                            // The same bytes `tessera-render` writes: a pixel's value does
-                            // not depend on its tile.
-                            Some(p) => p.scene.render_rect_stats_with(rect, &p.sampler).0,
-                            None => vec![0u8; rect.pixel_count() * 3],
-                        }
+                        p.scene.render_rect_stats_with(rect, &p.sampler).0
                     }))
                     .map_err(|panic| {
                         let what = panic
@@ -282,14 +279,14 @@ impl Renderer {
     fn submit(&self, claim: Claim, scene: Option<Arc<Prepared>>) -> Ticket {
         let (reply, rendered) = oneshot::channel();
         let cancel = Arc::new(AtomicBool::new(false));
-        if scene.is_none() {
+        let Some(scene) = scene else {
             let _ = reply.send(Ok(vec![0u8; claim.rect().pixel_count() * 3]));
             return Ticket {
                 claim,
                 rendered,
                 cancel,
             };
-        }
+        };
         let job = RenderJob {
             scene,
             rect: claim.rect(),
@@ -340,8 +337,6 @@ struct Pipeline {
     next: Option<Result<Option<Claim>, ClientError>>,
     /// The next tile, in the render thread's queue.
     queued: Option<Ticket>,
-    /// When this slot's previous render ended: the gap to the next start is logged (debug).
-    render_ended: Option<Instant>,
     /// Posts of earlier tiles still under way, oldest first (at most [`POSTS_IN_FLIGHT`]).
     posts: std::collections::VecDeque<PostTask>,
 }
@@ -598,12 +593,6 @@ async fn work(
     pipe: &mut Pipeline,
 ) -> Result<(), ClientError> {
     let client = &shared.client;
-    if let Some(ended) = pipe.render_ended.take() {
-        debug!(
-            gap_us = ended.elapsed().as_micros() as u64,
-            "between renders"
-        );
-    }
     if pipe.claim.is_none() && pipe.next.is_none() && pipe.queued.is_none() && !*stop.borrow() {
         let client = client.clone();
         let (name, wait) = (shared.cfg.name.clone(), shared.cfg.idle_max);
@@ -674,7 +663,6 @@ async fn work(
             }
         }
     };
-    pipe.render_ended = Some(Instant::now());
     let rgb = match rendered {
         Ok(Ok(rgb)) => rgb,
         failed => {
