@@ -91,12 +91,17 @@ pub struct TileInfo {
 /// What became of a posted result.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Completion {
-    /// Stored; `last` when it was the job's last tile (the image can be assembled).
-    Stored { last: bool },
+    /// Stored; `last` when it was the job's last tile (the image can be assembled). `worker`
+    /// is the name the tile was claimed under.
+    Stored { last: bool, worker: Option<String> },
     /// Already stored from this very lease: nothing changed.
     Repeat,
     /// Not this lease's to post (expired and handed out again, released, or the job ended).
     Stale(String),
+    /// The lease is current, but the pixels are for another rectangle than this tile.
+    WrongTile(Rect),
+    /// The job has no such tile (or no longer exists).
+    Missing,
 }
 
 /// Keep-away policy for workers that fail a job.
@@ -377,62 +382,60 @@ impl Queue {
         }))
     }
 
-    /// Stores a tile's pixels if `lease` is its current lease and its job is active. The
-    /// caller has checked the pixels against the tile.
+    /// Stores a tile's pixels if `lease` is its current lease, its job is active and `rect`
+    /// (what the blob says it holds; `rgb` has been checked against it) is the tile's.
+    ///
+    /// One statement, so one round trip to the writing connection: the insert happens only
+    /// `WHERE` all of that holds, and the `tile_pixels_stored` trigger (migration 0002) marks
+    /// the tile done and counts it in its job within the same statement. Only when nothing
+    /// was stored does a second query find out why.
     pub async fn complete(
         &self,
         job: &str,
         idx: u32,
         lease: &str,
+        rect: Rect,
         rgb: &[u8],
     ) -> Result<Completion> {
-        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
-        let r = sqlx::query(
-            "UPDATE tiles SET state = 'done', lease_expires = NULL
-             WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'
-               AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
+        let stored: Option<(i64, i64, Option<String>)> = sqlx::query_as(
+            "INSERT INTO tile_pixels (job_id, idx, rgb)
+             SELECT ?1, ?2, ?4 WHERE EXISTS (
+                 SELECT 1 FROM tiles t JOIN jobs j ON j.id = t.job_id
+                 WHERE t.job_id = ?1 AND t.idx = ?2 AND t.lease = ?3 AND t.state = 'leased'
+                   AND t.x = ?5 AND t.y = ?6 AND t.w = ?7 AND t.h = ?8
+                   AND j.state IN ('queued', 'running'))
+             RETURNING (SELECT tiles_done FROM jobs WHERE id = ?1),
+                       (SELECT tiles_total FROM jobs WHERE id = ?1),
+                       (SELECT worker FROM tiles WHERE job_id = ?1 AND idx = ?2)",
         )
         .bind(job)
         .bind(i64::from(idx))
         .bind(lease)
-        .execute(&mut *tx)
+        .bind(rgb)
+        .bind(i64::from(rect.x))
+        .bind(i64::from(rect.y))
+        .bind(i64::from(rect.width))
+        .bind(i64::from(rect.height))
+        .fetch_optional(&self.writer)
         .await?;
-        if r.rows_affected() == 0 {
-            let row: Option<(String, Option<String>, String)> = sqlx::query_as(
-                "SELECT t.state, t.lease, j.state FROM tiles t JOIN jobs j ON j.id = t.job_id
-                 WHERE t.job_id = ?1 AND t.idx = ?2",
-            )
-            .bind(job)
-            .bind(i64::from(idx))
-            .fetch_optional(&mut *tx)
-            .await?;
-            tx.rollback().await?;
-            return Ok(match row {
-                Some((state, Some(l), _)) if state == "done" && l == lease => Completion::Repeat,
-                Some((_, _, job_state)) if !matches!(job_state.as_str(), "queued" | "running") => {
-                    Completion::Stale(format!("the job is {job_state}"))
-                }
-                Some(_) => Completion::Stale(
-                    "this lease is no longer current (it expired or was given back)".into(),
-                ),
-                None => Completion::Stale("no such tile".into()),
+        if let Some((done_before, total, worker)) = stored {
+            // `RETURNING` is computed before the trigger counts this tile (see the migration).
+            return Ok(Completion::Stored {
+                last: done_before + 1 == total,
+                worker,
             });
         }
-        sqlx::query("INSERT INTO tile_pixels (job_id, idx, rgb) VALUES (?1, ?2, ?3)")
-            .bind(job)
-            .bind(i64::from(idx))
-            .bind(rgb)
-            .execute(&mut *tx)
-            .await?;
-        let (done, total): (i64, i64) = sqlx::query_as(
-            "UPDATE jobs SET tiles_done = tiles_done + 1 WHERE id = ?1 RETURNING tiles_done, tiles_total",
-        )
-        .bind(job)
-        .fetch_one(&mut *tx)
-        .await?;
-        tx.commit().await?;
-        Ok(Completion::Stored {
-            last: done == total,
+        let Some(tile) = self.tile(job, idx).await? else {
+            return Ok(Completion::Missing);
+        };
+        Ok(if tile.state == "done" && tile.lease.as_deref() == Some(lease) {
+            Completion::Repeat
+        } else if !matches!(tile.job_state.as_str(), "queued" | "running") {
+            Completion::Stale(format!("the job is {}", tile.job_state))
+        } else if tile.lease.as_deref() != Some(lease) || tile.state != "leased" {
+            Completion::Stale("this lease is no longer current (it expired or was given back)".into())
+        } else {
+            Completion::WrongTile(tile.rect)
         })
     }
 

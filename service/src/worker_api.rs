@@ -12,7 +12,9 @@ use axum::extract::{Path, Query, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
-use tessera_worker::protocol::{Accepted, ClaimRequest, FailRequest, Renewed, decode_tile};
+use tessera_worker::protocol::{
+    Accepted, BlobError, Claim, ClaimRequest, FailRequest, Renewed, split_tile,
+};
 
 use crate::error::{ApiError, ok_json};
 use crate::queue::Completion;
@@ -55,12 +57,7 @@ pub async fn claim(
         let notified = state.work.notified();
         tokio::pin!(notified);
         notified.as_mut().enable();
-        let claimed = state
-            .queue
-            .claim(name, now_ms(), state.cfg.lease_ms, state.cfg.max_attempts)
-            .await?;
-        state.seen(name, |w| w.claims += u64::from(claimed.is_some()));
-        if let Some(c) = claimed {
+        if let Some(c) = claim_now(&state, name).await? {
             return Ok(ok_json(c).into_response());
         }
         tokio::select! {
@@ -70,6 +67,16 @@ pub async fn claim(
             }
         }
     }
+}
+
+/// The next tile for `worker`, if there is one now.
+async fn claim_now(state: &AppState, worker: &str) -> Result<Option<Claim>, ApiError> {
+    let claimed = state
+        .queue
+        .claim(worker, now_ms(), state.cfg.lease_ms, state.cfg.max_attempts)
+        .await?;
+    state.seen(worker, |w| w.claims += u64::from(claimed.is_some()));
+    Ok(claimed)
 }
 
 pub async fn job(
@@ -121,41 +128,56 @@ pub async fn renew(
     }
 }
 
-/// `PUT /worker/jobs/{id}/tiles/{idx}?lease=`: the tile blob. `200` stored (or a harmless
-/// repeat from the same lease), `409` from a lease that is not current, `422` for a blob
-/// that is not this tile's.
+/// `PUT /worker/jobs/{id}/tiles/{idx}?lease=L`.
+#[derive(Debug, Deserialize)]
+pub struct ResultParams {
+    pub lease: String,
+    /// A worker name: with the result stored, also claim that worker's next tile (without
+    /// waiting), saving it a round trip.
+    pub next: Option<String>,
+}
+
+/// `PUT /worker/jobs/{id}/tiles/{idx}?lease=L[&next=NAME]`: the tile blob. `200` stored (or a
+/// harmless repeat from the same lease), with the next claim when asked for and there is
+/// work; `404` no such tile, `409` from a lease that is not current, `422` for a blob that is
+/// not this tile's.
 pub async fn result(
     State(state): State<AppState>,
     Path((id, idx)): Path<(String, u32)>,
-    Query(q): Query<LeaseParam>,
+    Query(q): Query<ResultParams>,
     body: Bytes,
 ) -> Result<Json<serde_json::Value>, ApiError> {
-    let tile = state
-        .queue
-        .tile(&id, idx)
-        .await?
-        .ok_or_else(|| ApiError::not_found(format_args!("tile {idx} of job `{id}`")))?;
-    if tile.lease.as_deref() != Some(q.lease.as_str()) {
-        return Err(ApiError::conflict(
-            "this lease is no longer current (it expired or was given back)",
-        ));
-    }
-    let rgb = decode_tile(&body, tile.rect)
+    let next_for = q.next.as_deref().map(worker_name).transpose()?;
+    let (rect, rgb) = split_tile(&body)
         .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
-    let outcome = state.queue.complete(&id, idx, &q.lease, rgb).await?;
-    match outcome {
-        Completion::Stored { last } => {
-            if let Some(worker) = &tile.worker {
+    let repeat = match state.queue.complete(&id, idx, &q.lease, rect, rgb).await? {
+        Completion::Stored { last, worker } => {
+            if let Some(worker) = &worker {
                 state.seen(worker, |w| w.tiles_done += 1);
             }
             if last {
                 state.spawn_assembly(id);
             }
-            Ok(ok_json(Accepted { repeat: false }))
+            false
         }
-        Completion::Repeat => Ok(ok_json(Accepted { repeat: true })),
-        Completion::Stale(why) => Err(ApiError::conflict(why)),
-    }
+        Completion::Repeat => true,
+        Completion::Stale(why) => return Err(ApiError::conflict(why)),
+        Completion::Missing => {
+            return Err(ApiError::not_found(format_args!("tile {idx} of job `{id}`")));
+        }
+        Completion::WrongTile(expected) => {
+            let e = BlobError::WrongTile { expected, got: rect };
+            return Err(ApiError::new(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                e.to_string(),
+            ));
+        }
+    };
+    let next = match next_for {
+        Some(name) => claim_now(&state, name).await?,
+        None => None,
+    };
+    Ok(ok_json(Accepted { repeat, next }))
 }
 
 pub async fn fail(

@@ -76,11 +76,14 @@ async fn concurrent_claimers_never_share_a_tile() {
             let name = format!("w{w}");
             while let Some(c) = q.claim(&name, 1_000, 60_000, 4).await.expect("claim") {
                 let stored = q
-                    .complete(&c.job, c.idx, &c.lease, &pixels(c.rect()))
+                    .complete(&c.job, c.idx, &c.lease, c.rect(), &pixels(c.rect()))
                     .await
                     .expect("complete");
-                assert!(matches!(stored, Completion::Stored { .. }), "{stored:?}");
-                claimed.lock().expect("not poisoned").push(c.idx);
+                let Completion::Stored { last, worker } = stored else {
+                    panic!("not stored: {stored:?}");
+                };
+                assert_eq!(worker.as_deref(), Some(name.as_str()));
+                claimed.lock().expect("not poisoned").push((c.idx, last));
             }
         }));
     }
@@ -88,7 +91,9 @@ async fn concurrent_claimers_never_share_a_tile() {
         t.await.expect("claimer ran");
     }
     let claimed = claimed.lock().expect("not poisoned").clone();
-    let distinct: HashSet<_> = claimed.iter().collect();
+    // Exactly one result is the job's last: the one that set off the image's assembly.
+    assert_eq!(claimed.iter().filter(|(_, last)| *last).count(), 1);
+    let distinct: HashSet<_> = claimed.iter().map(|(idx, _)| idx).collect();
     assert_eq!(
         claimed.len(),
         rects.len(),
@@ -124,7 +129,7 @@ async fn stale_and_repeated_results_change_nothing() {
 
     let rgb = pixels(first.rect());
     let late = q
-        .complete("j", first.idx, &first.lease, &rgb)
+        .complete("j", first.idx, &first.lease, first.rect(), &rgb)
         .await
         .expect("complete");
     assert!(matches!(late, Completion::Stale(_)), "{late:?}");
@@ -137,12 +142,18 @@ async fn stale_and_repeated_results_change_nothing() {
     assert_eq!(q.job("j").await.expect("read").expect("job").tiles_done, 0);
 
     let ok = q
-        .complete("j", second.idx, &second.lease, &rgb)
+        .complete("j", second.idx, &second.lease, second.rect(), &rgb)
         .await
         .expect("complete");
-    assert_eq!(ok, Completion::Stored { last: false });
+    assert_eq!(
+        ok,
+        Completion::Stored {
+            last: false,
+            worker: Some("b".into())
+        }
+    );
     let again = q
-        .complete("j", second.idx, &second.lease, &rgb)
+        .complete("j", second.idx, &second.lease, second.rect(), &rgb)
         .await
         .expect("complete");
     assert_eq!(again, Completion::Repeat);
@@ -153,6 +164,38 @@ async fn stale_and_repeated_results_change_nothing() {
             .await
             .expect("release")
     );
+
+    // The job's other tile: pixels for the wrong rectangle are refused under a current
+    // lease and change nothing; the right ones complete the job, and only they are `last`.
+    let other = q
+        .claim("c", 1_000, 100, 4)
+        .await
+        .expect("claim")
+        .expect("the second tile");
+    assert_ne!(other.idx, second.idx);
+    let wrong = q
+        .complete("j", other.idx, &other.lease, second.rect(), &rgb)
+        .await
+        .expect("complete");
+    assert_eq!(wrong, Completion::WrongTile(other.rect()));
+    assert_eq!(q.job("j").await.expect("read").expect("job").tiles_done, 1);
+    let last = q
+        .complete("j", other.idx, &other.lease, other.rect(), &pixels(other.rect()))
+        .await
+        .expect("complete");
+    assert_eq!(
+        last,
+        Completion::Stored {
+            last: true,
+            worker: Some("c".into())
+        }
+    );
+    assert_eq!(q.job("j").await.expect("read").expect("job").tiles_done, 2);
+    let missing = q
+        .complete("j", 99, &other.lease, other.rect(), &rgb)
+        .await
+        .expect("complete");
+    assert_eq!(missing, Completion::Missing);
 }
 
 #[tokio::test]

@@ -388,3 +388,66 @@ fn tile_blobs_are_checked_before_they_are_stored() {
     assert_eq!(r.json::<Value>().expect("json")["repeat"], true);
     assert_eq!(tiles_done(&svc, &id), 1, "the repeat changed nothing");
 }
+
+#[test]
+fn a_result_can_carry_the_next_claim() {
+    let dir = TempDir::new("ride");
+    let svc = Service::start(&dir, &["--local-workers", "0"]);
+    let job = svc.submit(&read("checker.ray"), "?tile=128");
+    let id = job["id"].as_str().expect("id").to_string();
+    let total = job["tiles_total"].as_u64().expect("tiles_total");
+    assert!(total >= 3, "a job of a few tiles ({total})");
+    let http = client();
+    let mut c: Value = http
+        .post(format!("{}/worker/claim", svc.url))
+        .json(&json!({"worker": "t"}))
+        .send()
+        .expect("answer")
+        .json()
+        .expect("claim");
+    let put = |c: &Value, next: &str| {
+        let u = |k: &str| c[k].as_u64().expect("number") as u32;
+        let rect = Rect::new(u("x"), u("y"), u("w"), u("h"));
+        http.put(format!(
+            "{}/worker/jobs/{id}/tiles/{}?lease={}{next}",
+            svc.url,
+            c["idx"],
+            c["lease"].as_str().expect("lease")
+        ))
+        .body(encode_tile(rect, &vec![5u8; rect.pixel_count() * 3]))
+        .send()
+        .expect("answer")
+    };
+    // A name that is not one is refused before anything is stored.
+    assert_eq!(put(&c, "&next=").status(), 400);
+    assert_eq!(tiles_done(&svc, &id), 0);
+
+    // Each post brings the next tile under a fresh lease, until there is none left.
+    let mut seen = vec![c["idx"].as_u64().expect("idx")];
+    let mut leases = vec![c["lease"].as_str().expect("lease").to_string()];
+    loop {
+        let r = put(&c, "&next=t");
+        assert_eq!(r.status(), 200);
+        let a: Value = r.json().expect("json");
+        assert_eq!(a["repeat"], false);
+        match a.get("next") {
+            Some(next) => {
+                seen.push(next["idx"].as_u64().expect("idx"));
+                leases.push(next["lease"].as_str().expect("lease").to_string());
+                c = next.clone();
+            }
+            None => break,
+        }
+    }
+    seen.sort_unstable();
+    assert_eq!(seen, (0..total).collect::<Vec<_>>(), "every tile, once");
+    leases.sort_unstable();
+    leases.dedup();
+    assert_eq!(leases.len() as u64, total, "a fresh lease each time");
+    assert_eq!(svc.wait_finished(&id, JOB_TIME)["state"], "done");
+    // A repeat still answers 200, and with no work left it brings nothing.
+    let again = put(&c, "&next=t");
+    assert_eq!(again.status(), 200);
+    let a: Value = again.json().expect("json");
+    assert_eq!((a["repeat"].clone(), a.get("next")), (json!(true), None));
+}

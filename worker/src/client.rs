@@ -47,8 +47,9 @@ impl ClientError {
 /// What became of a posted tile.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Posted {
-    /// Stored (or, `repeat`, already stored from this lease).
-    Accepted { repeat: bool },
+    /// Stored (or, `repeat`, already stored from this lease), with the next claim when one
+    /// was asked for and there was work.
+    Accepted { repeat: bool, next: Option<Claim> },
     /// Refused because the lease is no longer ours (expired and handed out again, or the job
     /// was cancelled): the tile is someone else's business now.
     Stale(String),
@@ -203,12 +204,22 @@ impl Client {
         }
     }
 
-    /// Posts a tile blob (see [`crate::protocol::encode_tile`]).
-    pub async fn post_tile(&self, c: &Claim, blob: Vec<u8>) -> Result<Posted> {
+    /// Posts a tile blob (see [`crate::protocol::encode_tile`]). With `next` (this worker's
+    /// name), the answer also carries the worker's next tile when there is one at once.
+    pub async fn post_tile(
+        &self,
+        c: &Claim,
+        blob: Vec<u8>,
+        next: Option<&str>,
+    ) -> Result<Posted> {
         let what = "post tile";
+        let mut url = self.tile_url(c, None);
+        if let Some(name) = next {
+            url.query_pairs_mut().append_pair("next", name);
+        }
         let req = self
             .http
-            .put(self.tile_url(c, None))
+            .put(url)
             .header(reqwest::header::CONTENT_TYPE, "application/octet-stream")
             .body(blob);
         let resp = self.send(req).await?;
@@ -218,7 +229,10 @@ impl Client {
                     .json()
                     .await
                     .map_err(|source| ClientError::Decode { what, source })?;
-                Ok(Posted::Accepted { repeat: a.repeat })
+                Ok(Posted::Accepted {
+                    repeat: a.repeat,
+                    next: a.next,
+                })
             }
             StatusCode::CONFLICT | StatusCode::NOT_FOUND => {
                 Ok(Posted::Stale(resp.text().await.unwrap_or_default()))

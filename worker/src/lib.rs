@@ -593,10 +593,14 @@ async fn work(
     pipe: &mut Pipeline,
 ) -> Result<(), ClientError> {
     let client = &shared.client;
-    if pipe.claim.is_none() && pipe.next.is_none() && pipe.queued.is_none() && !*stop.borrow() {
-        let client = client.clone();
-        let (name, wait) = (shared.cfg.name.clone(), shared.cfg.idle_max);
-        pipe.claim = Some(tokio::spawn(async move { client.claim(&name, wait).await }));
+    // A no-op tile is "rendered" already: its next claim rides on its post instead.
+    if !shared.cfg.noop
+        && pipe.claim.is_none()
+        && pipe.next.is_none()
+        && pipe.queued.is_none()
+        && !*stop.borrow()
+    {
+        pipe.claim = Some(spawn_claim(shared, None, stop.clone()));
     }
 
     let c = t.claim.clone();
@@ -680,18 +684,73 @@ async fn work(
     };
     debug!(job = %c.job, tile = c.idx, ms = started.elapsed().as_millis() as u64, "rendered");
     let blob = encode_tile(c.rect(), &rgb);
-    pipe.start_post(tokio::spawn(post(shared.clone(), c, blob)))
+    // Unless a claim is already under way or answered, this post also asks for the slot's
+    // next tile: one round trip instead of two. The tile after the one now queued is thus
+    // asked for as soon as this one is rendered, as it would be by a separate claim.
+    let ride = if pipe.claim.is_none() && pipe.next.is_none() && !*stop.borrow() {
+        let (tx, rx) = oneshot::channel();
+        pipe.claim = Some(spawn_claim(shared, Some(rx), stop.clone()));
+        Some(tx)
+    } else {
+        None
+    };
+    pipe.start_post(tokio::spawn(post(shared.clone(), c, blob, ride)))
         .await
 }
 
+/// The claim a post may carry: the post's answer, or nothing (the post failed, was refused,
+/// or the service had no work at that moment).
+type Ride = oneshot::Sender<Option<Claim>>;
+
+/// A claim for the slot's next tile, as its own task: the one a post brings back (`ride`),
+/// or else an ordinary claim, which waits up to `idle_max` at the service for work. Nothing
+/// is claimed once the worker is stopping.
+fn spawn_claim(
+    shared: &Arc<Shared>,
+    ride: Option<oneshot::Receiver<Option<Claim>>>,
+    stop: watch::Receiver<bool>,
+) -> ClaimTask {
+    let client = shared.client.clone();
+    let (name, wait) = (shared.cfg.name.clone(), shared.cfg.idle_max);
+    tokio::spawn(async move {
+        if let Some(ride) = ride
+            && let Ok(Some(c)) = ride.await
+        {
+            return Ok(Some(c));
+        }
+        if *stop.borrow() {
+            return Ok(None);
+        }
+        client.claim(&name, wait).await
+    })
+}
+
 /// Posts a rendered tile, riding through a service restart (it extends leases when it
-/// comes back).
-async fn post(shared: Arc<Shared>, c: Claim, blob: Vec<u8>) -> Result<(), ClientError> {
+/// comes back). With `ride`, the first attempt also asks for the slot's next tile and hands
+/// the answer over; later attempts do not (the slot claims on its own then).
+async fn post(
+    shared: Arc<Shared>,
+    c: Claim,
+    blob: Vec<u8>,
+    mut ride: Option<Ride>,
+) -> Result<(), ClientError> {
     let give_up_at = Instant::now() + Duration::from_millis(c.lease_ms.max(1000) * 4);
     let mut rng = seed();
     let mut streak = 0;
     loop {
-        match shared.client.post_tile(&c, blob.clone()).await {
+        let next = ride.is_some().then_some(shared.cfg.name.as_str());
+        let answer = shared.client.post_tile(&c, blob.clone(), next).await;
+        if let Some(tx) = ride.take() {
+            let claim = match &answer {
+                Ok(Posted::Accepted { next, .. }) => next.clone(),
+                _ => None,
+            };
+            // The claim task ends only after hearing from here, and the slot's `drain` waits
+            // for it (to give back what it brought); the send fails only if that wait timed
+            // out, and then the tile comes back when its lease runs out.
+            let _ = tx.send(claim);
+        }
+        match answer {
             Ok(Posted::Accepted { .. }) => {
                 shared.tiles.fetch_add(1, Ordering::Relaxed);
                 return Ok(());

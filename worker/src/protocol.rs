@@ -54,10 +54,14 @@ pub struct Renewed {
 }
 
 /// Answer to a posted tile: `repeat` is true when the tile was already in from this lease
-/// (the repeat changed nothing).
+/// (the repeat changed nothing). When the post asked for its worker's next tile
+/// (`?next=NAME`), `next` is that claim, as `POST /worker/claim` would have answered it
+/// without waiting; absent when there is no work at this moment (or none was asked for).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Accepted {
     pub repeat: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub next: Option<Claim>,
 }
 
 /// `POST /worker/jobs/{id}/tiles/{idx}/fail` body.
@@ -97,13 +101,24 @@ pub enum BlobError {
     WrongLength {
         w: u32,
         h: u32,
-        expected: usize,
+        expected: u64,
         got: usize,
     },
 }
 
 /// Checks a blob against the tile it must be for and returns its pixel bytes.
 pub fn decode_tile(blob: &[u8], expected: Rect) -> Result<&[u8], BlobError> {
+    let (got, pixels) = split_tile(blob)?;
+    if got != expected {
+        return Err(BlobError::WrongTile { expected, got });
+    }
+    Ok(pixels)
+}
+
+/// Reads a blob's header and checks its length against the rectangle the header names:
+/// the rectangle and the pixel bytes. Whether that rectangle is the tile's is for the caller
+/// to check ([`decode_tile`], or the service's store statement).
+pub fn split_tile(blob: &[u8]) -> Result<(Rect, &[u8]), BlobError> {
     if blob.len() < TILE_HEADER_LEN || blob[..4] != TILE_MAGIC {
         return Err(BlobError::BadMagic);
     }
@@ -112,20 +127,18 @@ pub fn decode_tile(blob: &[u8], expected: Rect) -> Result<&[u8], BlobError> {
         u32::from_le_bytes([blob[at], blob[at + 1], blob[at + 2], blob[at + 3]])
     };
     let got = Rect::new(word(0), word(1), word(2), word(3));
-    if got != expected {
-        return Err(BlobError::WrongTile { expected, got });
-    }
     let pixels = &blob[TILE_HEADER_LEN..];
-    let want = expected.pixel_count() * 3;
-    if pixels.len() != want {
+    // In u64: a header naming a huge rectangle must not overflow the product.
+    let want = u64::from(got.width) * u64::from(got.height) * 3;
+    if pixels.len() as u64 != want {
         return Err(BlobError::WrongLength {
-            w: expected.width,
-            h: expected.height,
+            w: got.width,
+            h: got.height,
             expected: want,
             got: pixels.len(),
         });
     }
-    Ok(pixels)
+    Ok((got, pixels))
 }
 
 #[cfg(test)]
