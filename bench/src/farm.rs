@@ -32,7 +32,7 @@ pub struct Args {
     #[arg(long)]
     pub threads: Option<usize>,
     /// Repetitions per timing (median reported).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 5)]
     pub runs: usize,
     /// Only these parts (overhead, scaling, tiles, queue, memory); default all.
     #[arg(long, value_delimiter = ',')]
@@ -153,11 +153,14 @@ impl Service {
         let id = job["id"].as_str().context("job id")?.to_string();
         let tile = job["tile"].as_u64().context("job tile")?;
         loop {
-            let j: Value = http.get(format!("{}/jobs/{id}", self.url)).send()?.json()?;
+            // The service answers as soon as the job ends (or after 30 s, to look again).
+            let j: Value = http
+                .get(format!("{}/jobs/{id}?wait=30", self.url))
+                .send()?
+                .json()?;
             match j["state"].as_str() {
                 Some("done") => break,
-                // Every 25 ms: on average 12 ms late, and light on the service it measures.
-                Some("queued" | "running") => std::thread::sleep(Duration::from_millis(25)),
+                Some("queued" | "running") => {}
                 _ => bail!("job ended: {j}"),
             }
         }
@@ -267,25 +270,35 @@ pub fn run(args: &Args) -> Result<()> {
             None => (String::new(), "1 ray/pixel".to_string()),
         };
         if args.wants("overhead") {
-            let (local_png, t_local) = runs(reps, || local(&scene, threads, samples))?;
+            // Local and farm runs alternate, and the figure is the median of each pair's
+            // ratio: on a shared machine whose speed drifts from minute to minute, a pair run
+            // back to back sees the same machine.
             let svc = Service::start(&["--local-workers", &threads.to_string()])?;
+            let (mut t_local, mut t_farm, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
             let mut tile = 0;
-            let (farm_png, t_farm) = runs(reps, || {
-                let (png, t, edge) = svc.render_job(&http, &scene, &query)?;
+            for _ in 0..reps.max(1) {
+                let (local_png, tl) = local(&scene, threads, samples)?;
+                let (farm_png, tf, edge) = svc.render_job(&http, &scene, &query)?;
+                if local_png != farm_png {
+                    bail!("the farm's PNG differs from the local render");
+                }
                 tile = edge;
-                Ok((png, t))
-            })?;
-            drop(svc);
-            let pct = (t_farm.as_secs_f64() / t_local.as_secs_f64() - 1.0) * 100.0;
-            println!(
-                "  overhead ({label}): tessera-render path {:.3} s, farm ({tile} px tiles, the service's choice; {threads} local workers) {:.3} s: {pct:+.1} %  (PNG identical: {})",
-                t_local.as_secs_f64(),
-                t_farm.as_secs_f64(),
-                if local_png == farm_png { "yes" } else { "NO" }
-            );
-            if local_png != farm_png {
-                bail!("the farm's PNG differs from the local render");
+                ratios.push(tf.as_secs_f64() / tl.as_secs_f64());
+                t_local.push(tl);
+                t_farm.push(tf);
             }
+            drop(svc);
+            ratios.sort_by(f64::total_cmp);
+            let pct = |r: f64| (r - 1.0) * 100.0;
+            println!(
+                "  overhead ({label}): tessera-render path {:.3} s, farm ({tile} px tiles, the service's choice; {threads} local workers) {:.3} s: {:+.1} % (median of {} back-to-back pairs; range {:+.1} to {:+.1} %; PNG identical: yes)",
+                median(t_local).as_secs_f64(),
+                median(t_farm).as_secs_f64(),
+                pct(ratios[ratios.len() / 2]),
+                ratios.len(),
+                pct(ratios[0]),
+                pct(ratios[ratios.len() - 1]),
+            );
         }
         if !args.quick && args.wants("tiles") {
             // The measurement behind the automatic tile size (`auto_tile` in the service).

@@ -5,6 +5,7 @@
 //! bad scene is a `400` naming line and column and leaves no trace.
 
 use std::collections::HashMap;
+use std::time::Duration;
 
 use axum::Json;
 use axum::body::{Body, Bytes};
@@ -86,16 +87,55 @@ pub async fn list_jobs(State(state): State<AppState>) -> Result<Json<Value>, Api
     Ok(ok_json(jobs))
 }
 
+/// `GET /jobs/{id}?wait=S`: with `wait`, the answer waits until the job has ended (done,
+/// failed or cancelled) or `S` seconds (at most [`MAX_JOB_WAIT_SECS`]) have passed, so a
+/// client learns of the end at once instead of polling.
+#[derive(Debug, Default, Deserialize)]
+pub struct JobParams {
+    pub wait: Option<f64>,
+}
+
+/// The longest `GET /jobs/{id}?wait=` holds a request.
+pub const MAX_JOB_WAIT_SECS: f64 = 60.0;
+
+/// How often a waiting request looks again without being woken: only a change made outside
+/// this process (another service on the same database) goes unannounced.
+const JOB_WAIT_RECHECK: Duration = Duration::from_secs(1);
+
 pub async fn get_job(
     State(state): State<AppState>,
     Path(id): Path<String>,
+    Query(params): Query<JobParams>,
 ) -> Result<Json<Value>, ApiError> {
-    let row = state
-        .queue
-        .job(&id)
-        .await?
-        .ok_or_else(|| ApiError::not_found(format_args!("job `{id}`")))?;
-    Ok(ok_json(JobView::from(row)))
+    let wait = match params.wait {
+        None => 0.0,
+        Some(w) if w.is_finite() && w >= 0.0 => w.min(MAX_JOB_WAIT_SECS),
+        Some(_) => {
+            return Err(ApiError::bad_request(
+                "`wait` must be a number of seconds ≥ 0",
+            ));
+        }
+    };
+    let deadline = tokio::time::Instant::now() + Duration::from_secs_f64(wait);
+    loop {
+        // Registered before looking, so that an end in between is not missed.
+        let ended = state.ended.notified();
+        tokio::pin!(ended);
+        ended.as_mut().enable();
+        let row = state
+            .queue
+            .job(&id)
+            .await?
+            .ok_or_else(|| ApiError::not_found(format_args!("job `{id}`")))?;
+        let now = tokio::time::Instant::now();
+        if !matches!(row.state.as_str(), "queued" | "running") || now >= deadline {
+            return Ok(ok_json(JobView::from(row)));
+        }
+        tokio::select! {
+            _ = &mut ended => {}
+            _ = tokio::time::sleep_until(deadline.min(now + JOB_WAIT_RECHECK)) => {}
+        }
+    }
 }
 
 /// Cancels a queued or running job (`200` with the job); deletes a finished, failed or
@@ -105,6 +145,8 @@ pub async fn delete_job(
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
     let before = state.queue.cancel(&id, now_ms()).await?;
+    // Cancelled or deleted: either way, waiting requests answer now.
+    state.ended.notify_waiters();
     match before.as_deref() {
         None => Err(ApiError::not_found(format_args!("job `{id}`"))),
         Some("queued" | "running") => {

@@ -57,6 +57,9 @@ pub struct AppState {
     pub roster: Arc<Mutex<HashMap<String, WorkerSeen>>>,
     /// Woken whenever tiles become claimable, so that waiting claims answer at once.
     pub work: Arc<tokio::sync::Notify>,
+    /// Woken whenever a job may have ended (done, failed, cancelled), so that
+    /// `GET /jobs/{id}?wait=` answers at once.
+    pub ended: Arc<tokio::sync::Notify>,
 }
 
 impl AppState {
@@ -94,6 +97,7 @@ impl AppState {
     /// Assembles a job's PNG in the background once its last tile is in.
     pub fn spawn_assembly(&self, job: String) {
         let queue = self.queue.clone();
+        let ended = self.ended.clone();
         tokio::spawn(async move {
             if let Err(e) = assemble::assemble(&queue, &job).await {
                 error!(job = %job, "assembling the image failed: {e}");
@@ -101,6 +105,7 @@ impl AppState {
                     .fail_job(&job, &format!("assembling the image failed: {e}"), now_ms())
                     .await;
             }
+            ended.notify_waiters();
         });
     }
 }
@@ -229,6 +234,7 @@ pub async fn serve(
         queue: queue.clone(),
         roster: Arc::default(),
         work: Arc::default(),
+        ended: Arc::default(),
     };
     for job in queue.unassembled().await? {
         info!(job = %job, "all tiles were in before the restart: assembling");
@@ -318,13 +324,18 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
             Ok(n) => {
                 warn!("{n} expired leases: tiles handed out again");
                 state.work.notify_waiters();
+                // A tile out of attempts fails its job.
+                state.ended.notify_waiters();
             }
             Err(e) => warn!("reaping expired leases: {e}"),
         }
         let live = state.live_workers();
         match state.queue.fail_unservable(&live, now_ms()).await {
             Ok(0) => {}
-            Ok(n) => warn!("{n} jobs failed: every live worker is kept away from them"),
+            Ok(n) => {
+                warn!("{n} jobs failed: every live worker is kept away from them");
+                state.ended.notify_waiters();
+            }
             Err(e) => warn!("checking kept-away jobs: {e}"),
         }
     }

@@ -428,15 +428,19 @@ impl Queue {
         let Some(tile) = self.tile(job, idx).await? else {
             return Ok(Completion::Missing);
         };
-        Ok(if tile.state == "done" && tile.lease.as_deref() == Some(lease) {
-            Completion::Repeat
-        } else if !matches!(tile.job_state.as_str(), "queued" | "running") {
-            Completion::Stale(format!("the job is {}", tile.job_state))
-        } else if tile.lease.as_deref() != Some(lease) || tile.state != "leased" {
-            Completion::Stale("this lease is no longer current (it expired or was given back)".into())
-        } else {
-            Completion::WrongTile(tile.rect)
-        })
+        Ok(
+            if tile.state == "done" && tile.lease.as_deref() == Some(lease) {
+                Completion::Repeat
+            } else if !matches!(tile.job_state.as_str(), "queued" | "running") {
+                Completion::Stale(format!("the job is {}", tile.job_state))
+            } else if tile.lease.as_deref() != Some(lease) || tile.state != "leased" {
+                Completion::Stale(
+                    "this lease is no longer current (it expired or was given back)".into(),
+                )
+            } else {
+                Completion::WrongTile(tile.rect)
+            },
+        )
     }
 
     /// A worker reports that it cannot render a tile: requeue it with one more failure,

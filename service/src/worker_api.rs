@@ -163,10 +163,15 @@ pub async fn result(
         Completion::Repeat => true,
         Completion::Stale(why) => return Err(ApiError::conflict(why)),
         Completion::Missing => {
-            return Err(ApiError::not_found(format_args!("tile {idx} of job `{id}`")));
+            return Err(ApiError::not_found(format_args!(
+                "tile {idx} of job `{id}`"
+            )));
         }
         Completion::WrongTile(expected) => {
-            let e = BlobError::WrongTile { expected, got: rect };
+            let e = BlobError::WrongTile {
+                expected,
+                got: rect,
+            };
             return Err(ApiError::new(
                 StatusCode::UNPROCESSABLE_ENTITY,
                 e.to_string(),
@@ -203,6 +208,8 @@ pub async fn fail(
         .await?;
     if ok {
         state.work.notify_waiters();
+        // The tile may have been out of attempts, failing its job.
+        state.ended.notify_waiters();
         Ok(ok_json(serde_json::json!({ "requeued": true })))
     } else {
         Err(ApiError::conflict("this lease is no longer current"))

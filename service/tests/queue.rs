@@ -180,7 +180,13 @@ async fn stale_and_repeated_results_change_nothing() {
     assert_eq!(wrong, Completion::WrongTile(other.rect()));
     assert_eq!(q.job("j").await.expect("read").expect("job").tiles_done, 1);
     let last = q
-        .complete("j", other.idx, &other.lease, other.rect(), &pixels(other.rect()))
+        .complete(
+            "j",
+            other.idx,
+            &other.lease,
+            other.rect(),
+            &pixels(other.rect()),
+        )
         .await
         .expect("complete");
     assert_eq!(

@@ -348,3 +348,44 @@ fn tile_size_comes_from_the_job_then_the_flag_then_the_service() {
     // With 8×8 jitter, 64² × 64 rays is the 262,144 a picked tile carries.
     assert_eq!(covers(&svc.submit(&scene, "?sampler=jitter&samples=8")), 64);
 }
+
+#[test]
+fn a_job_can_be_waited_for() {
+    let dir = TempDir::new("wait");
+    let svc = Service::start(&dir, &["--local-workers", "0"]);
+    let job = svc.submit(&read("checker.ray"), "");
+    let id = job["id"].as_str().expect("job id").to_string();
+    // Nothing renders it: the wait runs to its end and shows the job as it is.
+    let start = std::time::Instant::now();
+    let j = svc.get_json(&format!("/jobs/{id}?wait=0.3"));
+    assert!(start.elapsed() >= Duration::from_millis(300), "waited");
+    assert_eq!(j["state"], "queued");
+    let bad = svc.get(&format!("/jobs/{id}?wait=-1"));
+    assert_eq!(bad.status(), 400);
+
+    // A long wait ends when the job does, whatever ends it: here a cancel.
+    let url = format!("{}/jobs/{id}?wait=60", svc.url);
+    let waiter = std::thread::spawn(move || {
+        let t = std::time::Instant::now();
+        let j: Value = client()
+            .get(url)
+            .send()
+            .expect("answer")
+            .json()
+            .expect("json");
+        (j, t.elapsed())
+    });
+    // The waiter is registered once its request is in; a cancel before that is also fine,
+    // since the wait looks at the job before it waits.
+    let r = client()
+        .delete(format!("{}/jobs/{id}", svc.url))
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 200);
+    let (j, took) = waiter.join().expect("waiter");
+    assert_eq!(j["state"], "cancelled");
+    assert!(
+        took < Duration::from_secs(30),
+        "answered at the end, not the limit"
+    );
+}

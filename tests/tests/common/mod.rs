@@ -173,11 +173,12 @@ impl Service {
         body
     }
 
-    /// Polls the job until it is no longer queued or running.
+    /// Waits (`GET /jobs/{id}?wait=`, a few seconds per request) until the job is no
+    /// longer queued or running.
     pub fn wait_finished(&self, id: &str, within: Duration) -> Value {
         let deadline = Instant::now() + within;
         loop {
-            let job = self.get_json(&format!("/jobs/{id}"));
+            let job = self.get_json(&format!("/jobs/{id}?wait=5"));
             let state = job["state"].as_str().unwrap_or("").to_string();
             if !matches!(state.as_str(), "queued" | "running") {
                 return job;
@@ -187,7 +188,6 @@ impl Service {
                 "job {id} not finished in {within:?}: {job}\n{}",
                 self.log()
             );
-            std::thread::sleep(Duration::from_millis(20));
         }
     }
 
