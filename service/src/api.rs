@@ -278,7 +278,17 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     let name = params.name.clone().or(file_name);
     let job = validate(&state, source, uploads, &params, tile, name).await?;
     let (new_job, rects, assets) = job;
-    let row = state.queue.insert_job(&new_job, &rects, &assets).await?;
+    // Followed before it is stored, so that no stored tile goes uncounted.
+    state
+        .progress
+        .follow(&new_job.id, new_job.width, new_job.height, &rects);
+    let row = match state.queue.insert_job(&new_job, &rects, &assets).await {
+        Ok(row) => row,
+        Err(e) => {
+            state.progress.forget(&new_job.id);
+            return Err(e.into());
+        }
+    };
     state.work.notify_waiters();
     let location = format!("/jobs/{}", row.id);
     let mut resp = (StatusCode::CREATED, ok_json(JobView::from(row))).into_response();

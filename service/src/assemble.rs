@@ -1,12 +1,27 @@
-//! Assembling a finished job's PNG from its stored tiles, one band of tile rows at a time.
+//! Assembling a job's PNG from its stored tiles, one band of tile rows at a time: while the
+//! job renders, as each band completes ([`Progress`]), and whole once the last tile is in
+//! ([`assemble`]) for jobs this process did not follow from the start (after a restart).
 //!
-//! Memory stays bounded whatever the image size: one band of RGB rows (image width × tile
-//! height × 3 bytes), the encoder's state, and at most one pending chunk of compressed output
-//! ([`CHUNK`]) are held at once. The PNG goes into the database in chunks as it is encoded,
-//! so a finished image survives a restart and a download streams it back chunk by chunk.
-//! The encoder is the tracer's, so the PNG is byte-identical to `tessera-render`'s.
+//! A PNG is one compressed stream of rows from top to bottom, so bands are encoded strictly
+//! in order; a band that completes early waits for those above it. Encoding bands while
+//! later tiles still render takes the encoding off the end of the job: when the last tile
+//! arrives, only the bands not yet encoded (usually its own) remain.
+//!
+//! Memory stays bounded whatever the image size: per job being encoded, one band of RGB rows
+//! (image width × tile height × 3 bytes) while it is encoded, the encoder's state, and at
+//! most one pending chunk of compressed output ([`CHUNK`]). The PNG goes into the database in
+//! chunks as it is encoded, so a finished image survives a restart and a download streams it
+//! back chunk by chunk. The encoder is the tracer's, fed the same rows in the same order, so
+//! the PNG is byte-identical to `tessera-render`'s however the rows were grouped.
+//!
+//! This module does not decide when a job is complete: the queue does, and says so with the
+//! result that completes it.
 
-use tessera_tracer::{PngWriter, SharedBuffer};
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+
+use tessera_tracer::{PngWriter, Rect, SharedBuffer};
 
 use crate::now_ms;
 use crate::queue::{Queue, QueueError};
@@ -26,23 +41,58 @@ pub enum AssembleError {
     Vanished,
 }
 
-/// Encodes the job's PNG from its tiles, stores it, and marks the job done. Idempotent: run
-/// again after a crash, it starts over.
-pub async fn assemble(queue: &Queue, id: &str) -> Result<(), AssembleError> {
-    let job = queue.job(id).await?.ok_or(AssembleError::Vanished)?;
-    let (width, height) = (job.width as u32, job.height as u32);
-    let tile = job.tile as u32;
-    queue.clear_image(id).await?;
-    let sink = SharedBuffer::new();
-    let mut png = PngWriter::new(sink.clone(), width, height)?;
-    let row_bytes = width as usize * 3;
-    let mut pending: Vec<u8> = Vec::with_capacity(CHUNK + CHUNK / 4);
-    let mut seq = 0u32;
-    let mut total = 0u64;
-    let mut y = 0u32;
-    while y < height {
+/// A PNG being written band by band into the job's image chunks.
+struct Encoder {
+    png: PngWriter<SharedBuffer>,
+    sink: SharedBuffer,
+    pending: Vec<u8>,
+    seq: u32,
+    total: u64,
+    /// The first row not yet encoded.
+    y: u32,
+    width: u32,
+    height: u32,
+}
+
+impl Encoder {
+    /// Starts the job's PNG, dropping any chunks of an earlier, unfinished attempt.
+    async fn start(
+        queue: &Queue,
+        id: &str,
+        width: u32,
+        height: u32,
+    ) -> Result<Self, AssembleError> {
+        queue.clear_image(id).await?;
+        let sink = SharedBuffer::new();
+        let png = PngWriter::new(sink.clone(), width, height)?;
+        Ok(Encoder {
+            png,
+            sink,
+            pending: Vec::with_capacity(CHUNK + CHUNK / 4),
+            seq: 0,
+            total: 0,
+            y: 0,
+            width,
+            height,
+        })
+    }
+
+    fn done(&self) -> bool {
+        self.y >= self.height
+    }
+
+    /// Encodes the band of tiles whose top row is `self.y`; every tile of it must be stored.
+    async fn band(&mut self, queue: &Queue, id: &str) -> Result<(), AssembleError> {
+        let (y, width) = (self.y, self.width);
         let band = queue.band(id, y).await?;
-        let bh = band.first().map_or(tile.min(height - y), |t| t.2);
+        let Some(bh) = band.first().map(|t| t.2) else {
+            return Err(AssembleError::Gap {
+                y,
+                covered: 0,
+                width,
+            });
+        };
+        let row_bytes = width as usize * 3;
         let mut rows = vec![0u8; row_bytes * bh as usize];
         let mut covered = 0u64;
         for (x, w, h, rgb) in &band {
@@ -61,24 +111,202 @@ pub async fn assemble(queue: &Queue, id: &str) -> Result<(), AssembleError> {
         }
         // One band with `Fast` compression is about a millisecond of encoding: short enough
         // to run on the async thread between two database round trips.
-        png.write_rows(&rows)?;
+        self.png.write_rows(&rows)?;
+        self.pending.extend_from_slice(&self.sink.take());
+        if self.pending.len() >= CHUNK {
+            self.flush(queue, id).await?;
+        }
+        self.y += bh;
+        Ok(())
+    }
+
+    async fn flush(&mut self, queue: &Queue, id: &str) -> Result<(), AssembleError> {
+        if !self.pending.is_empty() {
+            queue.put_image_chunk(id, self.seq, &self.pending).await?;
+            self.total += self.pending.len() as u64;
+            self.seq += 1;
+            self.pending.clear();
+        }
+        Ok(())
+    }
+
+    /// Encodes every band left, completes the file and marks the job done.
+    async fn finish(mut self, queue: &Queue, id: &str) -> Result<(), AssembleError> {
+        while !self.done() {
+            self.band(queue, id).await?;
+        }
+        let Encoder {
+            png,
+            sink,
+            mut pending,
+            seq,
+            mut total,
+            ..
+        } = self;
+        png.finish()?;
         pending.extend_from_slice(&sink.take());
-        if pending.len() >= CHUNK {
+        if !pending.is_empty() {
             queue.put_image_chunk(id, seq, &pending).await?;
             total += pending.len() as u64;
-            seq += 1;
-            pending.clear();
         }
-        y += bh;
+        if queue.finish_image(id, total, now_ms()).await? {
+            tracing::info!(job = %id, bytes = total, "image assembled");
+        }
+        Ok(())
     }
-    png.finish()?;
-    pending.extend_from_slice(&sink.take());
-    if !pending.is_empty() {
-        queue.put_image_chunk(id, seq, &pending).await?;
-        total += pending.len() as u64;
+}
+
+/// Encodes the job's whole PNG from its stored tiles, stores it, and marks the job done.
+/// Idempotent: run again after a crash, it starts over.
+pub async fn assemble(queue: &Queue, id: &str) -> Result<(), AssembleError> {
+    let job = queue.job(id).await?.ok_or(AssembleError::Vanished)?;
+    let enc = Encoder::start(queue, id, job.width as u32, job.height as u32).await?;
+    enc.finish(queue, id).await
+}
+
+/// One followed job: how many tiles each band still waits for, and its encoder.
+struct Followed {
+    width: u32,
+    height: u32,
+    /// Top rows of the bands, ascending, and their tiles not yet stored.
+    bands: Mutex<Vec<(u32, u32)>>,
+    /// `None` until the first band is complete; the async lock keeps bands in order.
+    encoder: tokio::sync::Mutex<Option<Encoder>>,
+    /// Set under the encoder's lock when encoding ahead must stop: it failed (the job is
+    /// then assembled whole at the end), or the last tile is in and the job is being
+    /// finished. An `advance` that gets the lock afterwards does nothing.
+    stopped: AtomicBool,
+}
+
+impl Followed {
+    /// Whether the band starting at row `y` has all its tiles stored.
+    fn complete(&self, y: u32) -> bool {
+        let bands = self.bands.lock().unwrap_or_else(PoisonError::into_inner);
+        bands
+            .binary_search_by_key(&y, |b| b.0)
+            .is_ok_and(|i| bands[i].1 == 0)
     }
-    if queue.finish_image(id, total, now_ms()).await? {
-        tracing::info!(job = %id, bytes = total, "image assembled");
+}
+
+/// Jobs whose PNG is encoded while they render. A job is followed from its submission, so
+/// its counts see every stored tile; jobs from before a restart are not followed and are
+/// assembled whole. The counts only ever hold a band back, never let an incomplete one
+/// through early: a band is read only once all its tiles were stored, and the encoding
+/// checks that its tiles cover it.
+#[derive(Default)]
+pub struct Progress {
+    jobs: Mutex<HashMap<String, Arc<Followed>>>,
+}
+
+impl Progress {
+    fn get(&self, id: &str) -> Option<Arc<Followed>> {
+        let jobs = self.jobs.lock().unwrap_or_else(PoisonError::into_inner);
+        jobs.get(id).cloned()
     }
-    Ok(())
+
+    /// Follows a job about to be stored with these tiles.
+    pub fn follow(&self, id: &str, width: u32, height: u32, tiles: &[Rect]) {
+        let mut bands: Vec<(u32, u32)> = Vec::new();
+        let mut ys: Vec<u32> = tiles.iter().map(|t| t.y).collect();
+        ys.sort_unstable();
+        for y in ys {
+            match bands.last_mut() {
+                Some(b) if b.0 == y => b.1 += 1,
+                _ => bands.push((y, 1)),
+            }
+        }
+        let followed = Followed {
+            width,
+            height,
+            bands: Mutex::new(bands),
+            encoder: tokio::sync::Mutex::new(None),
+            stopped: AtomicBool::new(false),
+        };
+        let mut jobs = self.jobs.lock().unwrap_or_else(PoisonError::into_inner);
+        jobs.insert(id.to_string(), Arc::new(followed));
+    }
+
+    /// Stops following a job (it was not stored, or it ended without an image).
+    pub fn forget(&self, id: &str) {
+        let mut jobs = self.jobs.lock().unwrap_or_else(PoisonError::into_inner);
+        jobs.remove(id);
+    }
+
+    /// Ids of the jobs followed.
+    pub fn followed(&self) -> Vec<String> {
+        let jobs = self.jobs.lock().unwrap_or_else(PoisonError::into_inner);
+        jobs.keys().cloned().collect()
+    }
+
+    /// How many rows of a followed job's PNG are encoded (`None` if it is not followed).
+    pub async fn encoded_rows(&self, id: &str) -> Option<u32> {
+        let f = self.get(id)?;
+        let encoder = f.encoder.lock().await;
+        Some(encoder.as_ref().map_or(0, |e| e.y))
+    }
+
+    /// Counts a stored tile (not the job's last); true when that completed its band, so
+    /// that [`Progress::advance`] has something to encode.
+    pub fn stored(&self, id: &str, tile: Rect) -> bool {
+        let Some(f) = self.get(id) else { return false };
+        let mut bands = f.bands.lock().unwrap_or_else(PoisonError::into_inner);
+        match bands.binary_search_by_key(&tile.y, |b| b.0) {
+            Ok(i) if bands[i].1 > 0 => {
+                bands[i].1 -= 1;
+                bands[i].1 == 0
+            }
+            _ => false,
+        }
+    }
+
+    /// Encodes the complete bands that come next in the image, if any.
+    pub async fn advance(&self, queue: &Queue, id: &str) {
+        let Some(f) = self.get(id) else { return };
+        let mut encoder = f.encoder.lock().await;
+        if f.stopped.load(Ordering::Relaxed) {
+            return;
+        }
+        let result: Result<(), AssembleError> = async {
+            loop {
+                let y = encoder.as_ref().map_or(0, |e| e.y);
+                if y >= f.height || !f.complete(y) {
+                    return Ok(());
+                }
+                if encoder.is_none() {
+                    *encoder = Some(Encoder::start(queue, id, f.width, f.height).await?);
+                }
+                if let Some(enc) = encoder.as_mut() {
+                    enc.band(queue, id).await?;
+                }
+            }
+        }
+        .await;
+        if let Err(e) = result {
+            // Not fatal: the job is assembled whole when its last tile is in.
+            tracing::warn!(job = %id, "encoding ahead stopped: {e}");
+            f.stopped.store(true, Ordering::Relaxed);
+            *encoder = None;
+        }
+    }
+
+    /// The job's last tile is in: encodes what is left and marks the job done (the whole
+    /// image if the job was not followed or encoding ahead failed).
+    pub async fn complete(&self, queue: &Queue, id: &str) -> Result<(), AssembleError> {
+        let Some(f) = self.get(id) else {
+            return assemble(queue, id).await;
+        };
+        let enc = {
+            let mut encoder = f.encoder.lock().await;
+            // A failed encoding ahead has left `None` here.
+            f.stopped.store(true, Ordering::Relaxed);
+            encoder.take()
+        };
+        self.forget(id);
+        match enc {
+            // Every tile is stored now, whatever the counts say (a tile's count may still be
+            // on its way): the remaining bands are read regardless of them.
+            Some(enc) => enc.finish(queue, id).await,
+            None => assemble(queue, id).await,
+        }
+    }
 }

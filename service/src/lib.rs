@@ -60,6 +60,8 @@ pub struct AppState {
     /// Woken whenever a job may have ended (done, failed, cancelled), so that
     /// `GET /jobs/{id}?wait=` answers at once.
     pub ended: Arc<tokio::sync::Notify>,
+    /// The PNGs being encoded while their jobs render.
+    pub progress: Arc<assemble::Progress>,
 }
 
 impl AppState {
@@ -94,12 +96,23 @@ impl AppState {
             .collect()
     }
 
+    /// A tile of `job` other than its last is stored: encodes, in the background, the bands
+    /// of the image that this completed.
+    pub fn tile_stored(&self, job: String, tile: tessera_tracer::Rect) {
+        if self.progress.stored(&job, tile) {
+            let queue = self.queue.clone();
+            let progress = self.progress.clone();
+            tokio::spawn(async move { progress.advance(&queue, &job).await });
+        }
+    }
+
     /// Assembles a job's PNG in the background once its last tile is in.
     pub fn spawn_assembly(&self, job: String) {
         let queue = self.queue.clone();
         let ended = self.ended.clone();
+        let progress = self.progress.clone();
         tokio::spawn(async move {
-            if let Err(e) = assemble::assemble(&queue, &job).await {
+            if let Err(e) = progress.complete(&queue, &job).await {
                 error!(job = %job, "assembling the image failed: {e}");
                 let _ = queue
                     .fail_job(&job, &format!("assembling the image failed: {e}"), now_ms())
@@ -235,6 +248,7 @@ pub async fn serve(
         roster: Arc::default(),
         work: Arc::default(),
         ended: Arc::default(),
+        progress: Arc::default(),
     };
     for job in queue.unassembled().await? {
         info!(job = %job, "all tiles were in before the restart: assembling");
@@ -328,6 +342,17 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                 state.ended.notify_waiters();
             }
             Err(e) => warn!("reaping expired leases: {e}"),
+        }
+        // Jobs that ended without an image (cancelled, failed) are no longer followed.
+        let followed = state.progress.followed();
+        if !followed.is_empty() {
+            match state.queue.active_jobs().await {
+                Ok(active) => followed
+                    .iter()
+                    .filter(|id| !active.contains(id))
+                    .for_each(|id| state.progress.forget(id)),
+                Err(e) => warn!("listing active jobs: {e}"),
+            }
         }
         let live = state.live_workers();
         match state.queue.fail_unservable(&live, now_ms()).await {

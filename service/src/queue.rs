@@ -241,7 +241,8 @@ impl Queue {
     }
 
     /// Cancels a queued or running job (its tiles are no longer handed out and results for
-    /// it are refused) and drops its partial pixels. Returns the job's state before.
+    /// it are refused) and drops its partial pixels and image (by the migrations' trigger).
+    /// Returns the job's state before.
     pub async fn cancel(&self, id: &str, now: i64) -> Result<Option<String>> {
         let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
         let before: Option<String> = sqlx::query_scalar("SELECT state FROM jobs WHERE id = ?1")
@@ -249,13 +250,10 @@ impl Queue {
             .fetch_optional(&mut *tx)
             .await?;
         if matches!(before.as_deref(), Some("queued" | "running")) {
+            // The `job_ended_without_image` trigger drops its pixels and image chunks.
             sqlx::query("UPDATE jobs SET state = 'cancelled', finished_at = ?2 WHERE id = ?1")
                 .bind(id)
                 .bind(now)
-                .execute(&mut *tx)
-                .await?;
-            sqlx::query("DELETE FROM tile_pixels WHERE job_id = ?1")
-                .bind(id)
                 .execute(&mut *tx)
                 .await?;
         }
@@ -566,11 +564,6 @@ impl Queue {
         .bind(i64::from(max_attempts))
         .execute(&mut **tx)
         .await?;
-        sqlx::query(
-            "DELETE FROM tile_pixels WHERE job_id IN (SELECT id FROM jobs WHERE state = 'failed')",
-        )
-        .execute(&mut **tx)
-        .await?;
         Ok(())
     }
 
@@ -623,6 +616,15 @@ impl Queue {
             .execute(&self.writer)
             .await?;
         Ok(r.rows_affected())
+    }
+
+    /// The ids of queued and running jobs.
+    pub async fn active_jobs(&self) -> Result<Vec<String>> {
+        Ok(
+            sqlx::query_scalar("SELECT id FROM jobs WHERE state IN ('queued', 'running')")
+                .fetch_all(&self.pool)
+                .await?,
+        )
     }
 
     /// Jobs whose tiles are all in but whose image is not yet assembled (after a restart).
@@ -698,13 +700,18 @@ impl Queue {
         Ok(())
     }
 
+    /// Stores a chunk of a job's PNG, unless the job has ended meanwhile (a cancelled job's
+    /// chunks are dropped with it and must not come back).
     pub async fn put_image_chunk(&self, id: &str, seq: u32, bytes: &[u8]) -> Result<()> {
-        sqlx::query("INSERT INTO image_chunks (job_id, seq, bytes) VALUES (?1, ?2, ?3)")
-            .bind(id)
-            .bind(i64::from(seq))
-            .bind(bytes)
-            .execute(&self.writer)
-            .await?;
+        sqlx::query(
+            "INSERT INTO image_chunks (job_id, seq, bytes) SELECT ?1, ?2, ?3
+             WHERE EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
+        )
+        .bind(id)
+        .bind(i64::from(seq))
+        .bind(bytes)
+        .execute(&self.writer)
+        .await?;
         Ok(())
     }
 

@@ -157,6 +157,8 @@ pub async fn result(
             }
             if last {
                 state.spawn_assembly(id);
+            } else {
+                state.tile_stored(id, rect);
             }
             false
         }

@@ -287,3 +287,154 @@ async fn a_job_no_live_worker_may_take_fails() {
     assert_eq!(j.state, "failed");
     assert!(j.error.unwrap_or_default().contains("bad texture"));
 }
+
+#[tokio::test]
+async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
+    let db = Db::new("ended");
+    let q = Queue::open(&db.url()).await.expect("open");
+    // A job of two tiles stores one of them, and the first chunk of its PNG.
+    let store_one = async |id: &str| {
+        job(&q, id, 16, 8, 8).await;
+        let c = q
+            .claim("w", 0, 1_000, 1)
+            .await
+            .expect("claim")
+            .expect("tile");
+        assert_eq!(c.job, id);
+        let stored = q
+            .complete(id, c.idx, &c.lease, c.rect(), &pixels(c.rect()))
+            .await
+            .expect("complete");
+        assert!(matches!(stored, Completion::Stored { last: false, .. }));
+        assert_eq!(q.band(id, 0).await.expect("band").len(), 1);
+        q.put_image_chunk(id, 0, b"PNG so far")
+            .await
+            .expect("chunk");
+        assert_eq!(q.image_chunks(id).await.expect("count"), 1);
+    };
+
+    store_one("cancelled").await;
+    assert_eq!(
+        q.cancel("cancelled", 5).await.expect("cancel").as_deref(),
+        Some("running")
+    );
+    assert!(q.band("cancelled", 0).await.expect("band").is_empty());
+    assert_eq!(q.image_chunks("cancelled").await.expect("count"), 0);
+    // An encoding still under way cannot bring the image back.
+    q.put_image_chunk("cancelled", 1, b"more")
+        .await
+        .expect("chunk");
+    assert_eq!(q.image_chunks("cancelled").await.expect("count"), 0);
+
+    store_one("failed").await;
+    let c = q
+        .claim("w", 0, 1_000, 1)
+        .await
+        .expect("claim")
+        .expect("tile");
+    assert_eq!(c.job, "failed");
+    assert!(
+        q.fail_tile("failed", c.idx, &c.lease, "w", "broken", 0, 1, KEEP)
+            .await
+            .expect("fail")
+    );
+    assert_eq!(
+        q.job("failed").await.expect("read").expect("job").state,
+        "failed"
+    );
+    assert!(q.band("failed", 0).await.expect("band").is_empty());
+    assert_eq!(q.image_chunks("failed").await.expect("count"), 0);
+}
+
+/// A pixel value that differs between neighbouring pixels and tiles.
+fn shade(x: u32, y: u32, c: u32) -> u8 {
+    (x.wrapping_mul(7) ^ y.wrapping_mul(13) ^ (c * 85)) as u8
+}
+
+fn tile_rgb(r: Rect) -> Vec<u8> {
+    let mut v = Vec::with_capacity(r.pixel_count() * 3);
+    for y in r.y..r.y + r.height {
+        for x in r.x..r.x + r.width {
+            v.extend((0..3).map(|c| shade(x, y, c)));
+        }
+    }
+    v
+}
+
+async fn png_of(q: &Queue, id: &str) -> Vec<u8> {
+    let mut png = Vec::new();
+    for seq in 0..q.image_chunks(id).await.expect("count") {
+        png.extend(q.image_chunk(id, seq).await.expect("read").expect("chunk"));
+    }
+    png
+}
+
+#[tokio::test]
+async fn bands_are_encoded_in_order_as_they_complete_and_give_the_whole_images_png() {
+    use tessera_service::assemble::Progress;
+    let (w, h) = (64, 30); // four bands of 8-pixel tiles, the last 6 rows high
+    let whole = tessera_tracer::encode_png(w, h, &tile_rgb(Rect::new(0, 0, w, h))).expect("png");
+
+    let db = Db::new("bands");
+    let q = Queue::open(&db.url()).await.expect("open");
+    let progress = Progress::default();
+    let rects = tiles(w, h, 8);
+    progress.follow("j", w, h, &rects);
+    job(&q, "j", w, h, 8).await;
+    let mut claims = Vec::new();
+    while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
+        claims.push(c);
+    }
+    assert_eq!(claims.len(), rects.len());
+    let store = async |band_y: u32| {
+        for c in claims.iter().filter(|c| c.y == band_y) {
+            let stored = q
+                .complete("j", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+                .await
+                .expect("complete");
+            let Completion::Stored { last, .. } = stored else {
+                panic!("{stored:?}")
+            };
+            if last {
+                progress.complete(&q, "j").await.expect("assembled");
+            } else if progress.stored("j", c.rect()) {
+                progress.advance(&q, "j").await;
+            }
+        }
+    };
+    // The second band first: nothing can be encoded before the first.
+    store(8).await;
+    assert_eq!(progress.encoded_rows("j").await, Some(0));
+    // The first band: both are encoded now.
+    store(0).await;
+    assert_eq!(progress.encoded_rows("j").await, Some(16));
+    // Last band before the third, then the third, which completes the job.
+    store(24).await;
+    assert_eq!(progress.encoded_rows("j").await, Some(16));
+    store(16).await;
+    assert_eq!(
+        progress.encoded_rows("j").await,
+        None,
+        "finished, no longer followed"
+    );
+    assert_eq!(q.job("j").await.expect("read").expect("job").state, "done");
+    assert_eq!(
+        png_of(&q, "j").await,
+        whole,
+        "the same bytes as one whole encode"
+    );
+
+    // A job not followed (stored before a restart) is assembled whole, to the same bytes.
+    job(&q, "k", w, h, 8).await;
+    while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
+        let stored = q
+            .complete("k", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .await
+            .expect("complete");
+        if let Completion::Stored { last: true, .. } = stored {
+            progress.complete(&q, "k").await.expect("assembled");
+        }
+    }
+    assert_eq!(q.job("k").await.expect("read").expect("job").state, "done");
+    assert_eq!(png_of(&q, "k").await, whole);
+}

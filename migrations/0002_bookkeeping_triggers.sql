@@ -1,3 +1,6 @@
+-- Bookkeeping that follows from one change, done by SQLite within the statement that makes
+-- the change, so that it cannot be forgotten by one of the statements that make it.
+--
 -- A result is stored by one statement (`INSERT INTO tile_pixels … SELECT … WHERE` the lease
 -- is current), so that storing it is one round trip to SQLite instead of a transaction of
 -- five. The rest of the bookkeeping follows from the insert, inside the same statement and
@@ -13,4 +16,13 @@ BEGIN
     UPDATE tiles SET state = 'done', lease_expires = NULL
      WHERE job_id = NEW.job_id AND idx = NEW.idx;
     UPDATE jobs SET tiles_done = tiles_done + 1 WHERE id = NEW.job_id;
+END;
+
+-- A job that ends without an image (failed, cancelled) drops its stored pixels and any
+-- chunks of a PNG encoded while it rendered, whichever statement ended it.
+CREATE TRIGGER job_ended_without_image AFTER UPDATE OF state ON jobs
+WHEN NEW.state IN ('failed', 'cancelled')
+BEGIN
+    DELETE FROM tile_pixels WHERE job_id = NEW.id;
+    DELETE FROM image_chunks WHERE job_id = NEW.id;
 END;
