@@ -34,6 +34,9 @@ pub struct Args {
     /// Repetitions per timing (median reported).
     #[arg(long, default_value_t = 5)]
     pub runs: usize,
+    /// A tile edge for the overhead and scaling jobs (default: the service's choice).
+    #[arg(long)]
+    pub tile: Option<u32>,
     /// Only these parts (overhead, scaling, tiles, queue, memory); default all.
     #[arg(long, value_delimiter = ',')]
     pub parts: Vec<String>,
@@ -81,7 +84,7 @@ impl Drop for TempDir {
 }
 
 impl Service {
-    fn start(extra: &[&str]) -> Result<Service> {
+    fn start<S: AsRef<std::ffi::OsStr>>(extra: &[S]) -> Result<Service> {
         static N: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
         let dir = std::env::temp_dir().join(format!(
             "tessera-bench-farm-{}-{}",
@@ -180,6 +183,15 @@ impl Drop for Service {
     }
 }
 
+/// A service with `workers` local workers, and `--tile` when given.
+fn service_args(workers: usize, tile: Option<u32>) -> Vec<String> {
+    let mut a = vec!["--local-workers".to_string(), workers.to_string()];
+    if let Some(t) = tile {
+        a.extend(["--tile".to_string(), t.to_string()]);
+    }
+    a
+}
+
 fn median(mut v: Vec<Duration>) -> Duration {
     v.sort();
     v[v.len() / 2]
@@ -273,7 +285,7 @@ pub fn run(args: &Args) -> Result<()> {
             // Local and farm runs alternate, and the figure is the median of each pair's
             // ratio: on a shared machine whose speed drifts from minute to minute, a pair run
             // back to back sees the same machine.
-            let svc = Service::start(&["--local-workers", &threads.to_string()])?;
+            let svc = Service::start(&service_args(threads, args.tile))?;
             let (mut t_local, mut t_farm, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
             let mut tile = 0;
             for _ in 0..reps.max(1) {
@@ -290,8 +302,13 @@ pub fn run(args: &Args) -> Result<()> {
             drop(svc);
             ratios.sort_by(f64::total_cmp);
             let pct = |r: f64| (r - 1.0) * 100.0;
+            let choice = if args.tile.is_some() {
+                "set by --tile"
+            } else {
+                "the service's choice"
+            };
             println!(
-                "  overhead ({label}): tessera-render path {:.3} s, farm ({tile} px tiles, the service's choice; {threads} local workers) {:.3} s: {:+.1} % (median of {} back-to-back pairs; range {:+.1} to {:+.1} %; PNG identical: yes)",
+                "  overhead ({label}): tessera-render path {:.3} s, farm ({tile} px tiles, {choice}; {threads} local workers) {:.3} s: {:+.1} % (median of {} back-to-back pairs; range {:+.1} to {:+.1} %; PNG identical: yes)",
                 median(t_local).as_secs_f64(),
                 median(t_farm).as_secs_f64(),
                 pct(ratios[ratios.len() / 2]),
@@ -313,10 +330,10 @@ pub fn run(args: &Args) -> Result<()> {
             println!("{line}");
         }
         if args.wants("scaling") {
-            let one = Service::start(&["--local-workers", "1"])?;
+            let one = Service::start(&service_args(1, args.tile))?;
             let (_, t1) = runs(reps, || one.render(&http, &scene, &query))?;
             drop(one);
-            let two = Service::start(&["--local-workers", "2"])?;
+            let two = Service::start(&service_args(2, args.tile))?;
             let (_, t2) = runs(reps, || two.render(&http, &scene, &query))?;
             drop(two);
             let ratio = t1.as_secs_f64() / t2.as_secs_f64();
