@@ -193,11 +193,7 @@ fn bad_requests_get_json_errors_and_store_nothing() {
         .expect("answer");
     assert_eq!(r.status(), 200);
     assert_eq!(svc.get_json(&format!("/jobs/{id}"))["state"], "cancelled");
-    let claim = http
-        .post(format!("{}/worker/claim", svc.url))
-        .json(&serde_json::json!({"worker": "w"}))
-        .send()
-        .expect("answer");
+    let claim = svc.claim("w");
     assert_eq!(claim.status(), 204);
     // Deleting a finished (here: cancelled) job removes it.
     let r = http
@@ -224,11 +220,7 @@ fn a_killed_workers_tile_is_handed_out_again() {
     let http = client();
 
     // A worker that claims a tile and dies before posting it: the test holds its lease.
-    let r = http
-        .post(format!("{}/worker/claim", svc.url))
-        .json(&serde_json::json!({"worker": "doomed"}))
-        .send()
-        .expect("answer");
+    let r = svc.claim("doomed");
     assert_eq!(r.status(), 200);
     let dead: Value = r.json().expect("claim");
 
@@ -299,14 +291,9 @@ fn a_stopped_worker_gives_back_the_tile_it_claimed_ahead() {
     );
 
     // Every tile not done is claimable again right now: nothing is stranded under a lease.
-    let http = client();
     let mut claimed = std::collections::HashSet::new();
     loop {
-        let r = http
-            .post(format!("{}/worker/claim", svc.url))
-            .json(&serde_json::json!({"worker": "probe"}))
-            .send()
-            .expect("answer");
+        let r = svc.claim("probe");
         if r.status() == 204 {
             break;
         }

@@ -338,13 +338,7 @@ fn tile_blobs_are_checked_before_they_are_stored() {
         .expect("id")
         .to_string();
     let http = client();
-    let c: Value = http
-        .post(format!("{}/worker/claim", svc.url))
-        .json(&json!({"worker": "t"}))
-        .send()
-        .expect("answer")
-        .json()
-        .expect("claim");
+    let c: Value = svc.claim("t").json().expect("claim");
     let u = |k: &str| c[k].as_u64().expect("number") as u32;
     let rect = Rect::new(u("x"), u("y"), u("w"), u("h"));
     let put = |lease: &str, body: Vec<u8>| {
@@ -398,13 +392,7 @@ fn a_result_can_carry_the_next_claim() {
     let total = job["tiles_total"].as_u64().expect("tiles_total");
     assert!(total >= 3, "a job of a few tiles ({total})");
     let http = client();
-    let mut c: Value = http
-        .post(format!("{}/worker/claim", svc.url))
-        .json(&json!({"worker": "t"}))
-        .send()
-        .expect("answer")
-        .json()
-        .expect("claim");
+    let mut c: Value = svc.claim("t").json().expect("claim");
     let put = |c: &Value, next: &str| {
         let u = |k: &str| c[k].as_u64().expect("number") as u32;
         let rect = Rect::new(u("x"), u("y"), u("w"), u("h"));

@@ -160,6 +160,15 @@ impl Service {
         self.get(path).json().expect("JSON answer")
     }
 
+    /// `POST /worker/claim` as worker `name`, without a token: the raw answer.
+    pub fn claim(&self, name: &str) -> reqwest::blocking::Response {
+        client()
+            .post(format!("{}/worker/claim", self.url))
+            .json(&serde_json::json!({ "worker": name }))
+            .send()
+            .expect("service answers")
+    }
+
     /// Submits a raw scene; panics unless the answer is 201.
     pub fn submit(&self, scene: &str, query: &str) -> Value {
         let r = client()
