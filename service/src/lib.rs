@@ -45,6 +45,8 @@ pub struct WorkerSeen {
     pub name: String,
     pub last_seen: i64,
     pub claims: u64,
+    /// Of those claims, the ones that came back with a posted result (`?next=`).
+    pub claims_with_results: u64,
     pub tiles_done: u64,
 }
 

@@ -57,7 +57,7 @@ pub async fn claim(
         let notified = state.work.notified();
         tokio::pin!(notified);
         notified.as_mut().enable();
-        if let Some(c) = claim_now(&state, name).await? {
+        if let Some(c) = claim_now(&state, name, false).await? {
             return Ok(ok_json(c).into_response());
         }
         tokio::select! {
@@ -69,13 +69,24 @@ pub async fn claim(
     }
 }
 
-/// The next tile for `worker`, if there is one now.
-async fn claim_now(state: &AppState, worker: &str) -> Result<Option<Claim>, ApiError> {
+/// The next tile for `worker`, if there is one now; `with_result` when the claim rides on a
+/// posted result.
+async fn claim_now(
+    state: &AppState,
+    worker: &str,
+    with_result: bool,
+) -> Result<Option<Claim>, ApiError> {
     let claimed = state
         .queue
         .claim(worker, now_ms(), state.cfg.lease_ms, state.cfg.max_attempts)
         .await?;
-    state.seen(worker, |w| w.claims += u64::from(claimed.is_some()));
+    let n = u64::from(claimed.is_some());
+    state.seen(worker, |w| {
+        w.claims += n;
+        if with_result {
+            w.claims_with_results += n;
+        }
+    });
     Ok(claimed)
 }
 
@@ -181,7 +192,7 @@ pub async fn result(
         }
     };
     let next = match next_for {
-        Some(name) => claim_now(&state, name).await?,
+        Some(name) => claim_now(&state, name, true).await?,
         None => None,
     };
     Ok(ok_json(Accepted { repeat, next }))

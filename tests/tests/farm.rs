@@ -37,17 +37,57 @@ fn two_worker_processes_share_a_job_and_match_tessera_render() {
         "farm PNG differs from tessera-render's"
     );
     let workers = svc.get_json("/workers");
-    let done_by = |name: &str| {
-        workers
-            .as_array()
-            .and_then(|ws| ws.iter().find(|w| w["name"] == name))
-            .map_or(0, |w| w["tiles_done"].as_u64().unwrap_or(0))
-    };
+    let done_by = |name: &str| worker_count(&workers, name, "tiles_done");
     assert!(
         done_by("worker-a") > 0 && done_by("worker-b") > 0,
         "{workers}"
     );
     assert_eq!(done_by("worker-a") + done_by("worker-b"), 1200);
+}
+
+/// A number from `GET /workers` for one worker (0 if it is not listed).
+fn worker_count(workers: &Value, name: &str, what: &str) -> u64 {
+    workers
+        .as_array()
+        .and_then(|ws| ws.iter().find(|w| w["name"] == name))
+        .map_or(0, |w| w[what].as_u64().unwrap_or(0))
+}
+
+#[test]
+fn workers_claim_their_next_tile_with_the_result_they_post() {
+    let dir = TempDir::new("rides");
+    let svc = Service::start(&dir, &["--local-workers", "0"]);
+    // Tiles that take a while to render (64 px, 16 rays a pixel: 80 tiles), so that each
+    // claim made as a tile starts is answered long before the tile is done; and a worker
+    // that traces nothing, which always asks for its next tile with its post.
+    let w = Worker::start(&svc.url, "tracing", &[]);
+    let job = svc.submit(&read("thesis.ray"), "?tile=64&sampler=jitter&samples=4");
+    let id = job["id"].as_str().expect("job id").to_string();
+    assert_eq!(svc.wait_finished(&id, JOB_TIME)["state"], "done");
+    let workers = svc.get_json("/workers");
+    let tiles = worker_count(&workers, "tracing", "tiles_done");
+    let rides = worker_count(&workers, "tracing", "claims_with_results");
+    assert_eq!(tiles, 80, "{workers}");
+    // All but the first few: a post whose answer came back before the next tile finished.
+    assert!(
+        rides >= tiles / 2,
+        "{rides} of {tiles} claims rode on a result: {workers}"
+    );
+    drop(w);
+
+    let _n = Worker::start(&svc.url, "noop", &["--noop"]);
+    let job = svc.submit(&read("checker.ray"), "?tile=32");
+    let id = job["id"].as_str().expect("job id").to_string();
+    let total = job["tiles_total"].as_u64().expect("tiles");
+    assert_eq!(svc.wait_finished(&id, JOB_TIME)["state"], "done");
+    let workers = svc.get_json("/workers");
+    assert_eq!(worker_count(&workers, "noop", "tiles_done"), total);
+    // Every claim but the first rode on a post.
+    assert_eq!(
+        worker_count(&workers, "noop", "claims_with_results"),
+        total - 1,
+        "{workers}"
+    );
 }
 
 #[test]
