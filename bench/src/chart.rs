@@ -49,7 +49,11 @@ struct Config {
 
 fn configs(quick: bool) -> Vec<Config> {
     let ns: &[u32] = if quick { &[2, 4] } else { &[2, 3, 4, 6, 8] };
-    let thresholds: &[f64] = if quick { &[0.05] } else { &[0.1, 0.03, 0.01] };
+    let thresholds: &[f64] = if quick {
+        &[0.05]
+    } else {
+        &[0.1, 0.07, 0.05, 0.03, 0.01]
+    };
     let mut out = vec![
         Config {
             family: "center".into(),

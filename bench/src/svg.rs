@@ -18,8 +18,9 @@ pub struct Panel {
     pub floor: f64,
 }
 
-const PALETTE: [&str; 8] = [
+const PALETTE: [&str; 10] = [
     "#7f7f7f", "#8c564b", "#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#17becf",
+    "#e377c2", "#bcbd22",
 ];
 const W: f64 = 470.0;
 const H: f64 = 330.0;
@@ -28,7 +29,7 @@ const RIGHT: f64 = 14.0;
 const TOP: f64 = 28.0;
 const BOTTOM: f64 = 44.0;
 const COLS: usize = 2;
-const LEGEND: f64 = 54.0;
+const LEGEND_ROW: f64 = 16.0;
 
 /// Log-scale axis over the data's range, widened to whole decades' halves.
 struct Axis {
@@ -91,6 +92,11 @@ fn escape(s: &str) -> String {
         .replace('>', "&gt;")
 }
 
+/// The width of a legend entry: its line and mark, and its name at about 6.5 px a letter.
+fn legend_entry_width(name: &str) -> f64 {
+    34.0 + 6.5 * name.len() as f64
+}
+
 /// The chart as an SVG document.
 pub fn render(panels: &[Panel]) -> String {
     let mut names: Vec<&str> = Vec::new();
@@ -106,7 +112,20 @@ pub fn render(panels: &[Panel]) -> String {
         PALETTE[i % PALETTE.len()]
     };
     let rows = panels.len().div_ceil(COLS);
-    let (width, height) = (W * COLS as f64, LEGEND + H * rows as f64);
+    let width = W * COLS as f64;
+    // The legend's rows of entries (as laid out below), then the row of the marks' key.
+    let mut legend_rows = 1;
+    let mut x = 12.0;
+    for name in &names {
+        let w = legend_entry_width(name);
+        if x + w > width - 12.0 {
+            x = 12.0;
+            legend_rows += 1;
+        }
+        x += w;
+    }
+    let legend = 54.0 + LEGEND_ROW * f64::from(legend_rows - 1);
+    let height = legend + H * rows as f64;
     let mut s = String::new();
     let _ = writeln!(
         s,
@@ -116,31 +135,36 @@ pub fn render(panels: &[Panel]) -> String {
         s,
         r#"<rect width="{width}" height="{height}" fill="white"/>"#
     );
-    // Legend.
+    // Legend: one entry per family, in as many rows as they need, then the marks' key.
     let mut x = 12.0;
+    let mut y = 16.0;
     for name in &names {
         let c = color(name);
+        let w = legend_entry_width(name);
+        if x + w > width - 12.0 {
+            x = 12.0;
+            y += LEGEND_ROW;
+        }
         let _ = writeln!(
             s,
-            r#"<line x1="{x}" y1="16" x2="{}" y2="16" stroke="{c}" stroke-width="2"/><circle cx="{}" cy="16" r="3" fill="{c}"/><text x="{}" y="20">{}</text>"#,
+            r#"<line x1="{x}" y1="{y}" x2="{}" y2="{y}" stroke="{c}" stroke-width="2"/><circle cx="{}" cy="{y}" r="3" fill="{c}"/><text x="{}" y="{}">{}</text>"#,
             x + 22.0,
             x + 11.0,
             x + 27.0,
+            y + 4.0,
             escape(name)
         );
-        x += 34.0 + 6.5 * name.len() as f64;
-        if x > width - 150.0 {
-            x = 12.0;
-        }
+        x += w;
     }
+    let (y, ty) = (y + 22.0, y + 26.0);
     let _ = writeln!(
         s,
-        r##"<line x1="12" y1="38" x2="34" y2="38" stroke="black" stroke-dasharray="5,3"/><circle cx="23" cy="38" r="5" fill="none" stroke="black"/><text x="40" y="42">Pareto front</text><line x1="140" y1="38" x2="162" y2="38" stroke="#999" stroke-dasharray="1,3"/><text x="168" y="42">reference's own error (estimated)</text><text x="{}" y="42" text-anchor="end">x: time, ms (one thread) · y: RMS error, linear RGB</text>"##,
+        r##"<line x1="12" y1="{y}" x2="34" y2="{y}" stroke="black" stroke-dasharray="5,3"/><circle cx="23" cy="{y}" r="5" fill="none" stroke="black"/><text x="40" y="{ty}">Pareto front</text><line x1="140" y1="{y}" x2="162" y2="{y}" stroke="#999" stroke-dasharray="1,3"/><text x="168" y="{ty}">reference's own error (estimated)</text><text x="{}" y="{ty}" text-anchor="end">x: time, ms (one thread) · y: RMS error, linear RGB</text>"##,
         width - 12.0
     );
     for (k, p) in panels.iter().enumerate() {
         let ox = W * (k % COLS) as f64;
-        let oy = LEGEND + H * (k / COLS) as f64;
+        let oy = legend + H * (k / COLS) as f64;
         draw_panel(&mut s, p, ox, oy, &color);
     }
     s.push_str("</svg>\n");
@@ -314,5 +338,68 @@ mod tests {
         );
         assert!(svg.contains(">jitter<") && svg.contains(">adaptive t=0.03<"));
         assert!(!svg.contains("NaN") && !svg.contains("inf"));
+    }
+
+    #[test]
+    fn a_long_legend_wraps_into_rows_and_keeps_one_colour_per_family() {
+        let names = [
+            "center",
+            "thesis",
+            "grid",
+            "jitter",
+            "adaptive t=0.1",
+            "adaptive t=0.07",
+            "adaptive t=0.05",
+            "adaptive t=0.03",
+            "adaptive t=0.01",
+        ];
+        let panel = Panel {
+            title: "p".into(),
+            series: names
+                .iter()
+                .map(|n| Series {
+                    name: (*n).into(),
+                    points: vec![(1.0, 0.1)],
+                })
+                .collect(),
+            front: vec![],
+            floor: 0.0,
+        };
+        let svg = render(&[panel]);
+        let width = W * COLS as f64;
+        // Legend entries are the lines drawn 2 px wide: (x1, y1, stroke).
+        let attr = |line: &str, key: &str| -> String {
+            let from = line.find(&format!(" {key}=\"")).expect("attribute present") + key.len() + 3;
+            line[from..]
+                .split('"')
+                .next()
+                .expect("closing quote")
+                .to_string()
+        };
+        let entries: Vec<(f64, f64, String)> = svg
+            .lines()
+            .filter(|l| l.starts_with("<line") && l.contains("stroke-width=\"2\""))
+            .map(|l| {
+                let num = |k| attr(l, k).parse::<f64>().expect("a number");
+                (num("x1"), num("y1"), attr(l, "stroke"))
+            })
+            .collect();
+        assert_eq!(entries.len(), names.len());
+        let mut colours: Vec<&str> = entries.iter().map(|e| e.2.as_str()).collect();
+        colours.sort_unstable();
+        colours.dedup();
+        assert_eq!(colours.len(), names.len(), "a colour per family");
+        let rows: Vec<f64> = entries.iter().map(|e| e.1).collect();
+        assert!(rows.windows(2).any(|w| w[1] > w[0]), "wrapped: {rows:?}");
+        for (e, name) in entries.iter().zip(names) {
+            assert!(
+                e.0 + legend_entry_width(name) <= width - 12.0 + 1e-9,
+                "{name} overflows"
+            );
+        }
+        for pair in entries.windows(2) {
+            let same_row = pair[0].1 == pair[1].1;
+            assert!(!same_row || pair[1].0 > pair[0].0, "entries overlap");
+        }
     }
 }

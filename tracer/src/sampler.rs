@@ -25,12 +25,14 @@ pub enum Sampler {
     /// `n × n` stratified rays, one placed by hash in each cell of the grid.
     Jitter { n: u32 },
     /// A first pass of one jittered ray per pixel quadrant, then more where the image needs
-    /// them, in stages that reuse every ray already traced, up to `max × max` stratified rays:
-    /// where the first pass varies by more than `threshold` or meets two objects, or where a
-    /// neighbour's first pass saw an edge, another object or another mean. For even
-    /// `max ≥ 6`, a pixel only a neighbour asked for takes one more ray per quadrant first and
-    /// stops there unless they disagree, and a pixel at 16 rays stops there once the standard
-    /// error of its mean is at most `threshold` (see `refine` in this module).
+    /// them, in stages that reuse every ray already traced, up to `max × max` stratified rays
+    /// (for even `max`, the very rays of `Jitter { n: max }`): where the first pass varies by
+    /// more than `threshold` or meets two objects, or where a neighbour's first pass saw an
+    /// edge, another object or another mean. For even `max ≥ 6`, a pixel only a neighbour
+    /// asked for takes one more ray per quadrant first and stops there unless they disagree,
+    /// and a pixel at 16 rays (or, for `max/2` a power of two, 32, 64, …) stops there once
+    /// the standard error of its mean is at most `threshold` · √(rays/16) (see `refine` and
+    /// `se_bound` in this module).
     Adaptive { max: u32, threshold: f64 },
 }
 
@@ -161,7 +163,6 @@ impl Sample {
 
 const SEED_JITTER: u64 = 0x9e37_79b9_7f4a_7c15;
 const SEED_FIRST: u64 = 0xc2b2_ae3d_27d4_eb4f;
-const SEED_REFINE: u64 = 0x1656_67b1_9e37_79f9;
 const SEED_REFERENCE: u64 = 0x27d4_eb2f_1656_67c5;
 
 /// A high-rate stratified estimate of one pixel's exact value (`n × n` jittered samples with a
@@ -293,48 +294,91 @@ impl Tally {
 }
 
 /// First-pass result of one pixel for the adaptive sampler: the tally of its four samples
-/// and, for even `n`, the cell offset each quadrant drew (see [`quadrant_cell`]).
+/// and, for even `n`, the cell offset each quadrant drew (see [`QuadrantOrder`]).
 #[derive(Clone, Copy)]
 struct FirstPass {
     tally: Tally,
     offsets: [(u32, u32); 4],
 }
 
-/// The cell of the final `n × n` grid (`n` even, `h = n/2`) that quadrant `k` of a pixel takes
-/// as its sample number `rank`, given the quadrant's hashed offset `(a, b)` in `[0, h)²`.
+/// The order in which each quadrant of an adaptive pixel with an even cap `n` (`h = n/2`
+/// cells a side per quadrant) takes its cells of the `n × n` grid, and where it may stop.
 ///
-/// Each quadrant is `h × h` cells. Its samples follow a fixed order of cells, shifted
-/// cyclically by the offset: rank 0 at the offset, rank 1 half the quadrant away diagonally,
-/// ranks 2 and 3 completing a 2 × 2 lattice, then every other cell. Since the offset is
-/// uniform, the cell of any rank is uniform over the quadrant, and its sample (at that cell's
-/// own hashed position, whatever the rank) is uniform over the quadrant too: the mean of any
-/// number of ranks per quadrant, the same in every quadrant, is an unbiased estimate of the
-/// pixel, and all `h²` ranks are exactly the `n × n` stratified set.
-fn quadrant_cell(k: u32, rank: u32, (a, b): (u32, u32), h: u32) -> u32 {
-    let s = h.div_ceil(2);
-    let (di, dj) = match rank {
-        0 => (0, 0),
-        1 => (s, s),
-        2 => (s, 0),
-        3 => (0, s),
-        _ => unreachable!("ranks beyond 3 are taken cell by cell in `finish`"),
-    };
-    let n = 2 * h;
-    let ci = (k % 2) * h + (a + di) % h;
-    let cj = (k / 2) * h + (b + dj) % h;
-    cj * n + ci
+/// The order is a fixed list of cells of an `h × h` quadrant, shifted cyclically by the
+/// quadrant's hashed offset `(a, b)`. Since the offset is uniform over the quadrant, the
+/// cell of any rank is uniform over it, and its sample (at that cell's own hashed position,
+/// whatever the rank) is uniform over the quadrant too: the mean of the same number of ranks
+/// in every quadrant is an unbiased estimate of the pixel, and all `h²` ranks are exactly
+/// the `n × n` stratified set. The list is built so that its prefixes are well spread:
+///
+/// - ranks 0–3 are a 2 × 2 lattice: the offset, the cell half the quadrant away diagonally,
+///   then the two others (for every `h`);
+/// - for `h` a power of two, each later doubling repeats the lattice one level down: ranks
+///   `m..2m` put a cell diagonally across each block of the current level from the cell of
+///   rank `r − m`, ranks `2m..4m` fill the two other sub-blocks. So every prefix of `4^k`
+///   ranks has exactly one cell in each block of `h/2^k` cells a side (16 rays per pixel are
+///   one per quarter-pixel square, as 4 × 4 jitter has), and every prefix of `2·4^k` ranks
+///   has one in each row and column of those blocks' halves.
+struct QuadrantOrder {
+    h: u32,
+    cells: Vec<(u32, u32)>,
+}
+
+impl QuadrantOrder {
+    fn new(h: u32) -> QuadrantOrder {
+        let mut cells = vec![(0, 0)];
+        if h.is_power_of_two() {
+            let mut size = h;
+            while size > 1 {
+                let half = size / 2;
+                let level: Vec<(u32, u32)> = cells.clone();
+                cells.extend(level.iter().map(|&(i, j)| (i + half, j + half)));
+                for &(i, j) in &level {
+                    cells.push((i + half, j));
+                    cells.push((i, j + half));
+                }
+                size = half;
+            }
+        } else {
+            let s = h.div_ceil(2);
+            cells.extend([(s, s), (s, 0), (0, s)]);
+            for j in 0..h {
+                for i in 0..h {
+                    if !cells.contains(&(i, j)) {
+                        cells.push((i, j));
+                    }
+                }
+            }
+        }
+        debug_assert_eq!(cells.len() as u32, h * h);
+        QuadrantOrder { h, cells }
+    }
+
+    /// The cell of the `n × n` grid that quadrant `k` takes as its sample number `rank`,
+    /// given the quadrant's offset `(a, b)` in `[0, h)²`.
+    #[inline]
+    fn cell(&self, k: u32, rank: u32, (a, b): (u32, u32)) -> u32 {
+        let h = self.h;
+        let (di, dj) = self.cells[rank as usize];
+        // a + di < 2h, so one subtraction is the remainder.
+        let wrap = |v: u32| if v >= h { v - h } else { v };
+        let ci = (k & 1) * h + wrap(a + di);
+        let cj = (k >> 1) * h + wrap(b + dj);
+        cj * 2 * h + ci
+    }
 }
 
 /// The sample of cell `cell` of pixel `(x, y)`'s `n × n` grid, at the cell's hashed position.
+#[inline]
 fn cell_sample<F: Fn(f64, f64) -> Sample>(
     x: i64,
     y: i64,
     hash: PixelHash,
     n: u32,
+    inv: f64,
     cell: u32,
     trace: &F,
 ) -> Sample {
-    let inv = 1.0 / f64::from(n);
     let (ox, oy) = hash.pair(cell);
     let (ci, cj) = (cell % n, cell / n);
     trace(
@@ -345,10 +389,16 @@ fn cell_sample<F: Fn(f64, f64) -> Sample>(
 
 /// The first pass of pixel `(x, y)`: one sample per quadrant.
 ///
-/// For even `n` it is rank 0 of each quadrant (see [`quadrant_cell`]), so every later stage
+/// For even `n` it is rank 0 of each quadrant (see [`QuadrantOrder`]), so every later stage
 /// reuses it. For odd `n` the quadrants do not align with the grid, and the first pass is an
 /// independent 2 × 2 jittered set.
-fn first_pass<F: Fn(f64, f64) -> Sample>(x: i64, y: i64, n: u32, trace: &F) -> FirstPass {
+fn first_pass<F: Fn(f64, f64) -> Sample>(
+    x: i64,
+    y: i64,
+    n: u32,
+    order: Option<&QuadrantOrder>,
+    trace: &F,
+) -> FirstPass {
     // Border pixels left of or above the image have negative coordinates; their hash input
     // wraps, which is as good a seed as any and the same in every tile.
     let (hx, hy) = (x as u32, y as u32);
@@ -357,16 +407,21 @@ fn first_pass<F: Fn(f64, f64) -> Sample>(x: i64, y: i64, n: u32, trace: &F) -> F
         tally: Tally::new(),
         offsets: [(0, 0); 4],
     };
-    if n.is_multiple_of(2) {
-        let h = n / 2;
-        let refine = PixelHash::new(hx, hy, SEED_REFINE);
+    if let Some(order) = order {
+        let h = order.h;
+        // The cells' positions are jitter's: a pixel refined to the full grid takes exactly
+        // the rays of `jitter` with the same `n`.
+        let cells = PixelHash::new(hx, hy, SEED_JITTER);
+        let inv = 1.0 / f64::from(n);
         for k in 0..4u32 {
-            let (a, b) = first.pair(k);
-            let a = ((a * f64::from(h)) as u32).min(h - 1);
-            let b = ((b * f64::from(h)) as u32).min(h - 1);
+            // Each half of one 64-bit hash picks a coordinate: ⌊u · h / 2³²⌋ for u uniform
+            // on 32 bits takes each value in [0, h) with probability within 2⁻³² of 1/h.
+            let r = mix(first.0 ^ u64::from(k));
+            let a = (((r >> 32) * u64::from(h)) >> 32) as u32;
+            let b = (((r & 0xffff_ffff) * u64::from(h)) >> 32) as u32;
             fp.offsets[k as usize] = (a, b);
-            let cell = quadrant_cell(k, 0, (a, b), h);
-            fp.tally.add(cell_sample(x, y, refine, n, cell, trace));
+            let cell = order.cell(k, 0, (a, b));
+            fp.tally.add(cell_sample(x, y, cells, n, inv, cell, trace));
         }
     } else {
         for k in 0..4u32 {
@@ -383,14 +438,17 @@ fn first_pass<F: Fn(f64, f64) -> Sample>(x: i64, y: i64, n: u32, trace: &F) -> F
 
 /// The estimate of a pixel whose first pass, or a neighbour's, asked for more samples.
 ///
-/// Even `n`, in stages of samples per quadrant, each stage reusing the ones before:
-/// - 2 (8 in all), when only a neighbour asked: the pixel stops there unless these samples
-///   disagree (contrast above `threshold`, or two objects);
-/// - 4 (16 in all), when `n ≥ 6`: the pixel stops there if the standard error of its mean is
-///   at most `threshold`;
+/// Even `n`, in stages of ranks per quadrant (see [`QuadrantOrder`]), each stage reusing the
+/// ones before:
+/// - 2 (8 rays in all), when only a neighbour asked and `n ≥ 6`: the pixel stops there
+///   unless these samples disagree (contrast above `threshold`, or two objects);
+/// - 4 (16 rays), when `n ≥ 6`, then every doubling below `n²/4` when `n/2` is a power of
+///   two (32, 64, … rays): the pixel stops at such a stage if the standard error of its mean
+///   is at most the stage's bound (see [`se_bound`]);
 /// - `n²/4` (all `n × n` cells).
 ///
 /// Odd `n`: `n × n` stratified samples besides the first pass, count-weighted with it.
+#[allow(clippy::too_many_arguments)]
 fn refine<F: Fn(f64, f64) -> Sample>(
     x: u32,
     y: u32,
@@ -398,28 +456,31 @@ fn refine<F: Fn(f64, f64) -> Sample>(
     threshold: f64,
     own: bool,
     fp: &FirstPass,
+    order: Option<&QuadrantOrder>,
     trace: &F,
 ) -> Color {
-    if !n.is_multiple_of(2) {
+    let Some(order) = order else {
         // Both sets are unbiased estimates of the pixel, so their count-weighted mean is too.
         let n2 = f64::from(n * n);
         let t = &fp.tally;
-        return (t.sum + stratified(x, y, n, Some(SEED_REFINE), trace) * n2) / (4.0 + n2);
-    }
-    let h = n / 2;
-    let hash = PixelHash::new(x, y, SEED_REFINE);
+        return (t.sum + stratified(x, y, n, Some(SEED_JITTER), trace) * n2) / (4.0 + n2);
+    };
+    let h = order.h;
+    let hash = PixelHash::new(x, y, SEED_JITTER);
+    let inv = 1.0 / f64::from(n);
     let (xi, yi) = (i64::from(x), i64::from(y));
     let mut tally = fp.tally;
-    let mut ranks = 1;
-    // Takes ranks `ranks..upto` of every quadrant.
+    // Takes ranks `from..upto` of every quadrant.
     let take = |tally: &mut Tally, from: u32, upto: u32| {
         for rank in from..upto {
             for k in 0..4 {
-                let cell = quadrant_cell(k, rank, fp.offsets[k as usize], h);
-                tally.add(cell_sample(xi, yi, hash, n, cell, trace));
+                let cell = order.cell(k, rank, fp.offsets[k as usize]);
+                tally.add(cell_sample(xi, yi, hash, n, inv, cell, trace));
             }
         }
     };
+    let all = h * h;
+    let mut ranks = 1;
     if h >= 3 && !own {
         take(&mut tally, ranks, 2);
         ranks = 2;
@@ -428,33 +489,35 @@ fn refine<F: Fn(f64, f64) -> Sample>(
         }
     }
     if h >= 3 {
-        take(&mut tally, ranks, 4);
-        ranks = 4;
-        if tally.standard_error() <= threshold {
-            return tally.mean();
-        }
-    }
-    // Every cell not yet taken: a cell's rank follows from its place in its quadrant.
-    let step = h.div_ceil(2);
-    for cj in 0..n {
-        for ci in 0..n {
-            let k = ci / h + 2 * (cj / h);
-            let (a, b) = fp.offsets[k as usize];
-            let di = (ci % h + h - a) % h;
-            let dj = (cj % h + h - b) % h;
-            let rank = match (di == 0, dj == 0, di == step, dj == step) {
-                (true, true, _, _) => 0,
-                (_, _, true, true) => 1,
-                (_, true, true, _) => 2,
-                (true, _, _, true) => 3,
-                _ => 4,
-            };
-            if rank >= ranks {
-                tally.add(cell_sample(xi, yi, hash, n, cj * n + ci, trace));
+        let mut stage = 4;
+        while stage < all {
+            take(&mut tally, ranks, stage);
+            ranks = stage;
+            if tally.standard_error() <= se_bound(threshold, 4 * stage) {
+                return tally.mean();
             }
+            if !h.is_power_of_two() {
+                break;
+            }
+            stage *= 2;
         }
     }
+    take(&mut tally, ranks, all);
     tally.mean()
+}
+
+/// The standard error at or below which a pixel of `rays` rays (16 or more) takes no more:
+/// `threshold` at 16 rays, growing as √(rays/16).
+///
+/// The growth spreads rays the way that minimises the image's summed squared error: a
+/// pixel whose samples have spread σ errs by about σ²/m with m rays, so its next m rays
+/// (doubling) save σ²/2m, and they are worth their cost where σ²/m² is above a constant
+/// common to all pixels, that is where σ/m, the standard error over √m, is. Pixels then end
+/// with rays in proportion to σ (Neyman's allocation), rather than to σ² as a fixed bound
+/// on the standard error would give, which spends most of the rays on the few noisiest
+/// pixels. At 16 rays the bound is the threshold itself, as documented.
+fn se_bound(threshold: f64, rays: u32) -> f64 {
+    threshold * (f64::from(rays) / 16.0).sqrt()
 }
 
 fn adaptive<F: Fn(f64, f64) -> Sample>(
@@ -464,6 +527,8 @@ fn adaptive<F: Fn(f64, f64) -> Sample>(
     trace: &F,
     out: &mut [Color],
 ) {
+    let order = max.is_multiple_of(2).then(|| QuadrantOrder::new(max / 2));
+    let order = order.as_ref();
     // First pass over the rect plus a one-pixel border. Border pixels outside the image are
     // traced like any others (the camera extends past the image), so a pixel at the image's
     // edge is treated exactly like one inside.
@@ -482,7 +547,7 @@ fn adaptive<F: Fn(f64, f64) -> Sample>(
                     offsets: [(0, 0); 4],
                 }
             } else {
-                first_pass(px, py, max, trace)
+                first_pass(px, py, max, order, trace)
             });
         }
     }
@@ -507,7 +572,7 @@ fn adaptive<F: Fn(f64, f64) -> Sample>(
             }
             let (x, y) = (rect.x + rx as u32, rect.y + ry as u32);
             out[i] = if own || near {
-                refine(x, y, max, threshold, own, centre, trace)
+                refine(x, y, max, threshold, own, centre, order, trace)
             } else {
                 c.mean()
             };
@@ -718,7 +783,7 @@ mod tests {
             let inv = 1.0 / f64::from(n);
             let mut expected: Vec<(f64, f64)> = (0..n * n)
                 .map(|cell| {
-                    let (ox, oy) = unit_pair(5, 7, cell, SEED_REFINE);
+                    let (ox, oy) = unit_pair(5, 7, cell, SEED_JITTER);
                     (
                         5.0 + (f64::from(cell % n) + ox) * inv,
                         7.0 + (f64::from(cell / n) + oy) * inv,
@@ -795,5 +860,116 @@ mod tests {
             // Within three of those standard errors of the pixel's exact mean.
             assert!((out[0].x - exact).abs() < 0.04, "{} vs {exact}", out[0].x);
         }
+    }
+
+    #[test]
+    fn a_fully_refined_pixel_equals_jitter_with_the_same_count() {
+        // Jitter is the second method: it places one ray per cell of its n × n grid, and an
+        // adaptive pixel refined to its cap must take those very rays, whatever their order.
+        let busy = |x: f64, y: f64| {
+            let v = (x * 13.7 + y * 5.3).fract();
+            Sample {
+                color: Color::new(v, 1.0 - v, v * v),
+                object: u32::from(v < 0.5),
+            }
+        };
+        for n in [2, 3, 4, 6, 8, 16] {
+            let rect = Rect::new(3, 2, 4, 3);
+            let mut jit = vec![Color::ZERO; rect.pixel_count()];
+            Sampler::Jitter { n }.render_rect(rect, busy, &mut jit);
+            let mut ada = vec![Color::ZERO; rect.pixel_count()];
+            let s = Sampler::Adaptive {
+                max: n,
+                threshold: 1e-9,
+            };
+            s.render_rect(rect, busy, &mut ada);
+            for (a, j) in ada.iter().zip(&jit) {
+                if n % 2 == 0 {
+                    // Only the order of the sum differs.
+                    assert!((*a - *j).abs().max_element() < 1e-12, "n = {n}: {a} vs {j}");
+                } else {
+                    // Odd n adds its independent 2 × 2 first pass, weighted by count.
+                    let n2 = f64::from(n * n);
+                    assert!(
+                        (*a - *j).abs().max_element() <= 4.0 / (4.0 + n2) + 1e-12,
+                        "n = {n}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn each_stage_of_the_quadrant_order_is_stratified() {
+        // For h a power of two, the first 4^k ranks of a quadrant hold one cell in each block
+        // of h/2^k cells a side, and the first 2·4^k one in each row and each column of
+        // those blocks, whatever the offset: checked by counting, for every offset.
+        for h in [2u32, 4, 8, 16] {
+            let order = QuadrantOrder::new(h);
+            let mut sorted = order.cells.clone();
+            sorted.sort_unstable();
+            sorted.dedup();
+            assert_eq!(sorted.len() as u32, h * h, "h = {h}: every cell once");
+            for (a, b) in [(0, 0), (1, h - 1), (h / 2, 1), (h - 1, h - 1)] {
+                let mut blocks = 1;
+                while blocks <= h {
+                    let size = h / blocks;
+                    let cell_of = |rank: u32| {
+                        let c = order.cell(0, rank, (a, b));
+                        (c % (2 * h), c / (2 * h))
+                    };
+                    let mut per_block = vec![0; (blocks * blocks) as usize];
+                    for rank in 0..blocks * blocks {
+                        let (ci, cj) = cell_of(rank);
+                        per_block[((cj / size) * blocks + ci / size) as usize] += 1;
+                    }
+                    assert!(per_block.iter().all(|&c| c == 1), "h = {h}, {blocks}²");
+                    if blocks < h {
+                        let m = 2 * blocks * blocks;
+                        let (mut cols, mut rows) =
+                            (vec![0; 2 * blocks as usize], vec![0; 2 * blocks as usize]);
+                        for rank in 0..m {
+                            let (ci, cj) = cell_of(rank);
+                            cols[(2 * ci / size) as usize] += 1;
+                            rows[(2 * cj / size) as usize] += 1;
+                        }
+                        let each = (m / (2 * blocks)) as i32;
+                        assert!(cols.iter().chain(&rows).all(|&c| c == each), "h = {h}, {m}");
+                    }
+                    blocks *= 2;
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_stage_may_end_a_pixel_once_its_standard_error_is_below_the_growing_bound() {
+        use std::cell::RefCell;
+        // The texture of the test above: per-sample spread about 0.05/√2 ≈ 0.035, so 16 rays
+        // have a standard error near 0.0088 and 32 rays near 0.0063. With threshold 0.0064,
+        // 16 rays are not enough (their bound is 0.0064) but 32 are (bound 0.0064·√2 ≈
+        // 0.0091): the measured spread would have to be off by 27 % or more to change the
+        // count.
+        let texture = |x: f64, _y: f64| Sample {
+            color: Color::splat(0.5 + 0.05 * (97.0 * x).sin()),
+            object: 0,
+        };
+        let exact = 0.5 + 0.05 * ((97.0 * 5.0f64).cos() - (97.0 * 6.0f64).cos()) / 97.0;
+        let rays = RefCell::new(Vec::new());
+        let trace = |x: f64, y: f64| {
+            rays.borrow_mut().push((x, y));
+            texture(x, y)
+        };
+        let s = Sampler::Adaptive {
+            max: 8,
+            threshold: 0.0064,
+        };
+        let mut out = [Color::ZERO];
+        s.render_rect(Rect::new(5, 0, 1, 1), trace, &mut out);
+        assert_eq!(rays_in(&rays.into_inner(), 5, 0).len(), 32);
+        // Within three standard errors of 32 rays of the pixel's exact mean.
+        assert!((out[0].x - exact).abs() < 0.02, "{} vs {exact}", out[0].x);
+        assert_eq!(se_bound(0.01, 16), 0.01);
+        assert!((se_bound(0.01, 64) - 0.02).abs() < 1e-15);
     }
 }
