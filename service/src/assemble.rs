@@ -111,12 +111,17 @@ impl Encoder {
         }
         // One band with `Fast` compression is about a millisecond of encoding: short enough
         // to run on the async thread between two database round trips.
+        let started = std::time::Instant::now();
         self.png.write_rows(&rows)?;
         self.pending.extend_from_slice(&self.sink.take());
         if self.pending.len() >= CHUNK {
             self.flush(queue, id).await?;
         }
         self.y += bh;
+        tracing::debug!(
+            job = %id, rows = bh, y, us = started.elapsed().as_micros() as u64,
+            "band encoded"
+        );
         Ok(())
     }
 
@@ -292,6 +297,7 @@ impl Progress {
     /// The job's last tile is in: encodes what is left and marks the job done (the whole
     /// image if the job was not followed or encoding ahead failed).
     pub async fn complete(&self, queue: &Queue, id: &str) -> Result<(), AssembleError> {
+        tracing::debug!(job = %id, "last tile in: finishing the image");
         let Some(f) = self.get(id) else {
             return assemble(queue, id).await;
         };
