@@ -3,7 +3,11 @@
 //!
 //! The scaling scenes are `N` random, non-overlapping small spheres (one per cell of a
 //! jittered grid, fixed seed) over a ground plane, lit by one light with shadows, so every
-//! ray is a nearest-hit query and most hits add an any-hit shadow query. Time per ray is the
+//! ray is a nearest-hit query and most hits add an any-hit shadow query. They come in two
+//! layouts ([`Layout`]): a *cloud* filling a cube, where a ray that misses crosses about
+//! `∛N` cells of spheres (so no search can be logarithmic in it), and a *layer* facing the
+//! camera, where every ray crosses the spheres once and meets only its own neighbourhood
+//! (the case in which a BVH's cost grows with `log N`). Time per ray is the
 //! median render time over all rays traced (primary and shadow). Wall-clock figures on a
 //! shared machine are noisy; `valgrind --tool=callgrind` on this subcommand gives repeatable
 //! instruction counts for A/B comparisons.
@@ -33,6 +37,13 @@ pub struct Args {
     /// Sphere counts for the scaling table (default: 4 to 16384; quick: 16, 256, 4096).
     #[arg(long, value_delimiter = ',')]
     sizes: Vec<usize>,
+    /// Which scaling tables to print: the sphere cloud, the sphere layer, or both.
+    #[arg(long, value_enum, default_value_t = Layouts::Both)]
+    layout: Layouts,
+    /// Also write each scaling scene to this folder (`cloud-N.ray`, `layer-N.ray`), to look at
+    /// or to render elsewhere.
+    #[arg(long)]
+    write_scenes: Option<PathBuf>,
     /// Leave out the linear (no BVH) column of the scaling table.
     #[arg(long)]
     no_linear: bool,
@@ -59,6 +70,34 @@ impl From<Accel> for Acceleration {
     }
 }
 
+/// Where the scaling scenes put their spheres.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Layout {
+    /// Filling the cube [-10, 10]³: sparser as `N` grows, so a ray crosses about `∛N` cells.
+    Cloud,
+    /// In a slab facing the camera (the square [-10, 10]² in x and y, a cell deep in z):
+    /// every ray crosses it once and meets only the spheres near its crossing.
+    Layer,
+}
+
+/// The `--layout` choice.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Layouts {
+    Cloud,
+    Layer,
+    Both,
+}
+
+impl Layouts {
+    fn list(self) -> &'static [Layout] {
+        match self {
+            Layouts::Cloud => &[Layout::Cloud],
+            Layouts::Layer => &[Layout::Layer],
+            Layouts::Both => &[Layout::Cloud, Layout::Layer],
+        }
+    }
+}
+
 /// SplitMix64, so the scaling scenes are the same on every run.
 struct Rng(u64);
 
@@ -73,37 +112,67 @@ impl Rng {
     }
 }
 
-/// `n` spheres in distinct cells of a `k³` grid over the cube [-10, 10]³ (`k³ ≥ n`), each
-/// inside its own cell (so none overlap), over a plane at y = -11.
+/// `n` spheres over a plane at y = -11, each inside its own cell of a grid (so none overlap),
+/// the cells chosen at random (fixed seed).
 ///
-/// Radii shrink as `1/√n` (from about 1.5 at n = 16 to 0.05 at 16384), so the spheres'
-/// total cross-section, and so the share of rays that hit one, is about the same at every
-/// `n`: the per-ray cost then compares the search for the nearest hit, not a different mix
-/// of shaded hits and cheap misses.
-pub fn spheres_scene(n: usize, width: u32, height: u32) -> String {
-    let k = (1..).find(|k: &usize| k * k * k >= n).unwrap_or(1);
+/// - [`Layout::Cloud`]: cells of a `k³` grid over the cube [-10, 10]³ (`k³ ≥ n`).
+/// - [`Layout::Layer`]: cells of a `k²` grid over the square [-10, 10]² in x and y
+///   (`k² ≥ n`), each sphere at a random depth within a cell's width of z = 0.
+///
+/// Radii shrink as `1/√n` (from about 1.5 at n = 16 to 0.05 at 16384 in the cloud), so the
+/// spheres' total cross-section, and so the share of rays that hit one, is about the same at
+/// every `n`: the per-ray cost then compares the search for the nearest hit, not a different
+/// mix of shaded hits and cheap misses.
+pub fn spheres_scene(layout: Layout, n: usize, width: u32, height: u32) -> String {
+    let dims = match layout {
+        Layout::Cloud => 3,
+        Layout::Layer => 2,
+    };
+    let k = (1..).find(|k: &usize| k.pow(dims) >= n).unwrap_or(1);
     let cell = 20.0 / k as f64;
     let mut rng = Rng(0x7e55_e7a0 + n as u64);
     // Choose n distinct cells: a partial Fisher–Yates shuffle of all cell indices.
-    let mut cells: Vec<usize> = (0..k * k * k).collect();
+    let mut cells: Vec<usize> = (0..k.pow(dims)).collect();
     for i in 0..n {
         let j = i + ((rng.unit() * (cells.len() - i) as f64) as usize).min(cells.len() - i - 1);
         cells.swap(i, j);
     }
+    let eye = match layout {
+        Layout::Cloud => "<6, 8, 40>",
+        Layout::Layer => "<2, 3, 40>",
+    };
     let mut s = format!(
         "[GLOBALS]\nwidth = {width}\nheight = {height}\nambient = 0.15\nshadow = 0.8\n\
          background = <0.1, 0.1, 0.2>\n[/GLOBALS]\n\
-         [CAMERA]\neye = <6, 8, 40>\nlook_at = <0, -2, 0>\nfov = 40\n[/CAMERA]\n\
+         [CAMERA]\neye = {eye}\nlook_at = <0, -2, 0>\nfov = 40\n[/CAMERA]\n\
          [LIGHT]\nposition = <30, 60, 40>\n[/LIGHT]\n\
          [OBJECT]\ntype = plane\ntranslate = <0, -11, 0>\ncolor1 = 0.7\ncolor2 = 0.4\n[/OBJECT]\n"
     );
     for &c in &cells[..n] {
-        let (x, y, z) = (c % k, (c / k) % k, c / (k * k));
-        // At most 7.5/√n: below half a cell (10/∛n) for every n ≥ 1.
-        let r = (6.0 / (n as f64).sqrt() * (0.75 + 0.5 * rng.unit())).min(0.45 * cell);
+        // Both layouts: at most 0.45 of a cell, so a sphere stays inside its own cell.
+        let r = match layout {
+            // 7.5/√n at most: below half a cell (10/∛n) for every n ≥ 1.
+            Layout::Cloud => 6.0 / (n as f64).sqrt() * (0.75 + 0.5 * rng.unit()),
+            // A third of a cell on average: about a third of the square is covered.
+            Layout::Layer => 0.33 * cell * (0.75 + 0.5 * rng.unit()),
+        }
+        .min(0.45 * cell);
         let slack = cell / 2.0 - r;
         let at = |i: usize, u: f64| -10.0 + (i as f64 + 0.5) * cell + slack * (2.0 * u - 1.0);
-        let (px, py, pz) = (at(x, rng.unit()), at(y, rng.unit()), at(z, rng.unit()));
+        let (px, py, pz) = match layout {
+            Layout::Cloud => {
+                let (x, y, z) = (c % k, (c / k) % k, c / (k * k));
+                (at(x, rng.unit()), at(y, rng.unit()), at(z, rng.unit()))
+            }
+            Layout::Layer => {
+                let (x, y) = (c % k, c / k);
+                (
+                    at(x, rng.unit()),
+                    at(y, rng.unit()),
+                    cell * (rng.unit() - 0.5),
+                )
+            }
+        };
         s += &format!(
             "[OBJECT]\ntype = sphere\nradius = {r:.6}\ntranslate = <{px:.6}, {py:.6}, {pz:.6}>\n\
              color1 = <{:.3}, {:.3}, {:.3}>\n[/OBJECT]\n",
@@ -149,7 +218,10 @@ pub fn run(args: &Args) -> Result<()> {
     if args.scenes_only {
         return Ok(());
     }
-    scaling(args, repeats)
+    for &layout in args.layout.list() {
+        scaling(args, layout, repeats)?;
+    }
+    Ok(())
 }
 
 /// Rays per second on each bench scene.
@@ -184,7 +256,7 @@ fn scenes(args: &Args, repeats: usize) -> Result<()> {
 }
 
 /// The BVH scaling table.
-fn scaling(args: &Args, repeats: usize) -> Result<()> {
+fn scaling(args: &Args, layout: Layout, repeats: usize) -> Result<()> {
     let (w, h) = if args.quick { (48, 36) } else { (160, 120) };
     let sizes: &[usize] = if !args.sizes.is_empty() {
         &args.sizes
@@ -199,7 +271,11 @@ fn scaling(args: &Args, repeats: usize) -> Result<()> {
         &[4, 8, 16, 1024]
     };
     println!();
-    println!("BVH scaling: N random spheres + ground plane, {w}x{h}, one thread:");
+    let name = match layout {
+        Layout::Cloud => "cloud",
+        Layout::Layer => "layer",
+    };
+    println!("BVH scaling ({name}): N random spheres + ground plane, {w}x{h}, one thread:");
     println!(
         "{:>6} {:>10} {:>12} {:>8} {:>14} {:>11}",
         "N", "rays", "BVH ns/ray", "× N=16", "linear ns/ray", "linear/BVH"
@@ -207,7 +283,12 @@ fn scaling(args: &Args, repeats: usize) -> Result<()> {
     let mut at16 = None;
     let mut last = None;
     for &n in sizes {
-        let src = spheres_scene(n, w, h);
+        let src = spheres_scene(layout, n, w, h);
+        if let Some(dir) = &args.write_scenes {
+            std::fs::create_dir_all(dir).with_context(|| format!("{}", dir.display()))?;
+            let path = dir.join(format!("{name}-{n}.ray"));
+            std::fs::write(&path, &src).with_context(|| format!("{}", path.display()))?;
+        }
         let scene = Scene::from_source(
             &src,
             &Limits::default(),
@@ -239,7 +320,7 @@ fn scaling(args: &Args, repeats: usize) -> Result<()> {
     }
     if let (Some(b), Some((n, ns))) = (at16, last) {
         println!(
-            "per-ray cost at N={n} is {:.2}× that at N=16 (target: within 3×)",
+            "per-ray cost at N={n} is {:.2}× that at N=16 in the {name} (target: within 3×)",
             ns / b
         );
     }

@@ -134,20 +134,27 @@ fn tracer_quick_reports_rates_and_the_bvh_scaling() {
         })
         .collect();
     assert!(rates.iter().all(|r| r.is_finite() && *r > 0.0), "{stdout}");
-    // The scaling table: N, rays, ns/ray, ratio, linear ns/ray, linear/BVH.
-    let rows: Vec<Vec<&str>> = stdout
-        .lines()
-        .skip_while(|l| !l.starts_with("BVH scaling"))
-        .skip(2)
-        .take_while(|l| !l.starts_with("per-ray"))
-        .map(|l| l.split_whitespace().collect())
+    // Two scaling tables, the cloud then the layer: N, rays, ns/ray, ratio, linear ns/ray,
+    // linear/BVH.
+    let lines: Vec<&str> = stdout.lines().collect();
+    let starts: Vec<usize> = (0..lines.len())
+        .filter(|&i| lines[i].starts_with("BVH scaling"))
         .collect();
-    assert_eq!(rows.len(), 3, "{stdout}");
-    for r in &rows {
-        let ns: f64 = r[2].parse().expect("ns/ray");
-        assert!(ns.is_finite() && ns > 0.0, "{stdout}");
+    assert_eq!(starts.len(), 2, "{stdout}");
+    assert!(lines[starts[0]].contains("(cloud)") && lines[starts[1]].contains("(layer)"));
+    for &start in &starts {
+        let rows: Vec<Vec<&str>> = lines[start + 2..]
+            .iter()
+            .take_while(|l| !l.starts_with("per-ray"))
+            .map(|l| l.split_whitespace().collect())
+            .collect();
+        assert_eq!(rows.len(), 3, "{stdout}");
+        for r in &rows {
+            let ns: f64 = r[2].parse().expect("ns/ray");
+            assert!(ns.is_finite() && ns > 0.0, "{stdout}");
+        }
     }
-    assert!(stdout.contains("that at N=16"), "{stdout}");
+    assert_eq!(stdout.matches("that at N=16 in the").count(), 2, "{stdout}");
 }
 
 #[test]
