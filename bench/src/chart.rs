@@ -20,6 +20,7 @@ use tessera_tracer::exact::error;
 use tessera_tracer::math::Color;
 use tessera_tracer::{DirAssets, Limits, Rect, Sampler, Scene, TextureLimits, parse, tiles};
 
+use crate::stats::median;
 use crate::svg::{Panel, Series};
 
 #[derive(Debug, clap::Args)]
@@ -164,11 +165,6 @@ fn reference(scene: &Scene, n: u32) -> Vec<Color> {
         .into_par_iter()
         .flat_map_iter(|y| scene.reference_rect(Rect::new(0, y, scene.width, 1), n).0)
         .collect()
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 /// Marks the points no other point beats in both time and error.
@@ -388,11 +384,5 @@ mod tests {
         let front: Vec<bool> = pts.iter().map(|p| p.pareto).collect();
         // (3, 0.3) is beaten by (2, 0.2); the two equal points both stay.
         assert_eq!(front, vec![true, true, false, true, true]);
-    }
-
-    #[test]
-    fn median_of_odd_and_even_counts() {
-        assert_eq!(median(vec![3.0, 1.0, 2.0]), 2.0);
-        assert_eq!(median(vec![4.0, 1.0, 3.0, 2.0]), 3.0);
     }
 }

@@ -23,6 +23,8 @@ use anyhow::{Context, Result, bail};
 use serde_json::Value;
 use tessera_tracer::{Limits, MemoryAssets, Scene, TextureLimits, encode_png, parse};
 
+use crate::stats::Spread;
+
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Small images and single runs (seconds, for CI).
@@ -300,7 +302,7 @@ pub fn run(args: &Args) -> Result<()> {
                 t_farm.push(tf);
             }
             drop(svc);
-            ratios.sort_by(f64::total_cmp);
+            let ratio = Spread::of(ratios);
             let pct = |r: f64| (r - 1.0) * 100.0;
             let choice = if args.tile.is_some() {
                 "set by --tile"
@@ -311,10 +313,10 @@ pub fn run(args: &Args) -> Result<()> {
                 "  overhead ({label}): tessera-render path {:.3} s, farm ({tile} px tiles, {choice}; {threads} local workers) {:.3} s: {:+.1} % (median of {} back-to-back pairs; range {:+.1} to {:+.1} %; PNG identical: yes)",
                 median(t_local).as_secs_f64(),
                 median(t_farm).as_secs_f64(),
-                pct(ratios[ratios.len() / 2]),
-                ratios.len(),
-                pct(ratios[0]),
-                pct(ratios[ratios.len() - 1]),
+                pct(ratio.median),
+                ratio.count,
+                pct(ratio.lo),
+                pct(ratio.hi),
             );
         }
         if !args.quick && args.wants("tiles") {
@@ -343,15 +345,15 @@ pub fn run(args: &Args) -> Result<()> {
                 t2s.push(t2);
             }
             drop((one, two));
-            ratios.sort_by(f64::total_cmp);
+            let ratio = Spread::of(ratios);
             println!(
                 "  scaling ({label}): 1 worker {:.3} s, 2 workers {:.3} s: {:.2}× (median of {} back-to-back pairs; range {:.2}× to {:.2}×)",
                 median(t1s).as_secs_f64(),
                 median(t2s).as_secs_f64(),
-                ratios[ratios.len() / 2],
-                ratios.len(),
-                ratios[0],
-                ratios[ratios.len() - 1],
+                ratio.median,
+                ratio.count,
+                ratio.lo,
+                ratio.hi,
             );
         }
     }

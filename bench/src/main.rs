@@ -18,6 +18,7 @@ mod chart;
 mod farm;
 mod features;
 mod povray;
+mod stats;
 mod svg;
 mod tracer;
 

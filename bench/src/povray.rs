@@ -32,6 +32,8 @@ use tessera_tracer::shape::Shape;
 use tessera_tracer::transform::Transform;
 use tessera_tracer::{Limits, MemoryAssets, Rect, Sampler, Scene, TextureLimits, parse};
 
+use crate::stats::{Spread, median};
+
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Scenes to compare (`.ray` files or directories of them).
@@ -208,11 +210,6 @@ fn trace_seconds(output: &str) -> Option<f64> {
     secs.parse().ok()
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 /// Mean absolute difference (8-bit steps) and share of pixels differing by more than 2 steps.
 fn image_difference(a: &[u8], b: &[u8]) -> (f64, f64) {
     let mut sum = 0u64;
@@ -274,27 +271,33 @@ pub fn run(args: &Args) -> Result<()> {
         // Pairs, back to back: on a machine whose speed drifts from second to second, a
         // Tessera run and the POV-Ray run right after it see the same machine, and the
         // median of the pairs' ratios moves less than the ratio of two separate medians.
+        let input = dir.join(format!("{name}.pov"));
+        let output = dir.join(format!("{name}.png"));
+        std::fs::write(&input, &pov)?;
         let (mut ours_ms, mut pov_ms, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
-        let (mut ours, mut theirs) = (Vec::new(), Vec::new());
+        let mut ours = Vec::new();
         for _ in 0..args.repeats.max(1) {
-            let (o_ms, o) = time_tessera(&scene, 1);
-            let (p_ms, p) = time_povray(&args.povray, &dir, &name, &pov, &desc, 1)
+            let (o_ms, o) = time_tessera(&scene);
+            let p_ms = time_povray(&args.povray, &input, &output, &desc)
                 .with_context(|| format!("POV-Ray on {name}"))?;
             ratios.push(p_ms / o_ms);
             ours_ms.push(o_ms);
             pov_ms.push(p_ms);
-            (ours, theirs) = (o, p);
+            ours = o;
         }
-        ratios.sort_by(f64::total_cmp);
-        let (lo, hi) = (ratios[0], ratios[ratios.len() - 1]);
+        let theirs = image::open(&output)
+            .with_context(|| format!("cannot read {}", output.display()))?
+            .into_rgb8()
+            .into_raw();
+        let ratio = Spread::of(ratios);
         let (mean, off) = image_difference(&ours, &theirs);
         println!(
             "{name:<22} {:>9} {:>12.1} {:>12.1} {:>7.2}× {:>15} {mean:>10.2} {:>8.2}%",
             format!("{}×{}", desc.width, desc.height),
             median(ours_ms),
             median(pov_ms),
-            median(ratios),
-            format!("{lo:.2}–{hi:.2}×"),
+            ratio.median,
+            format!("{:.2}–{:.2}×", ratio.lo, ratio.hi),
             off * 100.0
         );
     }
@@ -306,53 +309,33 @@ pub fn run(args: &Args) -> Result<()> {
     Ok(())
 }
 
-fn time_tessera(scene: &Scene, repeats: usize) -> (f64, Vec<u8>) {
-    let mut times = Vec::new();
-    let mut rgb = Vec::new();
-    for _ in 0..repeats.max(1) {
-        let start = Instant::now();
-        rgb = scene.render_rect(Rect::full(scene.width, scene.height));
-        times.push(start.elapsed().as_secs_f64() * 1e3);
-    }
-    (median(times), rgb)
+/// One render of the whole scene on this thread: milliseconds and the sRGB bytes.
+fn time_tessera(scene: &Scene) -> (f64, Vec<u8>) {
+    let start = Instant::now();
+    let rgb = scene.render_rect(Rect::full(scene.width, scene.height));
+    (start.elapsed().as_secs_f64() * 1e3, rgb)
 }
 
-fn time_povray(
-    povray: &str,
-    dir: &Path,
-    name: &str,
-    pov: &str,
-    desc: &SceneDesc,
-    repeats: usize,
-) -> Result<(f64, Vec<u8>)> {
-    let input = dir.join(format!("{name}.pov"));
-    let output = dir.join(format!("{name}.png"));
-    std::fs::write(&input, pov)?;
-    let mut times = Vec::new();
-    for _ in 0..repeats.max(1) {
-        let out = Command::new(povray)
-            .arg(format!("+I{}", input.display()))
-            .arg(format!("+O{}", output.display()))
-            .arg(format!("+W{}", desc.width))
-            .arg(format!("+H{}", desc.height))
-            .args(["-A", "+WT1", "-D", "-P", "+FN8", "File_Gamma=sRGB"])
-            .output()
-            .context("cannot run povray")?;
-        let text = String::from_utf8_lossy(&out.stderr).to_string()
-            + &String::from_utf8_lossy(&out.stdout);
-        if !out.status.success() {
-            bail!(
-                "povray failed: {}",
-                text.lines().rev().take(5).collect::<Vec<_>>().join(" | ")
-            );
-        }
-        let secs = trace_seconds(&text).context("no \"Trace Time\" in POV-Ray's output")?;
-        times.push(secs * 1e3);
+/// One POV-Ray run of `input` into `output`: the trace time it reports, in milliseconds.
+fn time_povray(povray: &str, input: &Path, output: &Path, desc: &SceneDesc) -> Result<f64> {
+    let out = Command::new(povray)
+        .arg(format!("+I{}", input.display()))
+        .arg(format!("+O{}", output.display()))
+        .arg(format!("+W{}", desc.width))
+        .arg(format!("+H{}", desc.height))
+        .args(["-A", "+WT1", "-D", "-P", "+FN8", "File_Gamma=sRGB"])
+        .output()
+        .context("cannot run povray")?;
+    let text =
+        String::from_utf8_lossy(&out.stderr).to_string() + &String::from_utf8_lossy(&out.stdout);
+    if !out.status.success() {
+        bail!(
+            "povray failed: {}",
+            text.lines().rev().take(5).collect::<Vec<_>>().join(" | ")
+        );
     }
-    let img = image::open(&output)
-        .with_context(|| format!("cannot read {}", output.display()))?
-        .into_rgb8();
-    Ok((median(times), img.into_raw()))
+    let secs = trace_seconds(&text).context("no \"Trace Time\" in POV-Ray's output")?;
+    Ok(secs * 1e3)
 }
 
 #[cfg(test)]

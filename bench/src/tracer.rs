@@ -37,9 +37,9 @@ pub struct Args {
     /// Sphere counts for the scaling table (default: 4 to 16384; quick: 16, 256, 4096).
     #[arg(long, value_delimiter = ',')]
     sizes: Vec<usize>,
-    /// Which scaling tables to print: the sphere cloud, the sphere layer, or both.
-    #[arg(long, value_enum, default_value_t = Layouts::Both)]
-    layout: Layouts,
+    /// Only this scaling table: the sphere cloud or the sphere layer (default: both).
+    #[arg(long, value_enum)]
+    layout: Option<Layout>,
     /// Also write each scaling scene to this folder (`cloud-N.ray`, `layer-N.ray`), to look at
     /// or to render elsewhere.
     #[arg(long)]
@@ -71,7 +71,7 @@ impl From<Accel> for Acceleration {
 }
 
 /// Where the scaling scenes put their spheres.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Layout {
     /// Filling the cube [-10, 10]³: sparser as `N` grows, so a ray crosses about `∛N` cells.
     Cloud,
@@ -80,20 +80,12 @@ pub enum Layout {
     Layer,
 }
 
-/// The `--layout` choice.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-enum Layouts {
-    Cloud,
-    Layer,
-    Both,
-}
-
-impl Layouts {
-    fn list(self) -> &'static [Layout] {
+impl Layout {
+    /// The name in the table's title and in `--write-scenes` file names.
+    fn name(self) -> &'static str {
         match self {
-            Layouts::Cloud => &[Layout::Cloud],
-            Layouts::Layer => &[Layout::Layer],
-            Layouts::Both => &[Layout::Cloud, Layout::Layer],
+            Layout::Cloud => "cloud",
+            Layout::Layer => "layer",
         }
     }
 }
@@ -218,7 +210,14 @@ pub fn run(args: &Args) -> Result<()> {
     if args.scenes_only {
         return Ok(());
     }
-    for &layout in args.layout.list() {
+    if let Some(dir) = &args.write_scenes {
+        std::fs::create_dir_all(dir).with_context(|| format!("{}", dir.display()))?;
+    }
+    let layouts = match args.layout {
+        Some(one) => vec![one],
+        None => vec![Layout::Cloud, Layout::Layer],
+    };
+    for layout in layouts {
         scaling(args, layout, repeats)?;
     }
     Ok(())
@@ -271,10 +270,7 @@ fn scaling(args: &Args, layout: Layout, repeats: usize) -> Result<()> {
         &[4, 8, 16, 1024]
     };
     println!();
-    let name = match layout {
-        Layout::Cloud => "cloud",
-        Layout::Layer => "layer",
-    };
+    let name = layout.name();
     println!("BVH scaling ({name}): N random spheres + ground plane, {w}x{h}, one thread:");
     println!(
         "{:>6} {:>10} {:>12} {:>8} {:>14} {:>11}",
@@ -285,7 +281,6 @@ fn scaling(args: &Args, layout: Layout, repeats: usize) -> Result<()> {
     for &n in sizes {
         let src = spheres_scene(layout, n, w, h);
         if let Some(dir) = &args.write_scenes {
-            std::fs::create_dir_all(dir).with_context(|| format!("{}", dir.display()))?;
             let path = dir.join(format!("{name}-{n}.ray"));
             std::fs::write(&path, &src).with_context(|| format!("{}", path.display()))?;
         }
