@@ -1,5 +1,6 @@
 //! What a scene pays for each feature: the same scene with and without shadows, mirrors,
-//! textures, more lights and more objects, in rays per pixel and time. The point it makes:
+//! textures, more lights and more objects (with and without the culling of shadow rays that
+//! nothing can block), in rays per pixel and time. The point it makes:
 //! a feature a scene does not use costs no rays, and the adaptive sampler spends samples only
 //! where the image varies.
 
@@ -59,8 +60,23 @@ pub fn run(args: &Args) -> Result<()> {
     } else {
         ((320, 240), 3)
     };
+    // Eight small spheres around the big one, none in the way of another's light: every
+    // shadow ray from them is known to be clear (see `tessera_tracer::shadow`).
+    let ring: String = (0..8)
+        .map(|i| {
+            let a = f64::from(i) * std::f64::consts::FRAC_PI_4;
+            format!(
+                "[OBJECT]\ntype = sphere\nradius = 0.5\ntranslate = <{:.3}, 0.5, {:.3}>\n[/OBJECT]\n",
+                4.0 * a.cos(),
+                4.0 * a.sin()
+            )
+        })
+        .collect();
+    let nine = scene_text(size, "", false, 1, "") + &ring;
     let variants: Vec<(&str, String)> = vec![
         ("one sphere, one light", scene_text(size, "", false, 1, "")),
+        ("nine spheres, one light", nine.clone()),
+        ("nine spheres, no culling", nine),
         (
             "+ floor (shadows possible)",
             scene_text(size, "", true, 1, ""),
@@ -97,9 +113,12 @@ pub fn run(args: &Args) -> Result<()> {
         "scene", "primary", "shadow", "mirror", "time (ms)"
     );
     for (name, src) in variants {
-        let scene =
+        let mut scene =
             Scene::from_source(&src, &Limits::default(), &assets, &TextureLimits::default())
                 .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+        if name.ends_with("no culling") {
+            scene = scene.without_shadow_culling();
+        }
         let px = f64::from(scene.width * scene.height);
         let mut times = Vec::new();
         let mut stats = tessera_tracer::RayStats::default();

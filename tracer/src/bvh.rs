@@ -449,6 +449,68 @@ impl Bvh {
     }
 }
 
+impl Bvh {
+    /// Whether `item` answers `true` for some item whose path of boxes all pass `touches`:
+    /// a query by region rather than by ray (for example "might anything lie in this
+    /// capsule?"). `touches` gets the root's box and then each child box on the way down, in
+    /// `f64`, each containing its subtree's (padded) item boxes; `item` gets the caller's ids
+    /// of the leaves reached, and the search stops at its first `true`. Both must be
+    /// conservative for the answer to be: a `false` from `touches` drops the whole subtree.
+    pub fn any_item(
+        &self,
+        mut touches: impl FnMut(&Aabb) -> bool,
+        mut item: impl FnMut(u32) -> bool,
+    ) -> bool {
+        if self.items.is_empty() || !touches(&self.root_bounds) {
+            return false;
+        }
+        // One pending sibling per interior level of the current path, as in `traverse`, so
+        // the depth cap bounds it.
+        let mut stack: ArrayVec<Child, STACK> = ArrayVec::new();
+        let mut at = Some(self.root);
+        loop {
+            let Some(here) = at.take().or_else(|| stack.pop()) else {
+                return false;
+            };
+            if here.count > 0 {
+                let first = here.index as usize;
+                if self.items[first..first + here.count as usize]
+                    .iter()
+                    .any(|&id| item(id))
+                {
+                    return true;
+                }
+                continue;
+            }
+            let node = &self.nodes[here.index as usize];
+            let [a, b] = [0, 1].map(|c| touches(&node.child_bounds(c)));
+            match (a, b) {
+                (true, true) => {
+                    stack.push(node.child[1]);
+                    at = Some(node.child[0]);
+                }
+                (true, false) => at = Some(node.child[0]),
+                (false, true) => at = Some(node.child[1]),
+                (false, false) => {}
+            }
+        }
+    }
+}
+
+impl Node {
+    /// Child `c`'s stored box, widened back to `f64` (exactly).
+    fn child_bounds(&self, c: usize) -> Aabb {
+        let axis = |side: usize| {
+            DVec3::new(
+                f64::from(self.b[side][0][c]),
+                f64::from(self.b[side][1][c]),
+                f64::from(self.b[side][2][c]),
+            )
+        };
+        Aabb::new(axis(0), axis(1))
+    }
+}
+
 /// The union of the items' boxes.
 fn bounds_of(items: &[BuildItem]) -> Aabb {
     items
@@ -583,6 +645,47 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A region query finds an item exactly when brute force over the boxes does (the
+    /// region here is a ball, tested against boxes by their nearest point, which is exact).
+    #[test]
+    fn region_query_finds_what_brute_force_finds() {
+        let mut rng = Rng::new(11);
+        let near = |b: &Aabb, c: DVec3, r: f64| c.clamp(b.min, b.max).distance(c) <= r;
+        let (mut found, mut missed, mut asked_200) = (0, 0, 0);
+        for n in [1, 2, 17, 200] {
+            let boxes = random_boxes(&mut rng, n);
+            let (bvh, _) = Bvh::build(&boxes);
+            for _ in 0..300 {
+                let (c, r) = (rng.in_ball(12.0), rng.range(0.0, 4.0));
+                // Odd ids only, so that the item test's answer matters too.
+                let want = boxes.iter().any(|(id, b)| id % 2 == 1 && near(b, c, r));
+                let mut asked = Vec::new();
+                let got = bvh.any_item(
+                    |b| near(b, c, r),
+                    |id| {
+                        asked.push(id);
+                        id % 2 == 1 && near(&boxes[id as usize].1, c, r)
+                    },
+                );
+                assert_eq!(got, want, "n = {n}, ball {c} r {r}");
+                if n == 200 {
+                    asked_200 += asked.len();
+                }
+                if want { found += 1 } else { missed += 1 }
+            }
+        }
+        // The boxes prune: a query asks about a small share of 200 items on average.
+        assert!(
+            asked_200 < 300 * 200 / 8,
+            "{asked_200} items asked in 300 queries"
+        );
+        // Both answers occur, so neither could be returned blindly.
+        assert!(
+            found > 100 && missed > 100,
+            "{found} found, {missed} missed"
+        );
     }
 
     #[test]

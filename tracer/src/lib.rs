@@ -34,6 +34,7 @@ pub mod png_out;
 pub mod render;
 pub mod sampler;
 pub mod scene;
+pub mod shadow;
 pub mod shape;
 pub mod srgb;
 pub mod texture;

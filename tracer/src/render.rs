@@ -10,8 +10,9 @@
 //! ```
 //!
 //! Work a scene does not need is not done: no shadow ray where `n·l ≤ 0`, where `shadow = 0`,
-//! where nothing but the (convex) surface itself could block the light, or where the surface
-//! is a perfect mirror; no mirror ray where `m = 0`; no texture lookup without a texture.
+//! where nothing but the (convex) surface itself could block the light (in the whole scene,
+//! or between this object and this light, see [`crate::shadow`]), or where the surface is a
+//! perfect mirror; no mirror ray where `m = 0`; no texture lookup without a texture.
 //!
 //! Pixels are independent of one another except through the sampler, which is itself
 //! tile-independent, so any rectangle can be rendered alone and match the whole image.
@@ -145,7 +146,7 @@ impl Scene {
             let mut light_sum = Color::ZERO;
             if m.diffuse > 0.0 {
                 let can_block = self.shadow > 0.0 && self.anything_else(self_skip);
-                for light in &self.lights {
+                for (l, light) in self.lights.iter().enumerate() {
                     let to_light = light.position - sp.p;
                     let cos = sp.n.dot(to_light);
                     if !(cos > 0.0) {
@@ -153,7 +154,10 @@ impl Scene {
                     }
                     let cos = cos / to_light.length();
                     let mut v = 1.0;
-                    if can_block {
+                    // Where the ray skips the object itself, nothing else may be in the way
+                    // (see `crate::shadow`), and then the light is known to be clear.
+                    let clear = self_skip.is_some() && self.light_is_clear(hit.object, l);
+                    if can_block && !clear {
                         Counters::bump(&c.shadow);
                         let origin = sp.origin_towards(to_light);
                         let shadow_ray = Ray::new(origin, light.position - origin);

@@ -21,6 +21,7 @@ use crate::diag::{Diagnostic, SceneError};
 use crate::math::{Aabb, Color, Ray};
 use crate::sampler::Sampler;
 use crate::scene::{self, Light, Limits, MaterialDesc, Node, SceneDesc};
+use crate::shadow::ClearLights;
 use crate::shape::{LocalHit, Shape};
 use crate::texture::{AssetSource, Texture, TextureLimits};
 use crate::transform::Transform;
@@ -97,6 +98,11 @@ impl Object {
             return false;
         };
         sphere_certainly_missed(c, r2, ray)
+    }
+
+    /// For a sphere placed by a similarity, its world centre and squared radius.
+    pub fn similarity_sphere(&self) -> Option<(DVec3, f64)> {
+        self.sphere
     }
 }
 
@@ -220,6 +226,8 @@ pub struct Scene {
     pub prims: Vec<Prim>,
     /// How rays find the prims they may hit (built from `prims` by [`Scene::build`]).
     accel: Accel,
+    /// The lights each object's shadow rays need not be traced to (see [`crate::shadow`]).
+    clear_lights: ClearLights,
 }
 
 /// Below this many bounded prims a scene tests every prim for every ray: a BVH's box tests
@@ -396,17 +404,34 @@ impl Scene {
             camera: Camera::new(&desc.camera, desc.width, desc.height),
             lights: desc.lights.clone(),
             accel: Accel::new(&prims, &objects, Acceleration::Auto),
+            clear_lights: ClearLights::find(&objects, &prims, &desc.lights),
             objects,
             prims,
         })
     }
 
-    /// The same scene with its candidate search rebuilt as `mode` says. The images are the
-    /// same whatever the mode; tests and benchmarks use [`Acceleration::Off`] as the
-    /// reference.
+    /// The same scene with its candidate search rebuilt as `mode` says (and its clear
+    /// lights found again, see [`crate::shadow`]). The images are the same whatever the
+    /// mode; tests and benchmarks use [`Acceleration::Off`] as the reference.
     pub fn with_acceleration(mut self, mode: Acceleration) -> Scene {
         self.accel = Accel::new(&self.prims, &self.objects, mode);
+        self.clear_lights = ClearLights::find(&self.objects, &self.prims, &self.lights);
         self
+    }
+
+    /// The same scene tracing every shadow ray, even those [`crate::shadow`] knows cannot be
+    /// blocked: the reference that tests and benchmarks compare the culling against (the
+    /// images are the same).
+    pub fn without_shadow_culling(mut self) -> Scene {
+        self.clear_lights = ClearLights::default();
+        self
+    }
+
+    /// Whether a shadow ray from `object` (convex, left from outside) to light `light` is
+    /// known not to be blocked without tracing it.
+    #[inline]
+    pub fn light_is_clear(&self, object: u32, light: usize) -> bool {
+        self.clear_lights.is_clear(object, light)
     }
 
     /// The same scene tested prim by prim for every ray (no BVH).

@@ -1,4 +1,4 @@
-//! The BVH changes speed, never answers: on random scenes of every shape, CSG trees and
+//! The BVH (and the culling of shadow rays nothing can block) changes speed, never answers: on random scenes of every shape, CSG trees and
 //! planes, with coincident copies (ties at equal `t`), rays starting inside boxes and rays
 //! with zero direction components, the nearest hit and the any-hit answer are the same, bit
 //! for bit, as testing every prim in order; and whole images are byte-identical.
@@ -83,8 +83,9 @@ fn object(rng: &mut Rng, extent: f64) -> String {
 }
 
 /// A random scene of `n` solids: objects, CSG trees (of every operation, one of them
-/// possibly unbounded through a plane), ground planes, and exact copies of earlier solids.
-fn random_scene(rng: &mut Rng, n: usize, extent: f64) -> String {
+/// possibly unbounded through a plane), ground planes (unless `planes` is false: then every
+/// solid is bounded), and exact copies of earlier solids.
+fn random_scene(rng: &mut Rng, n: usize, extent: f64, planes: bool) -> String {
     let mut solids: Vec<String> = Vec::new();
     for _ in 0..n {
         let s = match rng.below(10) {
@@ -93,7 +94,7 @@ fn random_scene(rng: &mut Rng, n: usize, extent: f64) -> String {
                 let k = rng.below(solids.len() as u64) as usize;
                 solids[k].clone()
             }
-            1 => format!(
+            1 if planes => format!(
                 "[OBJECT]\ntype = plane\nrotate = {}\ntranslate = <0, {}, 0>\ncolor1 = <0.5, 0.5, 0.5>\ncolor2 = <0.1, 0.1, 0.1>\n[/OBJECT]\n",
                 v(rng.vec(10.0)),
                 -extent
@@ -101,7 +102,7 @@ fn random_scene(rng: &mut Rng, n: usize, extent: f64) -> String {
             2 | 3 => {
                 let op = ["union", "intersection", "difference"][rng.below(3) as usize];
                 let mut kids = object(rng, 0.7) + &object(rng, 0.7);
-                if rng.below(4) == 0 {
+                if planes && rng.below(4) == 0 {
                     kids += "[OBJECT]\ntype = plane\n[/OBJECT]\n";
                 }
                 format!(
@@ -161,7 +162,7 @@ fn bvh_answers_equal_brute_force_on_random_scenes() {
     for round in 0..24 {
         let n = [3, 9, 40, 150][round % 4];
         let extent = [2.0, 4.0, 8.0][round % 3];
-        let src = random_scene(&mut rng, n, extent);
+        let src = random_scene(&mut rng, n, extent, true);
         let linear = common::scene(&src).without_acceleration();
         let bvh = common::scene(&src).with_acceleration(Acceleration::Always);
         assert!(!linear.uses_bvh());
@@ -230,7 +231,7 @@ fn images_are_identical_with_and_without_the_bvh() {
     let mut rng = Rng(77);
     let mut total = tessera_tracer::RayStats::default();
     for n in [12, 60, 300] {
-        let src = random_scene(&mut rng, n, 6.0);
+        let src = random_scene(&mut rng, n, 6.0, true);
         let auto = common::scene(&src);
         assert!(auto.uses_bvh(), "{n} solids");
         let linear = auto.clone().without_acceleration();
@@ -242,6 +243,80 @@ fn images_are_identical_with_and_without_the_bvh() {
         total.add(&sa);
     }
     assert!(total.shadow > 1000 && total.mirror > 100, "{total:?}");
+}
+
+/// A lattice of `k × k` solids (mostly spheres, some cubes and cylinders) of random sizes
+/// and heights, seen from above, under three lights low enough that many shadow rays skim
+/// the neighbours: some are blocked, many pass close by, and many are clear.
+fn lattice_scene(rng: &mut Rng, k: u32, floor: bool) -> String {
+    let mut s = format!(
+        "[GLOBALS]\nwidth = 64\nheight = 48\nambient = 0.1\nshadow = 0.8\n[/GLOBALS]\n\
+         [CAMERA]\neye = <0, {}, 1>\nlook_at = <0, 0, 0>\nfov = 50\n[/CAMERA]\n",
+        2.5 * f64::from(k)
+    );
+    for _ in 0..3 {
+        let a = rng.range(0.0, std::f64::consts::TAU);
+        let (d, h) = (rng.range(5.0, 30.0), rng.range(2.0, 40.0));
+        s += &format!(
+            "[LIGHT]\nposition = <{}, {h}, {}>\ncolor = 0.4\n[/LIGHT]\n",
+            d * a.cos(),
+            d * a.sin()
+        );
+    }
+    if floor {
+        s += "[OBJECT]\ntype = plane\ntranslate = <0, -1, 0>\n[/OBJECT]\n";
+    }
+    let half = f64::from(k - 1);
+    for i in 0..k {
+        for j in 0..k {
+            let at = DVec3::new(
+                2.0 * f64::from(i) - half + rng.range(-0.3, 0.3),
+                rng.range(0.0, 1.0),
+                2.0 * f64::from(j) - half + rng.range(-0.3, 0.3),
+            );
+            let shape = match rng.below(6) {
+                0 => "type = cube\n",
+                1 => "type = cylinder\n",
+                _ => "type = sphere\n",
+            };
+            s += &format!(
+                "[OBJECT]\n{shape}scale = {}\ntranslate = {}\n[/OBJECT]\n",
+                rng.range(0.2, 0.8),
+                v(at)
+            );
+        }
+    }
+    s
+}
+
+/// Shadow rays that nothing can block are not traced (see `tessera_tracer::shadow`), and no
+/// pixel changes: lattices of solids whose shadow rays skim one another, with a floor and
+/// without, and random scenes of every kind, against the same scenes tracing every shadow
+/// ray.
+#[test]
+fn culling_clear_shadow_rays_changes_no_pixel() {
+    let mut rng = Rng(31);
+    let (mut culled, mut kept) = (0, 0);
+    let mut scenes: Vec<String> = Vec::new();
+    for k in [3, 6, 12] {
+        scenes.push(lattice_scene(&mut rng, k, false));
+        scenes.push(lattice_scene(&mut rng, k, true));
+    }
+    scenes.push(random_scene(&mut rng, 12, 6.0, false));
+    scenes.push(random_scene(&mut rng, 60, 10.0, true));
+    for src in &scenes {
+        let s = common::scene(src);
+        let all = s.clone().without_shadow_culling();
+        let rect = Rect::full(s.width, s.height);
+        let ((a, sa), (b, sb)) = (s.render_rect_stats(rect), all.render_rect_stats(rect));
+        assert!(a == b, "images differ:\n{src}");
+        assert_eq!((sa.primary, sa.mirror), (sb.primary, sb.mirror));
+        assert!(sa.shadow <= sb.shadow);
+        culled += sb.shadow - sa.shadow;
+        kept += sa.shadow;
+    }
+    // Both kinds occur in numbers: the culling works, and it keeps the rays that matter.
+    assert!(culled > 2000 && kept > 2000, "{culled} culled, {kept} kept");
 }
 
 /// The benchmark's many-small-spheres scene, where the BVH does its work.

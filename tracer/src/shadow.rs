@@ -1,0 +1,281 @@
+//! Which lights nothing can hide from an object: found once per scene, so that shading skips
+//! the shadow rays whose answer is already known.
+//!
+//! **What it is for.** A shadow ray from a point of object `o` to light `l` can only be
+//! blocked by a solid that meets the segment between them. Every such segment lies in the
+//! convex hull of `o`'s box and the light, and so in the *capsule* of radius `r` around the
+//! segment from the box's centre `c` to the light, `r` being half the box's diagonal: a point
+//! `q + s·(L − q)` of a segment from `q` (with `|q − c| ≤ r`) is `(1 − s)·|q − c| ≤ r` from
+//! the point `c + s·(L − c)`. A bounded solid can meet that capsule only if the segment `c → L`
+//! enters the solid's box grown by `r` on every side (the box grown by a ball of radius `r`
+//! lies inside it). A plane can meet it only if the light and some corner of `o`'s box are
+//! not strictly on the same side of it. When no solid but `o`'s own prim passes these tests,
+//! every shadow ray from `o` to `l` finds the light clear, and [`ClearLights`] says so.
+//!
+//! Every test errs towards "may block": boxes are the BVH's padded ones (their slack,
+//! 1e-7 of their size, dwarfs both the offset of a shadow ray's origin from the surface and
+//! the slab test's rounding), the radius is rounded up, and the plane test keeps a margin of
+//! 1e-9 of the coordinates involved. A skipped shadow ray is therefore one that would have
+//! returned "not blocked": images are the same, bit for bit, with or without this (see
+//! [`crate::world::Scene::without_shadow_culling`] and the tests that use it).
+//!
+//! **What it is not.** It decides nothing about `o` shadowing itself: the renderer only uses
+//! it where the shadow ray would skip `o` anyway (a convex object left from outside). It
+//! knows only the first 64 lights (the rest always trace), and it gives up, leaving shadow
+//! rays in place, on scenes with unbounded solids other than planes or when its work budget
+//! ([`BUDGET`]) runs out.
+
+use std::cell::Cell;
+
+use glam::DVec3;
+
+use crate::bvh::{self, Bvh};
+use crate::csg::Prim;
+use crate::math::{Aabb, Ray};
+use crate::scene::Light;
+use crate::shape::Shape;
+use crate::world::Object;
+
+/// Most box and item tests one scene spends on this; past it, the objects not yet decided
+/// keep all their shadow rays. It bounds the build time of adversarial scenes (thousands of
+/// overlapping objects under many lights) at a few tens of milliseconds.
+pub const BUDGET: u64 = 1 << 22;
+
+/// Per object, a bit per light (bit `l` for light `l < 64`): set when no prim other than
+/// the object's own can block a shadow ray from the object to that light.
+#[derive(Debug, Clone, Default)]
+pub struct ClearLights(Vec<u64>);
+
+impl ClearLights {
+    /// The clear lights of every object of a scene.
+    pub fn find(objects: &[Object], prims: &[Prim], lights: &[Light]) -> ClearLights {
+        let mut masks = vec![0u64; objects.len()];
+        let lights = &lights[..lights.len().min(64)];
+        if lights.is_empty() {
+            return ClearLights(masks);
+        }
+        let mut planes = Vec::new();
+        for p in prims {
+            if p.bounds(objects).is_some() {
+                continue;
+            }
+            match p {
+                Prim::Object(i) if matches!(objects[*i as usize].shape, Shape::Plane) => {
+                    let t = &objects[*i as usize].transform;
+                    let (p0, _) = t.point_to_world(DVec3::ZERO, DVec3::ZERO);
+                    planes.push((p0, t.normal_to_world(DVec3::Y)));
+                }
+                // An unbounded CSG tree may be anywhere.
+                _ => return ClearLights(masks),
+            }
+        }
+        let boxes: Vec<Option<Aabb>> = prims
+            .iter()
+            .map(|p| p.bounds(objects).and_then(|b| bvh::padded(&b)))
+            .collect();
+        let items: Vec<(u32, Aabb)> = boxes
+            .iter()
+            .enumerate()
+            .filter_map(|(i, b)| Some((u32::try_from(i).ok()?, (*b)?)))
+            .collect();
+        let (tree, _) = Bvh::build(&items);
+        // Similarity spheres' centres and radii, the radii padded as the boxes are (by
+        // [`bvh::SLACK`] of their size and distance from the origin).
+        let spheres: Vec<Option<(DVec3, f64)>> = prims
+            .iter()
+            .map(|p| match p {
+                Prim::Object(i) => objects[*i as usize].similarity_sphere().map(|(c, r2)| {
+                    let r = r2.sqrt();
+                    (c, r + (r + c.abs().max_element()) * bvh::SLACK)
+                }),
+                Prim::Csg(_) => None,
+            })
+            .collect();
+        let budget = Cell::new(BUDGET);
+        // Spends one unit; true once the budget is gone (then everything "may block").
+        let spent = || {
+            budget.set(budget.get().saturating_sub(1));
+            budget.get() == 0
+        };
+        for (pi, prim) in prims.iter().enumerate() {
+            let (Prim::Object(oi), Some(b)) = (prim, boxes[pi]) else {
+                continue;
+            };
+            // The ball about the object: its own sphere when it is one, else the box's.
+            let (c, r) = match spheres[pi] {
+                Some((c, r)) if r < 0.5 * (b.max - b.min).length() => (c, r),
+                _ => (b.centroid(), 0.5 * (b.max - b.min).length() * (1.0 + 1e-9)),
+            };
+            let grown = |x: &Aabb| Aabb::new(x.min - DVec3::splat(r), x.max + DVec3::splat(r));
+            let mut mask = 0u64;
+            for (l, light) in lights.iter().enumerate() {
+                if planes
+                    .iter()
+                    .any(|&(p0, n)| plane_may_block(p0, n, &b, light.position))
+                {
+                    continue;
+                }
+                let inv = Ray::new(c, light.position - c).inv_dir();
+                let meets = |x: &Aabb| grown(x).hit_interval(c, inv, 1.0).is_some();
+                // A sphere must also come within r of the segment itself.
+                let item_meets = |i: usize| {
+                    boxes[i].is_none_or(|x| meets(&x))
+                        && spheres[i].is_none_or(|(ci, ri)| {
+                            segment_distance(c, light.position, ci) <= r + ri
+                        })
+                };
+                let blocked = tree.any_item(
+                    |node| spent() || meets(node),
+                    |id| id as usize != pi && (spent() || item_meets(id as usize)),
+                );
+                if !blocked {
+                    mask |= 1 << l;
+                }
+            }
+            masks[*oi as usize] = mask;
+        }
+        ClearLights(masks)
+    }
+
+    /// Whether nothing but `object` itself can block its shadow rays to light `light`.
+    #[inline]
+    pub fn is_clear(&self, object: u32, light: usize) -> bool {
+        light < 64
+            && self
+                .0
+                .get(object as usize)
+                .is_some_and(|m| m >> light & 1 == 1)
+    }
+}
+
+/// The distance from `p` to the segment from `a` to `b`.
+fn segment_distance(a: DVec3, b: DVec3, p: DVec3) -> f64 {
+    let d = b - a;
+    let dd = d.dot(d);
+    let s = if dd > 0.0 {
+        ((p - a).dot(d) / dd).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (a + d * s).distance(p)
+}
+
+/// Whether the plane through `p0` with normal `n` may meet a segment from a point of box `b`
+/// to `light`: unless the light and all eight corners lie strictly on one side of it, by a
+/// margin that covers the rounding of the signed distances.
+fn plane_may_block(p0: DVec3, n: DVec3, b: &Aabb, light: DVec3) -> bool {
+    let side = |q: DVec3| {
+        let d = n.dot(q - p0);
+        let margin = 1e-9 * n.length() * (q.abs().max_element() + p0.abs().max_element() + 1.0);
+        if d > margin {
+            1
+        } else if d < -margin {
+            -1
+        } else {
+            0
+        }
+    };
+    let s = side(light);
+    s == 0 || b.corners().iter().any(|&q| side(q) != s)
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::world::Scene;
+    use crate::{Limits, MemoryAssets, Rect, TextureLimits};
+
+    fn scene(body: &str) -> Scene {
+        let src = format!("[GLOBALS]\nwidth = 40\nheight = 30\n[/GLOBALS]\n{body}");
+        Scene::from_source(
+            &src,
+            &Limits::default(),
+            &MemoryAssets::new(),
+            &TextureLimits::default(),
+        )
+        .expect("valid scene")
+    }
+
+    fn sphere(r: f64, at: (f64, f64, f64)) -> String {
+        format!(
+            "[OBJECT]\ntype = sphere\nradius = {r}\ntranslate = <{}, {}, {}>\n[/OBJECT]\n",
+            at.0, at.1, at.2
+        )
+    }
+
+    const LIGHT_ABOVE: &str = "[LIGHT]\nposition = <0, 100, 0>\n[/LIGHT]\n";
+
+    /// Sphere 0, of radius 1 at the origin, under a light straight above it; sphere 1, also
+    /// of radius 1, halfway up at distance `x` from the axis. The exact shadow volume is a
+    /// cone of radius 1 at the bottom narrowing to the light: at height 50 its radius is
+    /// about ½, so sphere 1 truly blocks some shadow rays up to x ≈ 1.5. The test used is
+    /// looser by design (a capsule of radius 1): it must say "may block" up to x = 2 and may
+    /// say "clear" beyond.
+    #[test]
+    fn a_sphere_is_clear_unless_another_may_stand_in_its_light() {
+        for (x, clear) in [(1.2, false), (1.9, false), (2.1, true), (5.0, true)] {
+            let s =
+                scene(&(sphere(1.0, (0.0, 0.0, 0.0)) + &sphere(1.0, (x, 50.0, 0.0)) + LIGHT_ABOVE));
+            assert_eq!(s.light_is_clear(0, 0), clear, "x = {x}");
+            // Sphere 1's own light is clear: nothing is above it.
+            assert!(s.light_is_clear(1, 0), "x = {x}");
+        }
+    }
+
+    /// Where sphere 1 does block, the shadow rays are traced and the shadow shows: sphere 0's
+    /// top, seen from above, is darker than with sphere 1 moved out of the way, and the image
+    /// is the one every shadow ray traced gives.
+    #[test]
+    fn a_blocking_sphere_still_casts_its_shadow() {
+        let cam = "[CAMERA]\neye = <0, 30, 0.01>\nlook_at = <0, 0, 0>\nfov = 6\n[/CAMERA]\n";
+        let near = scene(
+            &(sphere(1.0, (0.0, 0.0, 0.0)) + &sphere(1.0, (0.3, 50.0, 0.0)) + LIGHT_ABOVE + cam),
+        );
+        let far = scene(
+            &(sphere(1.0, (0.0, 0.0, 0.0)) + &sphere(1.0, (30.0, 50.0, 0.0)) + LIGHT_ABOVE + cam),
+        );
+        let rect = Rect::full(40, 30);
+        let (a, sa) = near.render_rect_stats(rect);
+        let (b, sb) = near
+            .clone()
+            .without_shadow_culling()
+            .render_rect_stats(rect);
+        assert!(a == b && sa == sb);
+        let (c, sc) = far.render_rect_stats(rect);
+        let centre = (15 * 40 + 20) * 3;
+        assert!(a[centre] < c[centre], "{} vs {}", a[centre], c[centre]);
+        assert!(sa.shadow > 0 && sc.shadow == 0, "{sa:?} {sc:?}");
+    }
+
+    /// A plane blocks only what it separates from the light.
+    #[test]
+    fn a_plane_blocks_only_across_itself() {
+        let floor = "[OBJECT]\ntype = plane\ntranslate = <0, -2, 0>\n[/OBJECT]\n";
+        let above = scene(&(sphere(1.0, (0.0, 0.0, 0.0)) + floor + LIGHT_ABOVE));
+        assert!(above.light_is_clear(0, 0));
+        let below = "[LIGHT]\nposition = <0, -100, 0>\n[/LIGHT]\n";
+        assert!(!scene(&(sphere(1.0, (0.0, 0.0, 0.0)) + floor + below)).light_is_clear(0, 0));
+        // Touching the plane: the box reaches it, so it may block.
+        let touching = "[OBJECT]\ntype = plane\ntranslate = <0, -1, 0>\n[/OBJECT]\n";
+        assert!(
+            !scene(&(sphere(1.0, (0.0, 0.0, 0.0)) + touching + LIGHT_ABOVE)).light_is_clear(0, 0)
+        );
+        // The plane itself is unbounded: its shadow rays are always traced.
+        assert!(!above.light_is_clear(1, 0));
+    }
+
+    /// Lights past the 64th are never culled; an unbounded CSG tree stops all culling.
+    #[test]
+    fn limits_of_what_is_known() {
+        let mut lights = String::new();
+        for i in 0..70 {
+            lights += &format!("[LIGHT]\nposition = <{i}, 100, 0>\ncolor = 0.01\n[/LIGHT]\n");
+        }
+        let s = scene(&(sphere(1.0, (0.0, 0.0, 0.0)) + &lights));
+        assert!(s.light_is_clear(0, 63));
+        assert!(!s.light_is_clear(0, 64));
+        let far_csg = "[CSG]\nop = union\ntranslate = <50, -10, 0>\n[OBJECT]\ntype = plane\n[/OBJECT]\n\
+                       [OBJECT]\ntype = sphere\n[/OBJECT]\n[/CSG]\n";
+        let s = scene(&(sphere(1.0, (0.0, 0.0, 0.0)) + far_csg + LIGHT_ABOVE));
+        assert!(!s.light_is_clear(0, 0));
+    }
+}
