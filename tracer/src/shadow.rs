@@ -12,6 +12,11 @@
 //! not strictly on the same side of it. When no solid but `o`'s own prim passes these tests,
 //! every shadow ray from `o` to `l` finds the light clear, and [`ClearLights`] says so.
 //!
+//! The boxes are those the renderer's BVH uses: a long cylinder or cone is the slices it is
+//! cut into (see [`Object::pieces`]), each with its own ball, which keeps a rod's capsules
+//! thin; a sphere placed by a similarity is its own ball, and as a blocker must also come
+//! within `r` of the segment.
+//!
 //! Every test errs towards "may block": boxes are the BVH's padded ones (their slack,
 //! 1e-7 of their size, dwarfs both the offset of a shadow ray's origin from the surface and
 //! the slab test's rounding), the radius is rounded up, and the plane test keeps a margin of
@@ -26,6 +31,7 @@
 //! ([`BUDGET`]) runs out.
 
 use std::cell::Cell;
+use std::ops::Range;
 
 use glam::DVec3;
 
@@ -47,8 +53,15 @@ pub const BUDGET: u64 = 1 << 22;
 pub struct ClearLights(Vec<u64>);
 
 impl ClearLights {
-    /// The clear lights of every object of a scene.
-    pub fn find(objects: &[Object], prims: &[Prim], lights: &[Light]) -> ClearLights {
+    /// The clear lights of every object of a scene. `tree` is the scene's BVH if it has one
+    /// (items named by prim index, a long object once per slice, as
+    /// [`crate::world::Scene`] builds it); without it, one is built here.
+    pub fn find(
+        objects: &[Object],
+        prims: &[Prim],
+        lights: &[Light],
+        tree: Option<&Bvh>,
+    ) -> ClearLights {
         let mut masks = vec![0u64; objects.len()];
         let lights = &lights[..lights.len().min(64)];
         if lights.is_empty() {
@@ -69,16 +82,42 @@ impl ClearLights {
                 _ => return ClearLights(masks),
             }
         }
-        let boxes: Vec<Option<Aabb>> = prims
-            .iter()
-            .map(|p| p.bounds(objects).and_then(|b| bvh::padded(&b)))
-            .collect();
-        let items: Vec<(u32, Aabb)> = boxes
-            .iter()
-            .enumerate()
-            .filter_map(|(i, b)| Some((u32::try_from(i).ok()?, (*b)?)))
-            .collect();
-        let (tree, _) = Bvh::build(&items);
+        // Every bounded prim as the boxes the renderer's BVH gives it: one, or for a long
+        // cylinder or cone the slices it is cut into (tighter both as blockers and as the
+        // object whose light is in question). A box that cannot be padded (coordinates near
+        // the largest double) would be a blocker left out: then nothing is culled.
+        let mut pieces: Vec<Aabb> = Vec::new();
+        let mut ranges: Vec<Range<usize>> = Vec::with_capacity(prims.len());
+        let mut items: Vec<(u32, Aabb)> = Vec::new();
+        for (pi, p) in prims.iter().enumerate() {
+            let first = pieces.len();
+            if let Some(b) = p.bounds(objects) {
+                let cut = match p {
+                    Prim::Object(o) => objects[*o as usize].pieces(),
+                    Prim::Csg(_) => Vec::new(),
+                };
+                for x in if cut.is_empty() { vec![b] } else { cut } {
+                    let (Some(padded), Ok(id)) = (bvh::padded(&x), u32::try_from(pi)) else {
+                        return ClearLights(masks);
+                    };
+                    pieces.push(padded);
+                    if tree.is_none() {
+                        items.push((id, x));
+                    }
+                }
+            }
+            ranges.push(first..pieces.len());
+        }
+        // The renderer's BVH when it has one (its items are these pieces, each named by its
+        // prim), else one built the same way.
+        let built;
+        let tree = match tree {
+            Some(t) => t,
+            None => {
+                built = Bvh::build(&items).0;
+                &built
+            }
+        };
         // Similarity spheres' centres and radii, the radii padded as the boxes are (by
         // [`bvh::SLACK`] of their size and distance from the origin).
         let spheres: Vec<Option<(DVec3, f64)>> = prims
@@ -97,37 +136,52 @@ impl ClearLights {
             budget.set(budget.get().saturating_sub(1));
             budget.get() == 0
         };
+        // Whether some prim other than `pi` may meet a segment from the ball (c, r) to `light`.
+        let may_block = |pi: usize, c: DVec3, r: f64, light: DVec3| {
+            let inv = Ray::new(c, light - c).inv_dir();
+            let meets = |x: &Aabb| {
+                let grown = Aabb::new(x.min - DVec3::splat(r), x.max + DVec3::splat(r));
+                grown.hit_interval(c, inv, 1.0).is_some()
+            };
+            tree.any_item(
+                |node| spent() || meets(node),
+                |other| {
+                    let other = other as usize;
+                    other != pi
+                        && (spent()
+                            || pieces[ranges[other].clone()].iter().any(meets)
+                                // A sphere must also come within r of the segment itself.
+                                && spheres[other].is_none_or(|(ci, ri)| {
+                                    segment_distance(c, light, ci) <= r + ri
+                                }))
+                },
+            )
+        };
         for (pi, prim) in prims.iter().enumerate() {
-            let (Prim::Object(oi), Some(b)) = (prim, boxes[pi]) else {
+            let own = &pieces[ranges[pi].clone()];
+            let Prim::Object(oi) = prim else {
                 continue;
             };
-            // The ball about the object: its own sphere when it is one, else the box's.
-            let (c, r) = match spheres[pi] {
-                Some((c, r)) if r < 0.5 * (b.max - b.min).length() => (c, r),
-                _ => (b.centroid(), 0.5 * (b.max - b.min).length() * (1.0 + 1e-9)),
+            if own.is_empty() {
+                continue;
+            }
+            // The balls about the object: its own sphere when it is one, else one per box.
+            let balls: Vec<(DVec3, f64)> = match spheres[pi] {
+                Some(ball) => vec![ball],
+                None => own
+                    .iter()
+                    .map(|x| (x.centroid(), 0.5 * (x.max - x.min).length() * (1.0 + 1e-9)))
+                    .collect(),
             };
-            let grown = |x: &Aabb| Aabb::new(x.min - DVec3::splat(r), x.max + DVec3::splat(r));
             let mut mask = 0u64;
             for (l, light) in lights.iter().enumerate() {
-                if planes
+                let blocked = own.iter().any(|x| {
+                    planes
+                        .iter()
+                        .any(|&(p0, n)| plane_may_block(p0, n, x, light.position))
+                }) || balls
                     .iter()
-                    .any(|&(p0, n)| plane_may_block(p0, n, &b, light.position))
-                {
-                    continue;
-                }
-                let inv = Ray::new(c, light.position - c).inv_dir();
-                let meets = |x: &Aabb| grown(x).hit_interval(c, inv, 1.0).is_some();
-                // A sphere must also come within r of the segment itself.
-                let item_meets = |i: usize| {
-                    boxes[i].is_none_or(|x| meets(&x))
-                        && spheres[i].is_none_or(|(ci, ri)| {
-                            segment_distance(c, light.position, ci) <= r + ri
-                        })
-                };
-                let blocked = tree.any_item(
-                    |node| spent() || meets(node),
-                    |id| id as usize != pi && (spent() || item_meets(id as usize)),
-                );
+                    .any(|&(c, r)| may_block(pi, c, r, light.position));
                 if !blocked {
                     mask |= 1 << l;
                 }
@@ -244,6 +298,23 @@ mod tests {
         let centre = (15 * 40 + 20) * 3;
         assert!(a[centre] < c[centre], "{} vs {}", a[centre], c[centre]);
         assert!(sa.shadow > 0 && sc.shadow == 0, "{sa:?} {sc:?}");
+    }
+
+    /// A long rod is judged by the slices the BVH cuts it into: lying diagonally in the xy
+    /// plane with a sphere beside its upper end, it is clear under a light straight above,
+    /// though the ball about its whole box (radius about 5) would take the sphere in; the
+    /// capsule of the slice at that end misses it.
+    #[test]
+    fn a_long_rod_is_judged_slice_by_slice() {
+        let rod =
+            "[OBJECT]\ntype = cylinder\nscale = <0.1, 5, 0.1>\nrotate = <0, 0, 45>\n[/OBJECT]\n";
+        let end = 5.0 * std::f64::consts::FRAC_1_SQRT_2;
+        let s = scene(&(rod.to_string() + &sphere(0.5, (-end, end, 2.0)) + LIGHT_ABOVE));
+        assert!(s.objects[0].pieces().len() >= 4);
+        assert!(s.light_is_clear(0, 0));
+        // Just above that end, the sphere is in the way.
+        let s = scene(&(rod.to_string() + &sphere(0.5, (-end, end + 2.0, 0.0)) + LIGHT_ABOVE));
+        assert!(!s.light_is_clear(0, 0));
     }
 
     /// A plane blocks only what it separates from the light.

@@ -283,6 +283,14 @@ fn prim_cost(prim: &Prim, objects: &[Object]) -> f64 {
 const SPHERE_COST: f64 = 1.0;
 
 impl Accel {
+    /// The BVH, if there is one.
+    fn bvh(&self) -> Option<&Bvh> {
+        match self {
+            Accel::Linear => None,
+            Accel::Bvh { bvh, .. } => Some(bvh),
+        }
+    }
+
     fn new(prims: &[Prim], objects: &[Object], mode: Acceleration) -> Accel {
         let bounded: Vec<(u32, Aabb)> = prims
             .iter()
@@ -393,6 +401,8 @@ impl Scene {
         if !errors.is_empty() {
             return Err(SceneError::new(errors));
         }
+        let accel = Accel::new(&prims, &objects, Acceleration::Auto);
+        let clear_lights = ClearLights::find(&objects, &prims, &desc.lights, accel.bvh());
         Ok(Scene {
             width: desc.width,
             height: desc.height,
@@ -403,8 +413,8 @@ impl Scene {
             sampler: desc.sampler,
             camera: Camera::new(&desc.camera, desc.width, desc.height),
             lights: desc.lights.clone(),
-            accel: Accel::new(&prims, &objects, Acceleration::Auto),
-            clear_lights: ClearLights::find(&objects, &prims, &desc.lights),
+            accel,
+            clear_lights,
             objects,
             prims,
         })
@@ -415,7 +425,8 @@ impl Scene {
     /// mode; tests and benchmarks use [`Acceleration::Off`] as the reference.
     pub fn with_acceleration(mut self, mode: Acceleration) -> Scene {
         self.accel = Accel::new(&self.prims, &self.objects, mode);
-        self.clear_lights = ClearLights::find(&self.objects, &self.prims, &self.lights);
+        self.clear_lights =
+            ClearLights::find(&self.objects, &self.prims, &self.lights, self.accel.bvh());
         self
     }
 

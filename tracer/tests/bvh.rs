@@ -245,7 +245,7 @@ fn images_are_identical_with_and_without_the_bvh() {
     assert!(total.shadow > 1000 && total.mirror > 100, "{total:?}");
 }
 
-/// A lattice of `k × k` solids (mostly spheres, some cubes and cylinders) of random sizes
+/// A lattice of `k × k` solids (mostly spheres, some cubes and long rods) of random sizes
 /// and heights, seen from above, under three lights low enough that many shadow rays skim
 /// the neighbours: some are blocked, many pass close by, and many are clear.
 fn lattice_scene(rng: &mut Rng, k: u32, floor: bool) -> String {
@@ -274,16 +274,20 @@ fn lattice_scene(rng: &mut Rng, k: u32, floor: bool) -> String {
                 rng.range(0.0, 1.0),
                 2.0 * f64::from(j) - half + rng.range(-0.3, 0.3),
             );
+            let size = rng.range(0.2, 0.8);
             let shape = match rng.below(6) {
-                0 => "type = cube\n",
-                1 => "type = cylinder\n",
-                _ => "type = sphere\n",
+                0 => format!("type = cube\nscale = {size}\n"),
+                // A long rod (the BVH cuts it into slices), lying at a random angle.
+                1 => format!(
+                    "type = cylinder\nscale = <{}, {}, {}>\nrotate = {}\n",
+                    size / 4.0,
+                    rng.range(1.0, 3.0),
+                    size / 4.0,
+                    v(rng.vec(90.0))
+                ),
+                _ => format!("type = sphere\nscale = {size}\n"),
             };
-            s += &format!(
-                "[OBJECT]\n{shape}scale = {}\ntranslate = {}\n[/OBJECT]\n",
-                rng.range(0.2, 0.8),
-                v(at)
-            );
+            s += &format!("[OBJECT]\n{shape}translate = {}\n[/OBJECT]\n", v(at));
         }
     }
     s
