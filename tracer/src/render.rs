@@ -146,7 +146,16 @@ impl Scene {
             let mut light_sum = Color::ZERO;
             if m.diffuse > 0.0 {
                 let can_block = self.shadow > 0.0 && self.anything_else(self_skip);
-                for (l, light) in self.lights.iter().enumerate() {
+                // The lights nothing else can hide from this object (see `crate::shadow`):
+                // known clear where the shadow ray would skip the object itself.
+                let mut clear = match self_skip {
+                    Some(o) if can_block => self.clear_lights(o),
+                    _ => 0,
+                };
+                for light in &self.lights {
+                    // Bit 0 is this light's; lights past the 64th find it 0.
+                    let known_clear = clear & 1 == 1;
+                    clear >>= 1;
                     let to_light = light.position - sp.p;
                     let cos = sp.n.dot(to_light);
                     if !(cos > 0.0) {
@@ -154,10 +163,7 @@ impl Scene {
                     }
                     let cos = cos / to_light.length();
                     let mut v = 1.0;
-                    // Where the ray skips the object itself, nothing else may be in the way
-                    // (see `crate::shadow`), and then the light is known to be clear.
-                    let clear = self_skip.is_some() && self.light_is_clear(hit.object, l);
-                    if can_block && !clear {
+                    if can_block && !known_clear {
                         Counters::bump(&c.shadow);
                         let origin = sp.origin_towards(to_light);
                         let shadow_ray = Ray::new(origin, light.position - origin);

@@ -191,8 +191,13 @@ impl ClearLights {
         ClearLights(masks)
     }
 
-    /// Whether nothing but `object` itself can block its shadow rays to light `light`.
+    /// The clear lights of `object`, bit `l` for light `l`.
     #[inline]
+    pub fn mask(&self, object: u32) -> u64 {
+        self.0.get(object as usize).copied().unwrap_or(0)
+    }
+
+    /// Whether nothing but `object` itself can block its shadow rays to light `light`.
     pub fn is_clear(&self, object: u32, light: usize) -> bool {
         light < 64
             && self

@@ -440,9 +440,14 @@ impl Scene {
 
     /// Whether a shadow ray from `object` (convex, left from outside) to light `light` is
     /// known not to be blocked without tracing it.
-    #[inline]
     pub fn light_is_clear(&self, object: u32, light: usize) -> bool {
         self.clear_lights.is_clear(object, light)
+    }
+
+    /// [`Self::light_is_clear`] for the first 64 lights at once, bit `l` for light `l`.
+    #[inline]
+    pub fn clear_lights(&self, object: u32) -> u64 {
+        self.clear_lights.mask(object)
     }
 
     /// The same scene tested prim by prim for every ray (no BVH).
