@@ -58,7 +58,7 @@ pub fn run(args: &Args) -> Result<()> {
     let (size, repeats) = if args.quick {
         ((80, 60), 1)
     } else {
-        ((320, 240), 3)
+        ((320, 240), 9)
     };
     // Eight small spheres around the big one, none in the way of another's light: every
     // shadow ray from them is known to be clear (see `tessera_tracer::shadow`).
@@ -108,36 +108,48 @@ pub fn run(args: &Args) -> Result<()> {
         ),
     ];
     let assets = texture();
+    let mut scenes = Vec::with_capacity(variants.len());
+    for (name, src) in &variants {
+        let scene = Scene::from_source(src, &Limits::default(), &assets, &TextureLimits::default())
+            .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+        scenes.push(if name.ends_with("no culling") {
+            scene.without_shadow_culling()
+        } else {
+            scene
+        });
+    }
+    // Repeats go round the variants, as the chart's do, so that a burst of load elsewhere
+    // spreads over all of them rather than landing on one variant's runs.
+    let mut times = vec![Vec::with_capacity(repeats); scenes.len()];
+    let mut stats = vec![tessera_tracer::RayStats::default(); scenes.len()];
+    for _ in 0..repeats {
+        for (i, scene) in scenes.iter().enumerate() {
+            let mut total = tessera_tracer::RayStats::default();
+            let start = Instant::now();
+            for r in tiles(scene.width, scene.height, 32) {
+                let (_, s) = scene.render_rect_linear_with(r, &scene.sampler);
+                total.add(&s);
+            }
+            times[i].push(start.elapsed().as_secs_f64() * 1e3);
+            stats[i] = total;
+        }
+    }
     println!(
         "{:<30} {:>9} {:>9} {:>9} {:>10}",
         "scene", "primary", "shadow", "mirror", "time (ms)"
     );
-    for (name, src) in variants {
-        let mut scene =
-            Scene::from_source(&src, &Limits::default(), &assets, &TextureLimits::default())
-                .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
-        if name.ends_with("no culling") {
-            scene = scene.without_shadow_culling();
-        }
+    for (((name, _), scene), (t, st)) in variants
+        .iter()
+        .zip(&scenes)
+        .zip(times.into_iter().zip(&stats))
+    {
         let px = f64::from(scene.width * scene.height);
-        let mut times = Vec::new();
-        let mut stats = tessera_tracer::RayStats::default();
-        for _ in 0..repeats {
-            stats = tessera_tracer::RayStats::default();
-            let start = Instant::now();
-            for r in tiles(scene.width, scene.height, 32) {
-                let (_, s) = scene.render_rect_linear_with(r, &scene.sampler);
-                stats.add(&s);
-            }
-            times.push(start.elapsed().as_secs_f64() * 1e3);
-        }
-        times.sort_by(f64::total_cmp);
         println!(
             "{name:<30} {:>9.2} {:>9.2} {:>9.2} {:>10.2}",
-            stats.primary as f64 / px,
-            stats.shadow as f64 / px,
-            stats.mirror as f64 / px,
-            times[times.len() / 2]
+            st.primary as f64 / px,
+            st.shadow as f64 / px,
+            st.mirror as f64 / px,
+            crate::stats::median(t)
         );
     }
     println!("(rays per pixel; time is one thread, median of {repeats})");
