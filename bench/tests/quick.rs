@@ -72,6 +72,9 @@ fn features_quick_shows_unused_features_cost_nothing() {
     };
     // Columns: primary, shadow, mirror rays per pixel, time.
     assert_eq!(row("one sphere, one light")[1], 0.0);
+    // The ring of small spheres: their shadow rays are known clear and culled.
+    assert_eq!(row("nine spheres, one light")[1], 0.0);
+    assert!(row("nine spheres, no culling")[1] > 0.0);
     assert!(row("+ floor (shadows possible)")[1] > 0.0);
     assert_eq!(row("+ floor, shadow = 0")[1], 0.0);
     assert_eq!(row("+ floor, mirror 0 (written)")[2], 0.0);
