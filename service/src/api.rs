@@ -469,7 +469,7 @@ async fn validate(
         for (n, bytes) in &kept {
             assets.insert(n.clone(), bytes.clone());
         }
-        Scene::build(&desc, &assets, &texture_limits).map_err(|e| {
+        Scene::check(&desc, &assets, &texture_limits).map_err(|e| {
             let missing: Vec<&str> = desc
                 .texture_names()
                 .iter()

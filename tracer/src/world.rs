@@ -373,6 +373,43 @@ impl Scene {
         assets: &dyn AssetSource,
         texture_limits: &TextureLimits,
     ) -> Result<Scene, SceneError> {
+        let (objects, prims) = Self::place(desc, assets, texture_limits)?;
+        let accel = Accel::new(&prims, &objects, Acceleration::Auto);
+        let clear_lights = ClearLights::find(&objects, &prims, &desc.lights, accel.bvh());
+        Ok(Scene {
+            width: desc.width,
+            height: desc.height,
+            ambient: desc.ambient,
+            shadow: desc.shadow,
+            background: desc.background,
+            max_depth: desc.max_depth,
+            sampler: desc.sampler,
+            camera: Camera::new(&desc.camera, desc.width, desc.height),
+            lights: desc.lights.clone(),
+            accel,
+            clear_lights,
+            objects,
+            prims,
+        })
+    }
+
+    /// Every error [`Self::build`] would report (textures that cannot be read or decoded,
+    /// singular transforms), without building what only rendering needs (the BVH, the clear
+    /// lights): what a service that accepts scenes but does not render them checks.
+    pub fn check(
+        desc: &SceneDesc,
+        assets: &dyn AssetSource,
+        texture_limits: &TextureLimits,
+    ) -> Result<(), SceneError> {
+        Self::place(desc, assets, texture_limits).map(|_| ())
+    }
+
+    /// The textures loaded and the objects placed in the world, or every error found.
+    fn place(
+        desc: &SceneDesc,
+        assets: &dyn AssetSource,
+        texture_limits: &TextureLimits,
+    ) -> Result<(Vec<Object>, Vec<Prim>), SceneError> {
         let mut textures: HashMap<&str, Arc<Texture>> = HashMap::new();
         let mut errors = Vec::new();
         for (name, pos) in desc.texture_names() {
@@ -401,23 +438,7 @@ impl Scene {
         if !errors.is_empty() {
             return Err(SceneError::new(errors));
         }
-        let accel = Accel::new(&prims, &objects, Acceleration::Auto);
-        let clear_lights = ClearLights::find(&objects, &prims, &desc.lights, accel.bvh());
-        Ok(Scene {
-            width: desc.width,
-            height: desc.height,
-            ambient: desc.ambient,
-            shadow: desc.shadow,
-            background: desc.background,
-            max_depth: desc.max_depth,
-            sampler: desc.sampler,
-            camera: Camera::new(&desc.camera, desc.width, desc.height),
-            lights: desc.lights.clone(),
-            accel,
-            clear_lights,
-            objects,
-            prims,
-        })
+        Ok((objects, prims))
     }
 
     /// The same scene with its candidate search rebuilt as `mode` says (and its clear
@@ -846,6 +867,29 @@ mod tests {
         )
         .expect_err("overflowing composite");
         assert!(e.to_string().contains("singular or non-finite"), "{e}");
+    }
+
+    /// `Scene::check` reports exactly what `Scene::build` reports (a composite transform that
+    /// overflows, a texture that is missing and one that does not decode, all at once), and
+    /// accepts what it accepts.
+    #[test]
+    fn check_reports_what_build_reports() {
+        let desc = |src: &str| scene::parse(src, &Limits::default()).expect("parses");
+        let mut assets = MemoryAssets::new();
+        assets.insert("bad.ppm", b"P6\n2 2\n255\nxx".to_vec());
+        let limits = TextureLimits::default();
+        let bad = desc(
+            "[CSG]\nop = union\nscale = 1e200\n[OBJECT]\ntype = cube\nscale = 1e200\n[/OBJECT]\n\
+             [OBJECT]\ntype = cube\n[/OBJECT]\n[/CSG]\n\
+             [OBJECT]\ntype = sphere\ntexture = missing.ppm\n[/OBJECT]\n\
+             [OBJECT]\ntype = sphere\ntexture = bad.ppm\n[/OBJECT]\n",
+        );
+        let from_build = Scene::build(&bad, &assets, &limits).expect_err("three errors");
+        let from_check = Scene::check(&bad, &assets, &limits).expect_err("three errors");
+        assert_eq!(from_check.to_string(), from_build.to_string());
+        assert_eq!(from_check.diagnostics().len(), 3, "{from_check}");
+        let good = desc("[OBJECT]\ntype = sphere\n[/OBJECT]\n");
+        assert!(Scene::check(&good, &assets, &limits).is_ok());
     }
 
     /// The issue's picture: a sphere minus a cube shows the cut face, lit by its own (flat)
