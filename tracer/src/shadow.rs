@@ -199,11 +199,7 @@ impl ClearLights {
 
     /// Whether nothing but `object` itself can block its shadow rays to light `light`.
     pub fn is_clear(&self, object: u32, light: usize) -> bool {
-        light < 64
-            && self
-                .0
-                .get(object as usize)
-                .is_some_and(|m| m >> light & 1 == 1)
+        light < 64 && self.mask(object) >> light & 1 == 1
     }
 }
 
