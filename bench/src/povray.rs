@@ -36,8 +36,9 @@ use crate::stats::{Spread, median};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Scenes to compare (`.ray` files or directories of them).
-    #[arg(long, default_value = "bench/scenes")]
+    /// Scenes to compare (`.ray` files or directories of them); by default the chart's
+    /// scenes and `bench/scenes-perf` (CSG), which only the speed comparisons use.
+    #[arg(long, default_values = ["bench/scenes", "bench/scenes-perf"])]
     scenes: Vec<PathBuf>,
     /// Smaller images (for CI).
     #[arg(long)]

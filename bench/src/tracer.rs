@@ -23,8 +23,9 @@ use tessera_tracer::{
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Bench scenes (`.ray` files or directories of them).
-    #[arg(long, default_value = "bench/scenes")]
+    /// Bench scenes (`.ray` files or directories of them); by default the chart's
+    /// scenes and `bench/scenes-perf` (CSG), which only the speed comparisons use.
+    #[arg(long, default_values = ["bench/scenes", "bench/scenes-perf"])]
     scenes: Vec<PathBuf>,
     /// Small images, fewer sizes, one repeat (for CI: a few seconds).
     #[arg(long)]

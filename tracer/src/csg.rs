@@ -88,6 +88,24 @@ pub struct Csg {
     pub children: Vec<Prim>,
     /// World bounds of the combined solid; `None` when unbounded.
     pub bounds: Option<Aabb>,
+    /// Each child's bounds enlarged for [`line_meets`] (computed once here rather than on
+    /// every ray); `None` for an unbounded child, which is always evaluated.
+    line_boxes: Vec<Option<Aabb>>,
+}
+
+impl Csg {
+    /// The node `op` over `children`, whose bounds are `child_bounds`.
+    pub fn new(op: CsgOp, children: Vec<Prim>, child_bounds: &[Option<Aabb>]) -> Csg {
+        Csg {
+            op,
+            bounds: combine_bounds(op, child_bounds),
+            line_boxes: child_bounds
+                .iter()
+                .map(|b| b.map(|b| enlarged(&b)))
+                .collect(),
+            children,
+        }
+    }
 }
 
 /// One end point of a child's span, tagged with the child it came from.
@@ -141,24 +159,33 @@ pub fn combine_bounds(op: CsgOp, children: &[Option<Aabb>]) -> Option<Aabb> {
     }
 }
 
-/// Whether the whole line (any `t`) meets the box, slightly enlarged so that rounding in
-/// this test never drops a child the line touches.
-fn line_meets(b: &Aabb, ray: &Ray) -> bool {
+/// A box enlarged so that rounding in [`line_meets`] never drops a child the line touches
+/// (by 1e-9 of its size and 1e-12 of its coordinates); an empty box stays empty.
+fn enlarged(b: &Aabb) -> Aabb {
+    if b.is_empty() {
+        return *b;
+    }
+    let pad = (b.max - b.min) * 1e-9 + (b.max.abs().max(b.min.abs())) * 1e-12;
+    Aabb::new(b.min - pad, b.max + pad)
+}
+
+/// Whether the whole line (any `t`) meets the (already [`enlarged`]) box. `inv` is the
+/// ray's `1/dir`: a product with it is one rounding more than a division, some 1e-16 of
+/// `t`, far inside the enlargement.
+fn line_meets(b: &Aabb, ray: &Ray, inv: DVec3) -> bool {
     if b.is_empty() {
         return false;
     }
-    let pad = (b.max - b.min) * 1e-9 + (b.max.abs().max(b.min.abs())) * 1e-12;
-    let (lo, hi) = (b.min - pad, b.max + pad);
     let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
     for i in 0..3 {
         let (o, d) = (ray.origin[i], ray.dir[i]);
         if d == 0.0 {
-            if !(o >= lo[i] && o <= hi[i]) {
+            if !(o >= b.min[i] && o <= b.max[i]) {
                 return false;
             }
             continue;
         }
-        let (a, c) = ((lo[i] - o) / d, (hi[i] - o) / d);
+        let (a, c) = ((b.min[i] - o) * inv[i], (b.max[i] - o) * inv[i]);
         t0 = t0.max(a.min(c));
         t1 = t1.min(a.max(c));
     }
@@ -285,11 +312,6 @@ fn eval(prim: &Prim, objects: &[Object], ray: &Ray, scale: f64, scratch: &mut Sc
     match prim {
         Prim::Object(i) => {
             let obj = &objects[*i as usize];
-            if let Some(b) = &obj.bounds
-                && !line_meets(b, ray)
-            {
-                return;
-            }
             let local = obj.transform.ray_to_object(ray);
             scratch.shape.clear();
             obj.shape.spans(&local, &mut scratch.shape);
@@ -322,16 +344,16 @@ fn eval(prim: &Prim, objects: &[Object], ray: &Ray, scale: f64, scratch: &mut Sc
 
 /// Appends the spans of a CSG node to `scratch.spans`: evaluates each child, turns its
 /// spans into tagged events, and sweeps them.
+/// A child whose box the line misses has no spans and is not evaluated (its parent, or
+/// [`Csg::first_hit`] for the root, has already tested this node's own box).
 fn eval_csg(c: &Csg, objects: &[Object], ray: &Ray, scale: f64, scratch: &mut Scratch) {
-    if let Some(b) = &c.bounds
-        && !line_meets(b, ray)
-    {
-        return;
-    }
     let span_start = scratch.spans.len();
     let ev_start = scratch.events.len();
+    let inv = ray.inv_dir();
     for (k, child) in c.children.iter().enumerate() {
-        eval(child, objects, ray, scale, scratch);
+        if c.line_boxes[k].is_none_or(|b| line_meets(&b, ray, inv)) {
+            eval(child, objects, ray, scale, scratch);
+        }
         let got = scratch.spans.len() - span_start;
         // An intersection with a child the line misses is empty, and so is a difference
         // whose body it misses: skip the remaining children.

@@ -734,11 +734,7 @@ impl Placer<'_, '_> {
                     .collect();
                 let child_bounds: Vec<Option<Aabb>> =
                     children.iter().map(|p| p.bounds(self.objects)).collect();
-                Some(Prim::Csg(Csg {
-                    op: c.op,
-                    bounds: csg::combine_bounds(c.op, &child_bounds),
-                    children,
-                }))
+                Some(Prim::Csg(Csg::new(c.op, children, &child_bounds)))
             }
         }
     }
