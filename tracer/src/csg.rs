@@ -242,13 +242,10 @@ impl Csg {
 
     /// The nearest boundary of the solid with `0 < t < t_max`: its `t` and the primitive
     /// surface there. See [`first_boundary`] for how the surface a ray leaves is told apart.
-    pub fn first_hit(
-        &self,
-        objects: &[Object],
-        ray: &Ray,
-        t_max: f64,
-        scratch: &mut Scratch,
-    ) -> Option<Boundary> {
+    ///
+    /// The box test comes first: only a ray that enters the box takes this thread's scratch
+    /// buffers (see [`with_scratch`]) and evaluates the tree.
+    pub fn first_hit(&self, objects: &[Object], ray: &Ray, t_max: f64) -> Option<Boundary> {
         // The box is only a shortcut: it must never decide between hits. Against `t_max`
         // itself it could, by rounding: a boundary on the box's own face can come out an ulp
         // before the slab test's entry, and a `t_max` in that gap (another solid's hit on a
@@ -262,14 +259,16 @@ impl Csg {
         {
             return None;
         }
-        let start = scratch.spans.len();
-        let scale = ray.origin.length() / ray.dir.length();
-        eval_csg(self, objects, ray, scale, scratch);
-        let found = first_boundary(&scratch.spans[start..], t_max, || {
-            self.contains(objects, ray.origin)
-        });
-        scratch.spans.truncate(start);
-        found
+        with_scratch(|scratch| {
+            let start = scratch.spans.len();
+            let scale = ray.origin.length() / ray.dir.length();
+            eval_csg(self, objects, ray, scale, scratch);
+            let found = first_boundary(&scratch.spans[start..], t_max, || {
+                self.contains(objects, ray.origin)
+            });
+            scratch.spans.truncate(start);
+            found
+        })
     }
 }
 

@@ -16,7 +16,7 @@ use glam::DVec3;
 
 use crate::bvh::{Bvh, Item};
 use crate::camera::Camera;
-use crate::csg::{self, Csg, Prim};
+use crate::csg::{Csg, Prim};
 use crate::diag::{Diagnostic, SceneError};
 use crate::math::{Aabb, Color, Ray};
 use crate::sampler::Sampler;
@@ -584,7 +584,7 @@ impl Scene {
 
     /// The nearest hit on a CSG tree, as a hit on the child surface it lies on.
     fn csg_hit(&self, c: &Csg, ray: &Ray, t_max: f64) -> Option<Hit> {
-        let b = csg::with_scratch(|s| c.first_hit(&self.objects, ray, t_max, s))?;
+        let b = c.first_hit(&self.objects, ray, t_max)?;
         let obj = &self.objects[b.surface.object as usize];
         let local_ray = obj.transform.ray_to_object(ray);
         let mut local = obj.shape.surface_at(&local_ray, b.t, b.surface.face);
@@ -656,9 +656,7 @@ impl Scene {
                         .intersect(&obj.transform.ray_to_object(ray), t_max)
                         .is_some()
             }
-            Prim::Csg(c) => {
-                csg::with_scratch(|s| c.first_hit(&self.objects, ray, t_max, s)).is_some()
-            }
+            Prim::Csg(c) => c.first_hit(&self.objects, ray, t_max).is_some(),
         }
     }
 
