@@ -235,11 +235,21 @@ pub struct Scene {
 /// `tessera-bench tracer`: at 8 spheres the two are about even, at 16 the BVH is ahead).
 pub const BVH_MIN_PRIMS: usize = 8;
 
+/// ... or when testing every bounded prim costs at least as much as testing
+/// [`BVH_MIN_PRIMS`] similarity spheres ([`prim_cost`] units: such a sphere 1, another
+/// object 2, a CSG tree 2 per child). A few expensive solids gain from a BVH long before
+/// eight do: measured with callgrind on `tessera-bench tracer` scenes, four general shapes
+/// (`examples/shapes.ray`, cost 8) 1.94 G → 0.87 G instructions, the CSG example 1.88 G →
+/// 1.54 G, the CSG bench scene 111.5 M → 95.5 M; scenes of one or two solids (cost ≤ 4)
+/// are 10–14 % slower with one and stay linear.
+pub const BVH_MIN_COST: f64 = BVH_MIN_PRIMS as f64 * SPHERE_COST;
+
 /// Which way [`Scene::intersect`] and [`Scene::occluded`] find candidate prims. Every choice
 /// gives the same answers, bit for bit; only the speed differs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Acceleration {
-    /// A BVH when there are at least [`BVH_MIN_PRIMS`] bounded prims, else every prim.
+    /// A BVH when there are at least [`BVH_MIN_PRIMS`] bounded prims or their cost is at
+    /// least [`BVH_MIN_COST`], else every prim.
     #[default]
     Auto,
     /// Every prim, in order, for every ray (the reference the BVH is checked against).
@@ -299,7 +309,14 @@ impl Accel {
             .collect();
         let wanted = match mode {
             Acceleration::Off => false,
-            Acceleration::Auto => bounded.len() >= BVH_MIN_PRIMS,
+            Acceleration::Auto => {
+                bounded.len() >= BVH_MIN_PRIMS
+                    || bounded
+                        .iter()
+                        .map(|&(i, _)| prim_cost(&prims[i as usize], objects))
+                        .sum::<f64>()
+                        >= BVH_MIN_COST
+            }
             Acceleration::Always => !bounded.is_empty(),
         };
         // Prim indices fit in u32 (objects do, and every prim has at least one); a scene

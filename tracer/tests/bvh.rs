@@ -354,7 +354,8 @@ fn thin_cylinders_bench_scene_is_identical() {
     assert!(a == b);
 }
 
-/// Small scenes stay linear under the default mode; the threshold is the one documented.
+/// Small scenes stay linear under the default mode; the thresholds are the ones documented
+/// (`BVH_MIN_PRIMS` solids, or their cost, `BVH_MIN_COST`).
 #[test]
 fn few_prims_stay_linear() {
     let mut src = String::from("[OBJECT]\ntype = plane\n[/OBJECT]\n");
@@ -367,4 +368,11 @@ fn few_prims_stay_linear() {
     assert!(!common::scene(&src).uses_bvh());
     src += "[OBJECT]\ntype = sphere\ntranslate = <-3, 1, 0>\n[/OBJECT]\n";
     assert!(common::scene(&src).uses_bvh());
+    // Fewer but costlier solids: three cubes and a sphere (cost 7) stay linear, four cubes
+    // (cost 8, as much as eight spheres) take a BVH.
+    let cube = |x: i32| format!("[OBJECT]\ntype = cube\ntranslate = <{x}, 1, 0>\n[/OBJECT]\n");
+    let three: String = (0..3).map(|i| cube(3 * i)).collect();
+    let sphere = "[OBJECT]\ntype = sphere\ntranslate = <-3, 1, 0>\n[/OBJECT]\n";
+    assert!(!common::scene(&(three.clone() + sphere)).uses_bvh());
+    assert!(common::scene(&(three + &cube(9))).uses_bvh());
 }
