@@ -12,7 +12,6 @@
 //! shared machine are noisy; `valgrind --tool=callgrind` on this subcommand gives repeatable
 //! instruction counts for A/B comparisons.
 
-use crate::stats::Spread;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -20,6 +19,8 @@ use anyhow::{Context, Result};
 use tessera_tracer::{
     Acceleration, DirAssets, Limits, MemoryAssets, RayStats, Rect, Scene, TextureLimits,
 };
+
+use crate::stats::Spread;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
