@@ -54,6 +54,9 @@ fn texture() -> MemoryAssets {
     a
 }
 
+/// The one variant rendered with every shadow ray traced (the culling's reference).
+const NO_CULLING: &str = "nine spheres, no culling";
+
 pub fn run(args: &Args) -> Result<()> {
     let (size, repeats) = if args.quick {
         ((80, 60), 1)
@@ -76,7 +79,7 @@ pub fn run(args: &Args) -> Result<()> {
     let variants: Vec<(&str, String)> = vec![
         ("one sphere, one light", scene_text(size, "", false, 1, "")),
         ("nine spheres, one light", nine.clone()),
-        ("nine spheres, no culling", nine),
+        (NO_CULLING, nine),
         (
             "+ floor (shadows possible)",
             scene_text(size, "", true, 1, ""),
@@ -112,7 +115,7 @@ pub fn run(args: &Args) -> Result<()> {
     for (name, src) in &variants {
         let scene = Scene::from_source(src, &Limits::default(), &assets, &TextureLimits::default())
             .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
-        scenes.push(if name.ends_with("no culling") {
+        scenes.push(if *name == NO_CULLING {
             scene.without_shadow_culling()
         } else {
             scene

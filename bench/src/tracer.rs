@@ -280,8 +280,8 @@ fn scaling(args: &Args, layout: Layout, repeats: usize) -> Result<()> {
         "N", "rays", "BVH ns/ray", "× N=16", "linear ns/ray", "linear/BVH"
     );
     let mut at16 = None;
-    let mut last = None;
-    let mut scenes_16_and_last: (Option<Scene>, Option<Scene>) = (None, None);
+    // The scene at N = 16 and the last one after it, for the headline pairs.
+    let (mut small, mut large): (Option<Scene>, Option<(usize, Scene)>) = (None, None);
     for &n in sizes {
         let src = spheres_scene(layout, n, w, h);
         if let Some(dir) = &args.write_scenes {
@@ -302,7 +302,6 @@ fn scaling(args: &Args, layout: Layout, repeats: usize) -> Result<()> {
         if n == 16 {
             at16 = Some(ns);
         }
-        last = Some((n, ns));
         let ratio = at16.map_or("-".to_string(), |b| format!("{:.2}", ns / b));
         let (lin, gain) = if !args.no_linear && linear_at.contains(&n) {
             let lin = scene.clone().without_acceleration();
@@ -317,12 +316,12 @@ fn scaling(args: &Args, layout: Layout, repeats: usize) -> Result<()> {
             stats.total()
         );
         if n == 16 {
-            scenes_16_and_last.0 = Some(scene);
-        } else {
-            scenes_16_and_last.1 = Some(scene);
+            small = Some(scene);
+        } else if small.is_some() {
+            large = Some((n, scene));
         }
     }
-    if let ((Some(small), Some(large)), Some((n, _))) = (scenes_16_and_last, last) {
+    if let (Some(small), Some((n, large))) = (small, large) {
         // The headline figure as back-to-back pairs (one render of each, alternately): the
         // large scene's cost depends on how much of the shared cache the host's other work
         // leaves it, and a pair sees the same host.

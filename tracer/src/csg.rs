@@ -223,7 +223,7 @@ impl Prim {
     ) {
         let start = scratch.spans.len();
         let scale = ray.origin.length() / ray.dir.length();
-        eval(self, objects, ray, scale, scratch);
+        eval(self, objects, ray, ray.inv_dir(), scale, scratch);
         out.extend_from_slice(&scratch.spans[start..]);
         scratch.spans.truncate(start);
     }
@@ -253,8 +253,9 @@ impl Csg {
         // gap would have to be ~10⁹ ulps wide, so the answer is "the first boundary, if
         // before `t_max`" whatever `t_max` is, which is what lets the BVH visit solids in
         // any order and still agree with the plain loop (see `Scene::intersect`).
+        let inv = ray.inv_dir();
         if let Some(b) = self.bounds
-            && b.hit_interval(ray.origin, ray.inv_dir(), t_max + t_max * crate::bvh::SLACK)
+            && b.hit_interval(ray.origin, inv, t_max + t_max * crate::bvh::SLACK)
                 .is_none()
         {
             return None;
@@ -262,7 +263,7 @@ impl Csg {
         with_scratch(|scratch| {
             let start = scratch.spans.len();
             let scale = ray.origin.length() / ray.dir.length();
-            eval_csg(self, objects, ray, scale, scratch);
+            eval_csg(self, objects, ray, inv, scale, scratch);
             let found = first_boundary(&scratch.spans[start..], t_max, || {
                 self.contains(objects, ray.origin)
             });
@@ -307,7 +308,8 @@ pub fn first_boundary(
 }
 
 /// Appends the spans of `prim` to `scratch.spans`.
-fn eval(prim: &Prim, objects: &[Object], ray: &Ray, scale: f64, scratch: &mut Scratch) {
+/// `inv` is the ray's `1/dir` ([`Ray::inv_dir`]), computed once per tree.
+fn eval(prim: &Prim, objects: &[Object], ray: &Ray, inv: DVec3, scale: f64, scratch: &mut Scratch) {
     match prim {
         Prim::Object(i) => {
             let obj = &objects[*i as usize];
@@ -337,7 +339,7 @@ fn eval(prim: &Prim, objects: &[Object], ray: &Ray, scale: f64, scratch: &mut Sc
                 });
             }
         }
-        Prim::Csg(c) => eval_csg(c, objects, ray, scale, scratch),
+        Prim::Csg(c) => eval_csg(c, objects, ray, inv, scale, scratch),
     }
 }
 
@@ -345,13 +347,12 @@ fn eval(prim: &Prim, objects: &[Object], ray: &Ray, scale: f64, scratch: &mut Sc
 /// spans into tagged events, and sweeps them.
 /// A child whose box the line misses has no spans and is not evaluated (its parent, or
 /// [`Csg::first_hit`] for the root, has already tested this node's own box).
-fn eval_csg(c: &Csg, objects: &[Object], ray: &Ray, scale: f64, scratch: &mut Scratch) {
+fn eval_csg(c: &Csg, objects: &[Object], ray: &Ray, inv: DVec3, scale: f64, scratch: &mut Scratch) {
     let span_start = scratch.spans.len();
     let ev_start = scratch.events.len();
-    let inv = ray.inv_dir();
     for (k, child) in c.children.iter().enumerate() {
         if c.line_boxes[k].is_none_or(|b| line_meets(&b, ray, inv)) {
-            eval(child, objects, ray, scale, scratch);
+            eval(child, objects, ray, inv, scale, scratch);
         }
         let got = scratch.spans.len() - span_start;
         // An intersection with a child the line misses is empty, and so is a difference

@@ -67,42 +67,38 @@ impl ClearLights {
         if lights.is_empty() {
             return ClearLights(masks);
         }
+        // One pass over the prims. Unbounded ones: a plane is kept to test against; anything
+        // else (an unbounded CSG tree) may be anywhere, and nothing is culled. Bounded ones:
+        // the boxes the renderer's BVH gives them, one, or for a long cylinder or cone the
+        // slices it is cut into (tighter both as blockers and as the object whose light is in
+        // question). A box that cannot be padded (coordinates near the largest double) would
+        // be a blocker left out: then nothing is culled either.
         let mut planes = Vec::new();
-        for p in prims {
-            if p.bounds(objects).is_some() {
-                continue;
-            }
-            match p {
-                Prim::Object(i) if matches!(objects[*i as usize].shape, Shape::Plane) => {
-                    let t = &objects[*i as usize].transform;
-                    let (p0, _) = t.point_to_world(DVec3::ZERO, DVec3::ZERO);
-                    planes.push((p0, t.normal_to_world(DVec3::Y)));
-                }
-                // An unbounded CSG tree may be anywhere.
-                _ => return ClearLights(masks),
-            }
-        }
-        // Every bounded prim as the boxes the renderer's BVH gives it: one, or for a long
-        // cylinder or cone the slices it is cut into (tighter both as blockers and as the
-        // object whose light is in question). A box that cannot be padded (coordinates near
-        // the largest double) would be a blocker left out: then nothing is culled.
         let mut pieces: Vec<Aabb> = Vec::new();
         let mut ranges: Vec<Range<usize>> = Vec::with_capacity(prims.len());
         let mut items: Vec<(u32, Aabb)> = Vec::new();
         for (pi, p) in prims.iter().enumerate() {
             let first = pieces.len();
-            if let Some(b) = p.bounds(objects) {
-                let cut = match p {
-                    Prim::Object(o) => objects[*o as usize].pieces(),
-                    Prim::Csg(_) => Vec::new(),
-                };
-                for x in if cut.is_empty() { vec![b] } else { cut } {
-                    let (Some(padded), Ok(id)) = (bvh::padded(&x), u32::try_from(pi)) else {
-                        return ClearLights(masks);
+            match (p, p.bounds(objects)) {
+                (Prim::Object(i), None) if matches!(objects[*i as usize].shape, Shape::Plane) => {
+                    let t = &objects[*i as usize].transform;
+                    let (p0, _) = t.point_to_world(DVec3::ZERO, DVec3::ZERO);
+                    planes.push((p0, t.normal_to_world(DVec3::Y)));
+                }
+                (_, None) => return ClearLights(masks),
+                (_, Some(b)) => {
+                    let cut = match p {
+                        Prim::Object(o) => objects[*o as usize].pieces(),
+                        Prim::Csg(_) => Vec::new(),
                     };
-                    pieces.push(padded);
-                    if tree.is_none() {
-                        items.push((id, x));
+                    for x in if cut.is_empty() { vec![b] } else { cut } {
+                        let (Some(padded), Ok(id)) = (bvh::padded(&x), u32::try_from(pi)) else {
+                            return ClearLights(masks);
+                        };
+                        pieces.push(padded);
+                        if tree.is_none() {
+                            items.push((id, x));
+                        }
                     }
                 }
             }

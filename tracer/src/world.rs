@@ -302,20 +302,23 @@ impl Accel {
     }
 
     fn new(prims: &[Prim], objects: &[Object], mode: Acceleration) -> Accel {
-        let bounded: Vec<(u32, Aabb)> = prims
+        // Each bounded prim with its box and what testing it costs.
+        let bounded: Vec<(u32, Aabb, f64)> = prims
             .iter()
             .enumerate()
-            .filter_map(|(i, p)| Some((u32::try_from(i).ok()?, p.bounds(objects)?)))
+            .filter_map(|(i, p)| {
+                Some((
+                    u32::try_from(i).ok()?,
+                    p.bounds(objects)?,
+                    prim_cost(p, objects),
+                ))
+            })
             .collect();
         let wanted = match mode {
             Acceleration::Off => false,
             Acceleration::Auto => {
                 bounded.len() >= BVH_MIN_PRIMS
-                    || bounded
-                        .iter()
-                        .map(|&(i, _)| prim_cost(&prims[i as usize], objects))
-                        .sum::<f64>()
-                        >= BVH_MIN_COST
+                    || bounded.iter().map(|&(_, _, cost)| cost).sum::<f64>() >= BVH_MIN_COST
             }
             Acceleration::Always => !bounded.is_empty(),
         };
@@ -325,10 +328,8 @@ impl Accel {
             return Accel::Linear;
         }
         let mut items: Vec<Item> = Vec::with_capacity(bounded.len());
-        for &(id, bounds) in &bounded {
-            let prim = &prims[id as usize];
-            let cost = prim_cost(prim, objects);
-            let pieces = match prim {
+        for &(id, bounds, cost) in &bounded {
+            let pieces = match &prims[id as usize] {
                 Prim::Object(o) => objects[*o as usize].pieces(),
                 Prim::Csg(_) => Vec::new(),
             };
