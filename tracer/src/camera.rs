@@ -49,6 +49,34 @@ impl Camera {
         self.forward
     }
 
+    /// An upper bound on the angle between two rays through the same pixel, anywhere in the
+    /// image: the angle a pixel's diagonal subtends seen square-on from the image centre.
+    ///
+    /// The image plane lies at unit distance, perpendicular to `forward` through the image
+    /// centre. A segment of length `L` in that plane subtends at most `2·atan(L/2)`, the angle
+    /// it subtends when centred on the foot of the perpendicular, and two points of one
+    /// pixel's square are at most its diagonal apart.
+    pub fn pixel_angle(&self) -> f64 {
+        let diagonal = (self.right_per_px + self.down_per_px).length();
+        2.0 * (diagonal * 0.5).atan()
+    }
+
+    /// The image-plane position `(x, y)` in pixels of world point `p`, with its depth along
+    /// `forward` (for depth > 0 only; otherwise `None`: no primary ray reaches such a point,
+    /// since every primary direction has forward component 1 before normalisation).
+    pub fn project(&self, p: DVec3) -> Option<(f64, f64)> {
+        let v = p - self.eye;
+        let depth = v.dot(self.forward);
+        if !(depth > 0.0) {
+            return None;
+        }
+        let q = v / depth - self.corner;
+        Some((
+            q.dot(self.right_per_px) / self.right_per_px.length_squared(),
+            q.dot(self.down_per_px) / self.down_per_px.length_squared(),
+        ))
+    }
+
     /// The ray through image-plane position `(x, y)` in pixels, direction normalised.
     #[inline]
     pub fn ray(&self, x: f64, y: f64) -> Ray {
@@ -107,5 +135,60 @@ mod tests {
         assert!((centre - (desc.look_at - desc.eye).normalize()).length() < 1e-14);
         let top = c.ray(50.0, 0.0).dir;
         assert!(top.y > centre.y);
+    }
+
+    /// Two rays through one pixel are never further apart than `pixel_angle`, anywhere in
+    /// the image, and the bound is reached (within 1e-3) at the centre.
+    #[test]
+    fn pixel_angle_bounds_every_pixel() {
+        let desc = CameraDesc {
+            eye: DVec3::new(1.0, 2.0, 3.0),
+            look_at: DVec3::new(-4.0, 0.5, -2.0),
+            up: DVec3::Y,
+            fov_degrees: 100.0,
+        };
+        let c = Camera::new(&desc, 64, 48);
+        let bound = c.pixel_angle();
+        let mut widest: f64 = 0.0;
+        for (px, py) in [
+            (0.0, 0.0),
+            (63.0, 47.0),
+            (32.0, 24.0),
+            (31.0, 23.0),
+            (-2.0, 50.0),
+        ] {
+            // Opposite corners are the farthest apart two points of the square.
+            for ((ax, ay), (bx, by)) in [((0.0, 0.0), (1.0, 1.0)), ((1.0, 0.0), (0.0, 1.0))] {
+                let a = c.ray(px + ax, py + ay).dir;
+                let b = c.ray(px + bx, py + by).dir;
+                let angle = a.angle_between(b);
+                assert!(angle <= bound, "pixel ({px}, {py}): {angle} > {bound}");
+                widest = widest.max(angle);
+            }
+        }
+        assert!(widest > bound * (1.0 - 1e-3), "{widest} vs {bound}");
+    }
+
+    /// `project` is the inverse of `ray`, and refuses points behind the eye.
+    #[test]
+    fn projection_inverts_the_rays() {
+        let desc = CameraDesc {
+            eye: DVec3::new(1.0, 2.0, 3.0),
+            look_at: DVec3::new(-4.0, 0.5, -2.0),
+            up: DVec3::Y,
+            fov_degrees: 50.0,
+        };
+        let c = Camera::new(&desc, 64, 48);
+        for (x, y) in [(0.0, 0.0), (12.25, 40.5), (63.9, 47.9), (-5.0, 60.0)] {
+            let r = c.ray(x, y);
+            for t in [0.5, 10.0, 1e4] {
+                let (px, py) = c.project(r.origin + r.dir * t).expect("in front");
+                assert!(
+                    (px - x).abs() < 1e-9 && (py - y).abs() < 1e-9,
+                    "({x}, {y}) at {t}"
+                );
+            }
+            assert_eq!(c.project(r.origin - r.dir), None);
+        }
     }
 }

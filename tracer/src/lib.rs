@@ -29,6 +29,7 @@ pub mod camera;
 pub mod csg;
 pub mod diag;
 pub mod exact;
+pub mod footprint;
 pub mod math;
 pub mod png_out;
 pub mod render;

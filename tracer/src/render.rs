@@ -23,6 +23,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use glam::DVec3;
 use rayon::prelude::*;
 
+use crate::footprint::{Footprints, PixelRegion};
 use crate::math::{Color, Ray, offset_ray_origin};
 use crate::sampler::{Sample, Sampler};
 use crate::shape::LocalHit;
@@ -208,7 +209,25 @@ impl Scene {
     pub fn render_rect_linear_with(&self, rect: Rect, sampler: &Sampler) -> (Vec<Color>, RayStats) {
         let counters = Counters::default();
         let mut out = vec![Color::ZERO; rect.pixel_count()];
-        sampler.render_rect(rect, |x, y| self.primary(x, y, &counters), &mut out);
+        let trace = |x, y| self.primary(x, y, &counters);
+        // The adaptive sampler may end a pixel after one ray where geometry shows it smooth;
+        // which solids may show in each pixel is worked out once for the tile and the border
+        // the sampler looks at.
+        let border = u32::try_from(crate::sampler::PROBE_BORDER).unwrap_or(u32::MAX);
+        let region = PixelRegion {
+            x: i64::from(rect.x) - i64::from(border),
+            y: i64::from(rect.y) - i64::from(border),
+            width: (rect.width + 2 * border) as usize,
+            height: (rect.height + 2 * border) as usize,
+        };
+        let footprints =
+            matches!(sampler, Sampler::Adaptive { .. }).then(|| Footprints::new(self, region));
+        let smooth = |px, py, x, y, seen: &Sample| {
+            footprints
+                .as_ref()
+                .is_some_and(|f| f.is_smooth(px, py, x, y, seen))
+        };
+        sampler.render_rect_probed(rect, trace, smooth, &mut out);
         (out, counters.stats())
     }
 

@@ -108,19 +108,44 @@ impl Sampler {
     /// Renders `rect` into `out` (row-major, `rect.pixel_count()` long). `trace(x, y)` returns
     /// the clamped radiance of the primary ray through image-plane position `(x, y)` and the
     /// identity of what it hit first.
+    ///
+    /// Without a probe, the adaptive sampler takes at least its first pass of four rays in
+    /// every pixel; [`Sampler::render_rect_probed`] lets it end smooth pixels after one.
     pub fn render_rect<F>(&self, rect: Rect, trace: F, out: &mut [Color])
     where
         F: Fn(f64, f64) -> Sample,
     {
+        self.render_rect_inner(rect, &trace, None::<&NoProbe>, out);
+    }
+
+    /// [`Sampler::render_rect`] with a test of smoothness for the adaptive sampler:
+    /// `smooth(px, py, x, y, seen)` says whether pixel `(px, py)`, where `trace` saw `seen`
+    /// through its point `(x, y)`, is known to hold no edge, texture, reflection or shadow edge, so
+    /// that its exact value differs from that one ray's only by smooth shading (the tracer's
+    /// [`crate::footprint::Footprints::is_smooth`] decides, by geometry). Such a pixel may
+    /// end after that ray. Other samplers never call it.
+    pub fn render_rect_probed<F, S>(&self, rect: Rect, trace: F, smooth: S, out: &mut [Color])
+    where
+        F: Fn(f64, f64) -> Sample,
+        S: Fn(i64, i64, f64, f64, &Sample) -> bool,
+    {
+        self.render_rect_inner(rect, &trace, Some(&smooth), out);
+    }
+
+    fn render_rect_inner<F, S>(&self, rect: Rect, trace: &F, smooth: Option<&S>, out: &mut [Color])
+    where
+        F: Fn(f64, f64) -> Sample,
+        S: Fn(i64, i64, f64, f64, &Sample) -> bool,
+    {
         debug_assert_eq!(out.len(), rect.pixel_count());
         if let Sampler::Adaptive { max, threshold } = *self {
-            adaptive(rect, max, threshold, &trace, out);
+            adaptive(rect, max, threshold, trace, smooth, out);
             return;
         }
         let mut i = 0;
         for y in rect.y..rect.y + rect.height {
             for x in rect.x..rect.x + rect.width {
-                out[i] = self.pixel(x, y, &trace);
+                out[i] = self.pixel(x, y, trace);
                 i += 1;
             }
         }
@@ -141,7 +166,14 @@ impl Sampler {
             Sampler::Jitter { n } => stratified(x, y, n, Some(SEED_JITTER), trace),
             Sampler::Adaptive { max, threshold } => {
                 let mut one = [Color::ZERO];
-                adaptive(Rect::new(x, y, 1, 1), max, threshold, trace, &mut one);
+                adaptive(
+                    Rect::new(x, y, 1, 1),
+                    max,
+                    threshold,
+                    trace,
+                    None::<&NoProbe>,
+                    &mut one,
+                );
                 one[0]
             }
         }
@@ -160,6 +192,13 @@ pub struct Sample {
 impl Sample {
     pub const BACKGROUND: u32 = u32::MAX;
 }
+
+/// How far around a rect the adaptive sampler traces probes (its smoothness test is asked
+/// about the pixels within one less).
+pub const PROBE_BORDER: usize = 2;
+
+/// The smoothness test of renders without one.
+type NoProbe = fn(i64, i64, f64, f64, &Sample) -> bool;
 
 const SEED_JITTER: u64 = 0x9e37_79b9_7f4a_7c15;
 const SEED_FIRST: u64 = 0xc2b2_ae3d_27d4_eb4f;
@@ -387,51 +426,91 @@ fn cell_sample<F: Fn(f64, f64) -> Sample>(
     )
 }
 
-/// The first pass of pixel `(x, y)`: one sample per quadrant.
+/// Where pixel `(x, y)`'s first-pass sample in quadrant `k` lies and, for even `n`, the
+/// quadrant's offset (see [`QuadrantOrder`]).
 ///
-/// For even `n` it is rank 0 of each quadrant (see [`QuadrantOrder`]), so every later stage
-/// reuses it. For odd `n` the quadrants do not align with the grid, and the first pass is an
-/// independent 2 × 2 jittered set.
+/// For even `n` it is rank 0 of the quadrant, so every later stage reuses it. For odd `n`
+/// the quadrants do not align with the grid, and the first pass is an independent 2 × 2
+/// jittered set.
+fn first_position(
+    x: i64,
+    y: i64,
+    n: u32,
+    order: Option<&QuadrantOrder>,
+    k: u32,
+    hashes: &FirstHashes,
+) -> ((f64, f64), (u32, u32)) {
+    let FirstHashes { first, cells } = *hashes;
+    let Some(order) = order else {
+        let (ox, oy) = first.pair(k);
+        let (qx, qy) = (f64::from(k % 2), f64::from(k / 2));
+        return (
+            (x as f64 + (qx + ox) * 0.5, y as f64 + (qy + oy) * 0.5),
+            (0, 0),
+        );
+    };
+    let h = order.h;
+    // Each half of one 64-bit hash picks a coordinate: ⌊u · h / 2³²⌋ for u uniform on 32
+    // bits takes each value in [0, h) with probability within 2⁻³² of 1/h.
+    let r = mix(first.0 ^ u64::from(k));
+    let a = (((r >> 32) * u64::from(h)) >> 32) as u32;
+    let b = (((r & 0xffff_ffff) * u64::from(h)) >> 32) as u32;
+    let cell = order.cell(k, 0, (a, b));
+    // The cells' positions are jitter's: a pixel refined to the full grid takes exactly the
+    // rays of `jitter` with the same `n` (the same arithmetic as `cell_sample`).
+    let (ox, oy) = cells.pair(cell);
+    let (ci, cj) = (cell % n, cell / n);
+    let inv = 1.0 / f64::from(n);
+    (
+        (
+            x as f64 + (f64::from(ci) + ox) * inv,
+            y as f64 + (f64::from(cj) + oy) * inv,
+        ),
+        (a, b),
+    )
+}
+
+/// A pixel's hashes for its first pass: the quadrants' offsets and the cells' positions.
+#[derive(Clone, Copy)]
+struct FirstHashes {
+    first: PixelHash,
+    cells: PixelHash,
+}
+
+impl FirstHashes {
+    fn new(x: i64, y: i64) -> FirstHashes {
+        // Border pixels left of or above the image have negative coordinates; their hash
+        // input wraps, which is as good a seed as any and the same in every tile.
+        let (hx, hy) = (x as u32, y as u32);
+        FirstHashes {
+            first: PixelHash::new(hx, hy, SEED_FIRST),
+            cells: PixelHash::new(hx, hy, SEED_JITTER),
+        }
+    }
+}
+
+/// The first pass of pixel `(x, y)`: one sample per quadrant (see [`first_position`]), the
+/// first of them `probed` when the pixel's probe already traced it.
 fn first_pass<F: Fn(f64, f64) -> Sample>(
     x: i64,
     y: i64,
     n: u32,
     order: Option<&QuadrantOrder>,
     trace: &F,
+    probed: Option<Sample>,
 ) -> FirstPass {
-    // Border pixels left of or above the image have negative coordinates; their hash input
-    // wraps, which is as good a seed as any and the same in every tile.
-    let (hx, hy) = (x as u32, y as u32);
-    let first = PixelHash::new(hx, hy, SEED_FIRST);
     let mut fp = FirstPass {
         tally: Tally::new(),
         offsets: [(0, 0); 4],
     };
-    if let Some(order) = order {
-        let h = order.h;
-        // The cells' positions are jitter's: a pixel refined to the full grid takes exactly
-        // the rays of `jitter` with the same `n`.
-        let cells = PixelHash::new(hx, hy, SEED_JITTER);
-        let inv = 1.0 / f64::from(n);
-        for k in 0..4u32 {
-            // Each half of one 64-bit hash picks a coordinate: ⌊u · h / 2³²⌋ for u uniform
-            // on 32 bits takes each value in [0, h) with probability within 2⁻³² of 1/h.
-            let r = mix(first.0 ^ u64::from(k));
-            let a = (((r >> 32) * u64::from(h)) >> 32) as u32;
-            let b = (((r & 0xffff_ffff) * u64::from(h)) >> 32) as u32;
-            fp.offsets[k as usize] = (a, b);
-            let cell = order.cell(k, 0, (a, b));
-            fp.tally.add(cell_sample(x, y, cells, n, inv, cell, trace));
-        }
-    } else {
-        for k in 0..4u32 {
-            let (ox, oy) = first.pair(k);
-            let (qx, qy) = (f64::from(k % 2), f64::from(k / 2));
-            fp.tally.add(trace(
-                x as f64 + (qx + ox) * 0.5,
-                y as f64 + (qy + oy) * 0.5,
-            ));
-        }
+    let hashes = FirstHashes::new(x, y);
+    for k in 0..4u32 {
+        let ((sx, sy), offset) = first_position(x, y, n, order, k, &hashes);
+        fp.offsets[k as usize] = offset;
+        fp.tally.add(match probed {
+            Some(s) if k == 0 => s,
+            _ => trace(sx, sy),
+        });
     }
     fp
 }
@@ -520,61 +599,149 @@ fn se_bound(threshold: f64, rays: u32) -> f64 {
     threshold * (f64::from(rays) / 16.0).sqrt()
 }
 
-fn adaptive<F: Fn(f64, f64) -> Sample>(
+/// The adaptive sampler over `rect`.
+///
+/// With a smoothness test, every pixel of the rect and of a two-pixel border first traces
+/// its first ray alone (its *probe*); a pixel ends there, with that one ray, when no
+/// neighbour whose probe saw the same object differs from it by more than `threshold` (a
+/// steep shading gradient) and the test says it is smooth. Every other pixel takes its
+/// four-ray first pass, the probe's ray being the first of them, and goes on as without a
+/// test. The rect's pixels' decisions look at their neighbours' first passes, and whether a
+/// neighbour has one depends on its own neighbours' probes: hence the two-pixel border,
+/// which keeps every pixel's rays independent of the tile it is in.
+fn adaptive<F, S>(
     rect: Rect,
     max: u32,
     threshold: f64,
     trace: &F,
+    smooth: Option<&S>,
     out: &mut [Color],
-) {
+) where
+    F: Fn(f64, f64) -> Sample,
+    S: Fn(i64, i64, f64, f64, &Sample) -> bool,
+{
     let order = max.is_multiple_of(2).then(|| QuadrantOrder::new(max / 2));
     let order = order.as_ref();
-    // First pass over the rect plus a one-pixel border. Border pixels outside the image are
-    // traced like any others (the camera extends past the image), so a pixel at the image's
-    // edge is treated exactly like one inside.
-    let bw = rect.width as usize + 2;
-    let bh = rect.height as usize + 2;
-    let mut border = Vec::with_capacity(bw * bh);
-    for by in 0..bh {
-        for bx in 0..bw {
-            let px = i64::from(rect.x) - 1 + bx as i64;
-            let py = i64::from(rect.y) - 1 + by as i64;
-            // The corners are never looked at; a placeholder keeps the indexing plain.
-            let corner = (bx == 0 || bx == bw - 1) && (by == 0 || by == bh - 1);
-            border.push(if corner {
-                FirstPass {
-                    tally: Tally::new(),
-                    offsets: [(0, 0); 4],
+    // Pixels are indexed in the rect grown by two on every side; `(bx, by)` is the rect's
+    // `(bx - 2, by - 2)`. Border pixels outside the image are traced like any others (the
+    // camera extends past the image), so a pixel at the image's edge is treated exactly like
+    // one inside.
+    let (w, h) = (rect.width as usize, rect.height as usize);
+    let (pw, ph) = (w + 4, h + 4);
+    let at = |bx: usize, by: usize| by * pw + bx;
+    let pixel = |bx: usize, by: usize| {
+        (
+            i64::from(rect.x) + bx as i64 - 2,
+            i64::from(rect.y) + by as i64 - 2,
+        )
+    };
+    // The rect and its one-pixel border without the corners: the pixels whose first passes
+    // the rect's decisions read.
+    let inner = |bx: usize, by: usize| {
+        (1..=w + 2).contains(&bx)
+            && (1..=h + 2).contains(&by)
+            && !((bx == 1 || bx == w + 2) && (by == 1 || by == h + 2))
+    };
+    let neighbours =
+        |bx: usize, by: usize| [(bx - 1, by), (bx + 1, by), (bx, by - 1), (bx, by + 1)];
+
+    // Which inner pixels end after their probe.
+    let mut ends = vec![false; pw * ph];
+    let mut probes: Vec<Option<((f64, f64), Sample)>> = vec![None; pw * ph];
+    if let Some(smooth) = smooth {
+        for by in 0..ph {
+            for bx in 0..pw {
+                let wanted = inner(bx, by)
+                    || (bx > 0 && inner(bx - 1, by))
+                    || inner(bx + 1, by)
+                    || (by > 0 && inner(bx, by - 1))
+                    || inner(bx, by + 1);
+                if wanted {
+                    let (x, y) = pixel(bx, by);
+                    let hashes = FirstHashes::new(x, y);
+                    let ((sx, sy), _) = first_position(x, y, max, order, 0, &hashes);
+                    probes[at(bx, by)] = Some(((sx, sy), trace(sx, sy)));
                 }
-            } else {
-                first_pass(px, py, max, order, trace)
-            });
+            }
+        }
+        for by in 1..=h + 2 {
+            for bx in 1..=w + 2 {
+                let Some(((sx, sy), p)) = probes[at(bx, by)].filter(|_| inner(bx, by)) else {
+                    continue;
+                };
+                let gentle = neighbours(bx, by).iter().all(|&(nx, ny)| {
+                    probes[at(nx, ny)].is_none_or(|(_, q)| {
+                        q.object != p.object || (q.color - p.color).abs().max_element() <= threshold
+                    })
+                });
+                let (x, y) = pixel(bx, by);
+                ends[at(bx, by)] = gentle && smooth(x, y, sx, sy, &p);
+            }
         }
     }
-    let mut i = 0;
-    for ry in 0..rect.height as usize {
-        for rx in 0..rect.width as usize {
-            let (bx, by) = (rx + 1, ry + 1);
-            let centre = &border[by * bw + bx];
-            let c = &centre.tally;
-            // More samples where the pixel's own samples disagree (contrast or a second
-            // object), or where a neighbour saw an edge, a different object or a different
-            // mean: an edge or a thin feature there may reach into this pixel between its own
-            // samples, and four samples that happen to agree inside fine texture (a checker
-            // near the horizon) still disagree with their neighbours'.
-            let own = c.contrast(threshold);
-            let mut near = false;
-            for (nx, ny) in [(bx - 1, by), (bx + 1, by), (bx, by - 1), (bx, by + 1)] {
-                let nb = &border[ny * bw + nx].tally;
-                near |= nb.mixed
-                    || nb.object != c.object
-                    || ((nb.sum - c.sum) * 0.25).abs().max_element() > threshold;
+
+    // First passes where the rect's decisions need them: its pixels that go on, and their
+    // neighbours that go on.
+    let mut passes: Vec<Option<FirstPass>> = vec![None; pw * ph];
+    for by in 2..h + 2 {
+        for bx in 2..w + 2 {
+            if ends[at(bx, by)] {
+                continue;
             }
-            let (x, y) = (rect.x + rx as u32, rect.y + ry as u32);
-            out[i] = if own || near {
-                refine(x, y, max, threshold, own, centre, order, trace)
-            } else {
-                c.mean()
+            for (qx, qy) in std::iter::once((bx, by)).chain(neighbours(bx, by)) {
+                let i = at(qx, qy);
+                if passes[i].is_none() && !ends[i] {
+                    let (x, y) = pixel(qx, qy);
+                    let probed = probes[i].map(|(_, p)| p);
+                    passes[i] = Some(first_pass(x, y, max, order, trace, probed));
+                }
+            }
+        }
+    }
+    // The tally a pixel's neighbours compare with: its first pass, or its probe's one ray.
+    let tally_of = |i: usize| -> Tally {
+        match (passes[i], probes[i]) {
+            (Some(fp), _) => fp.tally,
+            (None, Some((_, p))) => {
+                let mut t = Tally::new();
+                t.add(p);
+                t
+            }
+            // Every neighbour of a pixel that goes on has one or the other.
+            (None, None) => Tally::new(),
+        }
+    };
+
+    let mut i = 0;
+    for by in 2..h + 2 {
+        for bx in 2..w + 2 {
+            let here = at(bx, by);
+            let (x, y) = (rect.x + (bx - 2) as u32, rect.y + (by - 2) as u32);
+            out[i] = match (ends[here], probes[here], passes[here]) {
+                (true, Some((_, p)), _) => p.color,
+                (_, _, Some(fp)) => {
+                    let c = &fp.tally;
+                    // More samples where the pixel's own samples disagree (contrast or a
+                    // second object), or where a neighbour saw an edge, a different object or
+                    // a different mean: an edge or a thin feature there may reach into this
+                    // pixel between its own samples, and four samples that happen to agree
+                    // inside fine texture (a checker near the horizon) still disagree with
+                    // their neighbours'.
+                    let own = c.contrast(threshold);
+                    let near = neighbours(bx, by).iter().any(|&(nx, ny)| {
+                        let nb = tally_of(at(nx, ny));
+                        nb.mixed
+                            || nb.object != c.object
+                            || (nb.mean() - c.mean()).abs().max_element() > threshold
+                    });
+                    if own || near {
+                        refine(x, y, max, threshold, own, &fp, order, trace)
+                    } else {
+                        c.mean()
+                    }
+                }
+                // Unreachable: a pixel that does not end has its first pass.
+                _ => Color::ZERO,
             };
             i += 1;
         }
@@ -971,5 +1138,128 @@ mod tests {
         assert!((out[0].x - exact).abs() < 0.02, "{} vs {exact}", out[0].x);
         assert_eq!(se_bound(0.01, 16), 0.01);
         assert!((se_bound(0.01, 64) - 0.02).abs() < 1e-15);
+    }
+
+    /// A smoothness test that never vouches for a pixel leaves the adaptive sampler as it is
+    /// without one: the same rays (each probe is the first pass's first ray) and values.
+    #[test]
+    fn a_test_that_finds_nothing_smooth_changes_nothing() {
+        use std::cell::Cell;
+        for max in [3, 4, 8] {
+            let s = Sampler::Adaptive {
+                max,
+                threshold: 0.02,
+            };
+            let rect = Rect::new(7, 3, 9, 5);
+            let plain_rays = Cell::new(0);
+            let mut plain = vec![Color::ZERO; rect.pixel_count()];
+            let trace = |x: f64, y: f64| {
+                plain_rays.set(plain_rays.get() + 1);
+                edge(x, y)
+            };
+            s.render_rect(rect, trace, &mut plain);
+            let probed_rays = Cell::new(0);
+            let mut probed = vec![Color::ZERO; rect.pixel_count()];
+            let trace = |x: f64, y: f64| {
+                probed_rays.set(probed_rays.get() + 1);
+                edge(x, y)
+            };
+            s.render_rect_probed(rect, trace, |_, _, _, _, _| false, &mut probed);
+            assert_eq!(probed, plain, "max {max}");
+            // The probes of the second border ring are the only extra rays.
+            let ring = 2 * (9 + 4) + 2 * (5 + 4) - 4 - 8;
+            assert_eq!(probed_rays.get(), plain_rays.get() + ring, "max {max}");
+        }
+    }
+
+    /// Pixels the test vouches for end after their probe, with the probe's value; where a
+    /// neighbour on the same object differs by more than the threshold (a steep gradient),
+    /// they do not.
+    #[test]
+    fn smooth_pixels_end_after_one_ray_unless_the_shading_is_steep() {
+        use std::cell::RefCell;
+        let s = Sampler::Adaptive {
+            max: 8,
+            threshold: 0.05,
+        };
+        let rect = Rect::new(0, 0, 12, 1);
+        // Columns 0–5 shade gently (0.01 per pixel), 6–11 steeply (0.1 per pixel).
+        let ramp = |x: f64, _y: f64| {
+            let v = if x < 6.0 {
+                0.01 * x
+            } else {
+                0.06 + 0.1 * (x - 6.0)
+            };
+            Sample {
+                color: Color::splat(v.min(1.0)),
+                object: 0,
+            }
+        };
+        let rays = RefCell::new(vec![0u32; 16]);
+        let trace = |x: f64, y: f64| {
+            rays.borrow_mut()[(x.floor() + 2.0) as usize] += 1;
+            ramp(x, y)
+        };
+        let mut out = vec![Color::ZERO; 12];
+        s.render_rect_probed(rect, trace, |_, _, _, _, _| true, &mut out);
+        let rays = rays.into_inner();
+        for x in 0..12usize {
+            // Five probes in each column (rows −2 to 2: the rect, its border and the probes
+            // the border's pixels compare with), then three more rays per pixel that goes on
+            // to its first pass, in row 0 and in the rows above and below that a pixel in row
+            // 0 going on compares with.
+            let c = rays[x + 2];
+            if x <= 4 {
+                assert_eq!(c, 5, "column {x} should end after its probe");
+                let order = QuadrantOrder::new(4);
+                let hashes = FirstHashes::new(x as i64, 0);
+                let ((sx, sy), _) = first_position(x as i64, 0, 8, Some(&order), 0, &hashes);
+                assert_eq!(out[x], ramp(sx, sy).color);
+            } else if x >= 7 {
+                assert!(c > 5, "column {x} should go on: {c} rays");
+            }
+        }
+    }
+
+    /// With a smoothness test that vouches for some pixels and not others, a pixel's value
+    /// still does not depend on the tile it is rendered in.
+    #[test]
+    fn probed_pixels_do_not_depend_on_the_tile() {
+        let smooth = |px: i64, py: i64, _: f64, _: f64, _: &Sample| (px * 7 + py * 3) % 5 != 0;
+        let disc = |x: f64, y: f64| {
+            let inside = (x - 8.3).powi(2) + (y - 5.1).powi(2) < 9.0;
+            Sample {
+                color: Color::splat(if inside { 0.9 } else { 0.1 }),
+                object: u32::from(inside),
+            }
+        };
+        for s in [
+            Sampler::Adaptive {
+                max: 4,
+                threshold: 0.02,
+            },
+            Sampler::Adaptive {
+                max: 8,
+                threshold: 0.05,
+            },
+            Sampler::Adaptive {
+                max: 3,
+                threshold: 0.02,
+            },
+        ] {
+            let whole_rect = Rect::new(0, 0, 17, 11);
+            let mut whole = vec![Color::ZERO; whole_rect.pixel_count()];
+            s.render_rect_probed(whole_rect, disc, smooth, &mut whole);
+            for tile in [1u32, 2, 5] {
+                for r in crate::tile::tiles(17, 11, tile) {
+                    let mut part = vec![Color::ZERO; r.pixel_count()];
+                    s.render_rect_probed(r, disc, smooth, &mut part);
+                    for (i, c) in part.iter().enumerate() {
+                        let (x, y) = (r.x + i as u32 % r.width, r.y + i as u32 / r.width);
+                        assert_eq!(*c, whole[(y * 17 + x) as usize], "{s:?} tile {tile}");
+                    }
+                }
+            }
+        }
     }
 }

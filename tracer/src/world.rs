@@ -494,6 +494,14 @@ impl Scene {
         self.with_acceleration(Acceleration::Off)
     }
 
+    /// The BVH and the prims it leaves out (planes, unbounded CSG), when rays use one.
+    pub(crate) fn bvh_and_unbounded(&self) -> Option<(&Bvh, &[u32])> {
+        match &self.accel {
+            Accel::Linear => None,
+            Accel::Bvh { bvh, unbounded, .. } => Some((bvh, unbounded)),
+        }
+    }
+
     /// Whether rays go through a BVH.
     pub fn uses_bvh(&self) -> bool {
         matches!(self.accel, Accel::Bvh { .. })

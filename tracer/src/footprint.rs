@@ -1,0 +1,547 @@
+//! Whether a pixel can hold an edge: the geometric test that lets the adaptive sampler end a
+//! pixel after its first ray.
+//!
+//! **What it is for.** A pixel's exact value differs from the radiance of one ray through it
+//! only through what changes inside the pixel's square: a solid's silhouette, a plane's
+//! horizon, a texture or checker edge, a reflection, a shadow's edge, or the smooth variation
+//! of Lambertian shading. [`Footprints::is_smooth`] says "smooth" only when it can rule out
+//! all but the last:
+//!
+//! - the ray saw the background, or a sphere placed by a similarity, or a plane, outside any
+//!   CSG tree, with a plain material (no texture, checker or mirror) and no shadow ray to
+//!   trace (`shadow = 0`, no diffuse light, or every light known clear of the object by
+//!   [`crate::shadow`]);
+//! - a sphere it hit fills the whole pixel, a plane it hit has no horizon in it;
+//! - no other solid shows in the pixel's square.
+//!
+//! The last is decided per tile, once, by projecting the solids onto the image
+//! ([`Footprints::new`]): a bounded solid's BVH boxes (a long cylinder's slices, see
+//! [`Object::pieces`]) are projected by their corners, and every pixel whose square meets
+//! the rectangle around them counts the solid; a similarity sphere counts only in pixels
+//! whose cone (below) meets it; a box reaching behind the eye's plane counts everywhere.
+//! Planes are tested per pixel.
+//!
+//! **Cones.** Every ray through a pixel's square lies within [`crate::camera::Camera::pixel_angle`]
+//! of any other, so within the cone of that half-angle around any one of them. A sphere of
+//! radius `r` at distance `d` fills the directions within `α = asin(r/d)` of its centre: the
+//! cone meets it when `θ ≤ α + φ` and lies inside it when `θ + φ ≤ α` (`θ` the angle from the
+//! cone's axis to the centre, `φ` the half-angle). These are compared as sines (`sin θ` from a
+//! cross product, exact to a few ulps even for the tiny angles of a pixel, where `acos` of a
+//! dot product would lose half the digits); a plane is compared by the angle of the cone's
+//! axis to its normal. The half-angle is widened by 1e-6 of itself and every comparison
+//! keeps a margin of [`ANGLE_MARGIN`], and boxes are the BVH's padded ones, which dwarfs the
+//! rounding of these tests and of the renderer's own intersections.
+//!
+//! **What it is not.** It ignores occlusion (a solid hidden behind another still counts),
+//! and a non-spherical solid's rectangle is not its silhouette: it errs towards "may hold an
+//! edge", which only costs rays. It says nothing about how many rays a pixel with an edge
+//! needs; the sampler decides that.
+
+use std::ops::Range;
+
+use glam::DVec3;
+
+use crate::bvh;
+use crate::csg::Prim;
+use crate::math::Aabb;
+use crate::sampler::Sample;
+use crate::shape::Shape;
+use crate::world::{Object, Scene};
+
+/// Radians every angular comparison keeps to spare (see the module comment). A pixel of a
+/// 7680-pixel-wide image at a 1° field of view still spans 2e-6 radians, 2,000 times this.
+pub const ANGLE_MARGIN: f64 = 1e-9;
+
+/// A cone's half-angle with what its tests need of it, computed once per tile.
+#[derive(Debug, Clone, Copy)]
+pub struct Aperture {
+    /// The half-angle, widened as the module comment says.
+    half_angle: f64,
+    sin: f64,
+    cos: f64,
+}
+
+impl Aperture {
+    /// The aperture of half-angle `half_angle`, widened as the module comment says.
+    pub fn new(half_angle: f64) -> Aperture {
+        let half_angle = half_angle * (1.0 + 1e-6) + ANGLE_MARGIN;
+        Aperture {
+            half_angle,
+            sin: half_angle.sin(),
+            cos: half_angle.cos(),
+        }
+    }
+}
+
+/// The cone from `origin` around the unit direction `axis`.
+#[derive(Debug, Clone, Copy)]
+pub struct Cone {
+    origin: DVec3,
+    axis: DVec3,
+    aperture: Aperture,
+}
+
+/// How a cone meets a plane.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PlaneView {
+    /// No direction of the cone reaches the plane.
+    Misses,
+    /// Some do, some do not: the horizon is inside the cone.
+    Horizon,
+    /// Every direction reaches it.
+    Covers,
+}
+
+impl Cone {
+    /// The cone of `aperture` from `origin` around the unit direction `axis`.
+    pub fn new(origin: DVec3, axis: DVec3, aperture: Aperture) -> Cone {
+        Cone {
+            origin,
+            axis,
+            aperture,
+        }
+    }
+
+    /// Whether some direction of the cone meets the ball of centre `c` and radius `r`.
+    pub fn meets_sphere(&self, c: DVec3, r: f64) -> bool {
+        let v = c - self.origin;
+        let d2 = v.length_squared();
+        // From inside (or on) the ball every direction meets it; NaN lands here too.
+        if !(d2 > r * r) {
+            return true;
+        }
+        let d = d2.sqrt();
+        let (sin_a, cos_a) = (r / d, (1.0 - (r / d) * (r / d)).max(0.0).sqrt());
+        let ap = &self.aperture;
+        // β = α + φ + margin; as sines only while β stays well below 90°.
+        let (sin_m, cos_m) = (ANGLE_MARGIN.sin(), ANGLE_MARGIN.cos());
+        let sin_b0 = sin_a * ap.cos + cos_a * ap.sin;
+        let cos_b0 = cos_a * ap.cos - sin_a * ap.sin;
+        let sin_b = sin_b0 * cos_m + cos_b0 * sin_m;
+        if !(sin_b < 0.9) {
+            let alpha = sin_a.asin();
+            return angle_between(self.axis, v) <= alpha + ap.half_angle + ANGLE_MARGIN;
+        }
+        let cos_t = self.axis.dot(v);
+        cos_t > 0.0 && self.axis.cross(v).length() <= sin_b * d
+    }
+
+    /// Whether every direction of the cone meets the ball of centre `c` and radius `r`, the
+    /// origin being outside it.
+    pub fn inside_sphere(&self, c: DVec3, r: f64) -> bool {
+        let v = c - self.origin;
+        let d2 = v.length_squared();
+        if !(d2 > r * r) {
+            return false;
+        }
+        let d = d2.sqrt();
+        let (sin_a, cos_a) = (r / d, (1.0 - (r / d) * (r / d)).max(0.0).sqrt());
+        let ap = &self.aperture;
+        // γ = α − φ − margin, which must be positive; below 90° since α is.
+        let (sin_m, cos_m) = (ANGLE_MARGIN.sin(), ANGLE_MARGIN.cos());
+        let sin_g0 = sin_a * ap.cos - cos_a * ap.sin;
+        let cos_g0 = cos_a * ap.cos + sin_a * ap.sin;
+        let sin_g = sin_g0 * cos_m - cos_g0 * sin_m;
+        if !(sin_g > 0.0) {
+            return false;
+        }
+        let cos_t = self.axis.dot(v);
+        cos_t > 0.0 && self.axis.cross(v).length() <= sin_g * d
+    }
+
+    /// How the cone meets the plane through `p0` with normal `n` (any length).
+    pub fn view_of_plane(&self, p0: DVec3, n: DVec3) -> PlaneView {
+        let h = (self.origin - p0).dot(n);
+        if !(h != 0.0) || !n.is_finite() {
+            return PlaneView::Horizon;
+        }
+        // The direction straight towards the plane, and the cone axis's angle from it: a
+        // direction reaches the plane exactly when that angle is below 90°.
+        let towards = if h > 0.0 { -n } else { n };
+        let beta = angle_between(self.axis, towards);
+        let right = std::f64::consts::FRAC_PI_2;
+        let phi = self.aperture.half_angle;
+        if beta + phi <= right - ANGLE_MARGIN {
+            PlaneView::Covers
+        } else if beta - phi >= right + ANGLE_MARGIN {
+            PlaneView::Misses
+        } else {
+            PlaneView::Horizon
+        }
+    }
+}
+
+/// The angle between two non-zero vectors, to a few ulps at any size (`atan2` of the cross
+/// and dot products).
+fn angle_between(a: DVec3, b: DVec3) -> f64 {
+    a.cross(b).length().atan2(a.dot(b))
+}
+
+/// A rectangle of pixels (it may reach outside the image: the adaptive sampler looks at a
+/// border around each tile).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PixelRegion {
+    pub x: i64,
+    pub y: i64,
+    pub width: usize,
+    pub height: usize,
+}
+
+/// Which solids may show in each pixel of a region, for [`Footprints::is_smooth`].
+#[derive(Debug, Clone)]
+pub struct Footprints<'s> {
+    scene: &'s Scene,
+    region: PixelRegion,
+    aperture: Aperture,
+    /// Per pixel, row-major: how many solids may show in it (0, 1, or 2 for "more"), and
+    /// which one when it is 1.
+    count: Vec<u8>,
+    sole: Vec<u32>,
+    /// The planes (world point, normal, object), tested per pixel.
+    planes: Vec<(DVec3, DVec3, u32)>,
+}
+
+/// The object number a CSG tree counts under: never a hit's object (those are the tree's
+/// children, and a child is never plain anyway).
+const CSG: u32 = u32::MAX - 1;
+
+/// Where a box's projection lies.
+enum Projection {
+    /// Wholly behind the eye's plane: no primary ray reaches it.
+    Behind,
+    /// Within `[x0, y0, x1, y1]` (image positions, pixels).
+    Within([f64; 4]),
+    /// Reaching across the eye's plane (or not finite): anywhere.
+    Anywhere,
+}
+
+impl<'s> Footprints<'s> {
+    /// Which solids may show in each pixel of `region` (see the module comment).
+    pub fn new(scene: &'s Scene, region: PixelRegion) -> Footprints<'s> {
+        let n = region.width * region.height;
+        let mut fp = Footprints {
+            scene,
+            region,
+            aperture: Aperture::new(scene.camera.pixel_angle()),
+            count: vec![0; n],
+            sole: vec![0; n],
+            planes: Vec::new(),
+        };
+        // The prims that may show in the region: every prim, or those the BVH finds whose
+        // boxes' projections meet it, with the ones it leaves out.
+        let prims: Vec<u32> = match scene.bvh_and_unbounded() {
+            None => (0..scene.prims.len() as u32).collect(),
+            Some((tree, unbounded)) => {
+                let mut found = unbounded.to_vec();
+                tree.any_item(
+                    |b| match fp.project_box(b) {
+                        Projection::Behind => false,
+                        Projection::Within(r) => fp.rect_meets_region(r),
+                        Projection::Anywhere => true,
+                    },
+                    |pi| {
+                        found.push(pi);
+                        false
+                    },
+                );
+                found.sort_unstable();
+                found.dedup();
+                found
+            }
+        };
+        for pi in prims {
+            fp.add_prim(pi);
+        }
+        fp
+    }
+
+    /// Counts prim `pi` in the pixels it may show in.
+    fn add_prim(&mut self, pi: u32) {
+        let scene = self.scene;
+        let (id, boxes) = match &scene.prims[pi as usize] {
+            Prim::Object(o) => {
+                let obj = &scene.objects[*o as usize];
+                if matches!(obj.shape, Shape::Plane) {
+                    let (p0, n) = plane_of(obj);
+                    self.planes.push((p0, n, *o));
+                    return;
+                }
+                if let Some((c, r2)) = obj.similarity_sphere() {
+                    self.add_sphere(*o, c, r2.sqrt());
+                    return;
+                }
+                let pieces = obj.pieces();
+                let boxes = if pieces.is_empty() {
+                    obj.bounds.into_iter().collect()
+                } else {
+                    pieces
+                };
+                (*o, boxes)
+            }
+            prim @ Prim::Csg(_) => (CSG, prim.bounds(&scene.objects).into_iter().collect()),
+        };
+        if boxes.is_empty() {
+            // Unbounded: anywhere.
+            self.mark_all(id);
+        }
+        for b in boxes {
+            match bvh::padded(&b).map(|p| self.project_box(&p)) {
+                Some(Projection::Behind) => {}
+                Some(Projection::Within(r)) => self.mark_rect(id, r),
+                _ => self.mark_all(id),
+            }
+        }
+    }
+
+    /// Where the box's projection lies: the bounds of its corners' projections, widened by
+    /// 1e-9 of their size and a millionth of a pixel against the projection's rounding.
+    fn project_box(&self, b: &Aabb) -> Projection {
+        let cam = &self.scene.camera;
+        let mut r = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        let mut behind = 0;
+        for i in 0..8 {
+            let corner = DVec3::new(
+                if i & 1 == 0 { b.min.x } else { b.max.x },
+                if i & 2 == 0 { b.min.y } else { b.max.y },
+                if i & 4 == 0 { b.min.z } else { b.max.z },
+            );
+            match cam.project(corner) {
+                Some((x, y)) if x.is_finite() && y.is_finite() => {
+                    r = [r[0].min(x), r[1].min(y), r[2].max(x), r[3].max(y)];
+                }
+                Some(_) => return Projection::Anywhere,
+                None => behind += 1,
+            }
+        }
+        match behind {
+            // Every corner at depth ≤ 0 puts the whole (convex) box there.
+            8 => Projection::Behind,
+            0 => {
+                let pad = |v: f64| 1e-6 + 1e-9 * v.abs();
+                Projection::Within([
+                    r[0] - pad(r[0]),
+                    r[1] - pad(r[1]),
+                    r[2] + pad(r[2]),
+                    r[3] + pad(r[3]),
+                ])
+            }
+            _ => Projection::Anywhere,
+        }
+    }
+
+    /// The region's pixels (columns, rows) whose squares meet the rectangle: pixel `p`'s
+    /// square `[p, p + 1]` meets `[lo, hi]` when `p ≤ hi` and `p + 1 ≥ lo`.
+    fn pixels_of(&self, [x0, y0, x1, y1]: [f64; 4]) -> (Range<usize>, Range<usize>) {
+        let span = |lo: f64, hi: f64, start: i64, len: usize| {
+            // Clamped in f64 first, so that huge or infinite bounds convert exactly.
+            let end = (start + len as i64) as f64;
+            let first = (lo - 1.0).ceil().clamp(start as f64, end);
+            let last = (hi.floor() + 1.0).clamp(start as f64, end);
+            if !(first < last) {
+                return 0..0;
+            }
+            (first as i64 - start) as usize..(last as i64 - start) as usize
+        };
+        let reg = self.region;
+        (
+            span(x0, x1, reg.x, reg.width),
+            span(y0, y1, reg.y, reg.height),
+        )
+    }
+
+    fn rect_meets_region(&self, r: [f64; 4]) -> bool {
+        let (xs, ys) = self.pixels_of(r);
+        !xs.is_empty() && !ys.is_empty()
+    }
+
+    /// Counts `id` in every pixel of the region whose square meets the rectangle.
+    fn mark_rect(&mut self, id: u32, r: [f64; 4]) {
+        let (xs, ys) = self.pixels_of(r);
+        for row in ys {
+            for col in xs.clone() {
+                self.mark(row * self.region.width + col, id);
+            }
+        }
+    }
+
+    fn mark_all(&mut self, id: u32) {
+        for i in 0..self.count.len() {
+            self.mark(i, id);
+        }
+    }
+
+    /// Counts a similarity sphere in the pixels whose cone meets it: among those of the
+    /// rectangle of its box, each tested around the ray through its centre.
+    fn add_sphere(&mut self, id: u32, c: DVec3, r: f64) {
+        let b = Aabb::new(c - DVec3::splat(r), c + DVec3::splat(r));
+        let rect = match bvh::padded(&b).map(|p| self.project_box(&p)) {
+            Some(Projection::Behind) => return,
+            Some(Projection::Within(rect)) => rect,
+            _ => [
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::INFINITY,
+            ],
+        };
+        let (xs, ys) = self.pixels_of(rect);
+        let reg = self.region;
+        for row in ys {
+            for col in xs.clone() {
+                let (px, py) = (reg.x + col as i64, reg.y + row as i64);
+                let ray = self.scene.camera.ray(px as f64 + 0.5, py as f64 + 0.5);
+                if Cone::new(ray.origin, ray.dir, self.aperture).meets_sphere(c, r) {
+                    self.mark(row * reg.width + col, id);
+                }
+            }
+        }
+    }
+
+    #[inline]
+    fn mark(&mut self, i: usize, id: u32) {
+        if self.count[i] == 0 {
+            self.count[i] = 1;
+            self.sole[i] = id;
+        } else if self.sole[i] != id {
+            self.count[i] = 2;
+        }
+    }
+
+    /// Whether pixel `(px, py)`, where the primary ray through image position `(x, y)` (a
+    /// point of that pixel) saw `seen`, is known to hold no edge, texture, reflection or
+    /// shadow edge: its exact value then differs from that ray's only by smooth shading.
+    /// Pixels outside the region are never known smooth.
+    pub fn is_smooth(&self, px: i64, py: i64, x: f64, y: f64, seen: &Sample) -> bool {
+        let reg = self.region;
+        let (cx, cy) = (px - reg.x, py - reg.y);
+        if cx < 0 || cy < 0 || cx >= reg.width as i64 || cy >= reg.height as i64 {
+            return false;
+        }
+        let i = cy as usize * reg.width + cx as usize;
+        let hit = (seen.object != Sample::BACKGROUND).then_some(seen.object);
+        let alone = match self.count[i] {
+            0 => true,
+            1 => Some(self.sole[i]) == hit,
+            _ => false,
+        };
+        if !alone || hit.is_some_and(|o| !self.scene.plain(o)) {
+            return false;
+        }
+        let ray = self.scene.camera.ray(x, y);
+        let cone = Cone::new(ray.origin, ray.dir, self.aperture);
+        if let Some(o) = hit
+            && !covers(&self.scene.objects[o as usize], &cone)
+        {
+            return false;
+        }
+        self.planes
+            .iter()
+            .all(|&(p0, n, o)| Some(o) == hit || cone.view_of_plane(p0, n) == PlaneView::Misses)
+    }
+}
+
+impl Scene {
+    /// Whether object `o` shades smoothly: a sphere placed by a similarity or a plane,
+    /// outside any CSG tree, plain (no texture, checker or mirror), with no shadow ray to
+    /// trace.
+    fn plain(&self, o: u32) -> bool {
+        let obj = &self.objects[o as usize];
+        let m = &obj.material;
+        let shape_ok = match obj.shape {
+            Shape::Sphere => obj.similarity_sphere().is_some(),
+            Shape::Plane => true,
+            _ => false,
+        };
+        if !shape_ok || obj.in_csg || m.texture.is_some() || m.color2.is_some() || m.mirror > 0.0 {
+            return false;
+        }
+        // A sphere seen from outside (`covers` requires it) and a plane are left without
+        // re-hitting themselves, so their shadow rays skip them, as `crate::shadow` assumes.
+        let n = self.lights.len();
+        let all_clear = n <= 64 && self.clear_lights(o) == u64::MAX >> (64 - n.max(1));
+        let traces_shadows = self.shadow > 0.0 && m.diffuse > 0.0 && self.anything_else(Some(o));
+        n == 0 || !traces_shadows || all_clear
+    }
+}
+
+/// Whether every direction of the cone meets `obj` (a similarity sphere or a plane).
+fn covers(obj: &Object, cone: &Cone) -> bool {
+    match (obj.shape, obj.similarity_sphere()) {
+        (Shape::Sphere, Some((c, r2))) => cone.inside_sphere(c, r2.sqrt()),
+        (Shape::Plane, _) => {
+            let (p0, n) = plane_of(obj);
+            cone.view_of_plane(p0, n) == PlaneView::Covers
+        }
+        _ => false,
+    }
+}
+
+/// A plane object's world point and normal.
+fn plane_of(obj: &Object) -> (DVec3, DVec3) {
+    let (p0, _) = obj.transform.point_to_world(DVec3::ZERO, DVec3::ZERO);
+    (p0, obj.transform.normal_to_world(DVec3::Y))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cone(axis: DVec3, half_angle: f64) -> Cone {
+        // Aperture::new widens by 1e-6 relative and the margin; the tests below keep 1e-7
+        // radians from every boundary, far more than either.
+        Cone::new(DVec3::ZERO, axis, Aperture::new(half_angle))
+    }
+
+    #[test]
+    fn sphere_tests_are_exact_up_to_the_margin() {
+        // A sphere of radius 1 at distance 10 fills α = asin(0.1) around its centre.
+        let alpha = 0.1f64.asin();
+        let c = DVec3::new(0.0, 0.0, -10.0);
+        let phi = 1e-3;
+        for (theta, meets, inside) in [
+            (alpha + phi - 1e-7, true, false),
+            (alpha + phi + 1e-7, false, false),
+            (alpha - phi - 1e-7, true, true),
+            (alpha - phi + 1e-7, true, false),
+        ] {
+            let axis = DVec3::new(theta.sin(), 0.0, -theta.cos());
+            let k = cone(axis, phi);
+            assert_eq!(k.meets_sphere(c, 1.0), meets, "θ = {theta}");
+            assert_eq!(k.inside_sphere(c, 1.0), inside, "θ = {theta}");
+        }
+        // From inside the ball: meets, never "inside" (the far wall is not a silhouette,
+        // but the probe saw the wall from inside, which a convex test cannot vouch for).
+        let k = cone(DVec3::Z, phi);
+        assert!(k.meets_sphere(DVec3::ZERO, 1.0));
+        assert!(!k.inside_sphere(DVec3::ZERO, 1.0));
+    }
+
+    #[test]
+    fn pixel_sized_angles_keep_their_digits() {
+        // acos of the dot product would give 0 or 1.5e-8 here; atan2 gives the angle.
+        let a = DVec3::new(0.0, 0.0, 1.0);
+        let b = DVec3::new(1e-10, 0.0, 1.0);
+        assert!((angle_between(a, b) - 1e-10).abs() < 1e-24);
+    }
+
+    #[test]
+    fn a_plane_s_horizon_is_seen_only_when_the_cone_straddles_it() {
+        // The plane y = 0 seen from y = 1: directions below the horizontal reach it.
+        let phi = 1e-3;
+        let view = |elevation: f64| {
+            let axis = DVec3::new(0.0, elevation.sin(), -elevation.cos());
+            let mut k = cone(axis, phi);
+            k.origin = DVec3::Y;
+            k.view_of_plane(DVec3::ZERO, DVec3::Y)
+        };
+        assert_eq!(view(-2e-3), PlaneView::Covers);
+        assert_eq!(view(-0.5e-3), PlaneView::Horizon);
+        assert_eq!(view(0.5e-3), PlaneView::Horizon);
+        assert_eq!(view(2e-3), PlaneView::Misses);
+    }
+}

@@ -1,0 +1,250 @@
+//! The adaptive sampler ends a pixel after one ray only where [`Footprints::is_smooth`]
+//! vouches that nothing changes in it but smooth shading. Checked here against brute force:
+//! in random scenes (spheres down to a tenth of a pixel, ellipsoids, boxes, rods, tori, CSG
+//! trees, tilted planes with horizons, the camera anywhere), every pixel called smooth shows
+//! one and the same solid, or the background, at every point of a dense grid over its
+//! square, edges and corners included.
+
+mod common;
+
+use glam::DVec3;
+use tessera_tracer::footprint::{Footprints, PixelRegion};
+use tessera_tracer::sampler::Sample;
+use tessera_tracer::{Rect, Scene};
+
+/// SplitMix64: a small deterministic generator, so failures reproduce.
+struct Rng(u64);
+
+impl Rng {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.unit()
+    }
+
+    fn below(&mut self, n: u64) -> u64 {
+        self.next_u64() % n
+    }
+
+    fn vec(&mut self, r: f64) -> DVec3 {
+        DVec3::new(self.range(-r, r), self.range(-r, r), self.range(-r, r))
+    }
+}
+
+fn v(p: DVec3) -> String {
+    format!("<{}, {}, {}>", p.x, p.y, p.z)
+}
+
+/// A random scene: mostly plain spheres placed by a similarity (the solids a pixel can be
+/// smooth on), of every size from a tenth of a pixel up, and among them every other kind of
+/// solid, and sometimes a tilted plane. Lights may shadow or not (`shadow = 0`).
+fn random_scene(rng: &mut Rng) -> String {
+    let mut solids = String::new();
+    for _ in 0..rng.below(30) + 5 {
+        let at = rng.vec(6.0);
+        let c = v(DVec3::new(rng.unit(), rng.unit(), rng.unit()));
+        solids += &match rng.below(10) {
+            0..=5 => {
+                // Radii from 0.005 (a tenth of a pixel at this distance) to 2.
+                let r = 0.005 * 400f64.powf(rng.unit());
+                format!(
+                    "[OBJECT]\ntype = sphere\nradius = {r}\ntranslate = {}\ncolor1 = {c}\n[/OBJECT]\n",
+                    v(at)
+                )
+            }
+            6 => {
+                let shape = ["cube", "cylinder", "cone", "sphere"][rng.below(4) as usize];
+                let s = DVec3::new(
+                    rng.range(0.05, 1.0),
+                    rng.range(0.5, 4.0),
+                    rng.range(0.05, 1.0),
+                );
+                format!(
+                    "[OBJECT]\ntype = {shape}\nscale = {}\nrotate = {}\ntranslate = {}\ncolor1 = {c}\n[/OBJECT]\n",
+                    v(s),
+                    v(rng.vec(90.0)),
+                    v(at)
+                )
+            }
+            7 => format!(
+                "[OBJECT]\ntype = torus\nmajor = 1\nminor = 0.2\nrotate = {}\ntranslate = {}\n[/OBJECT]\n",
+                v(rng.vec(90.0)),
+                v(at)
+            ),
+            8 => format!(
+                "[CSG]\nop = difference\ntranslate = {}\n[OBJECT]\ntype = sphere\n[/OBJECT]\n\
+                 [OBJECT]\ntype = cube\nscale = 0.6\ntranslate = <0.5, 0.5, 0.5>\n[/OBJECT]\n[/CSG]\n",
+                v(at)
+            ),
+            _ => format!(
+                "[OBJECT]\ntype = plane\nrotate = {}\ntranslate = <0, {}, 0>\ncolor1 = {c}\n[/OBJECT]\n",
+                v(rng.vec(40.0)),
+                rng.range(-8.0, -2.0)
+            ),
+        };
+    }
+    let shadow = if rng.below(2) == 0 {
+        "shadow = 0\n"
+    } else {
+        ""
+    };
+    format!(
+        "[GLOBALS]\nwidth = 48\nheight = 36\nambient = 0.2\n{shadow}[/GLOBALS]\n\
+         [CAMERA]\neye = {}\nlook_at = {}\nfov = {}\n[/CAMERA]\n\
+         [LIGHT]\nposition = <10, 20, 15>\n[/LIGHT]\n{solids}",
+        v(rng.vec(4.0) + DVec3::new(0.0, 0.0, 18.0)),
+        v(rng.vec(2.0)),
+        rng.range(20.0, 70.0)
+    )
+}
+
+/// What the primary ray through image position `(x, y)` sees first.
+fn seen(s: &Scene, x: f64, y: f64) -> u32 {
+    s.intersect(&s.camera.ray(x, y), f64::INFINITY, None)
+        .map_or(Sample::BACKGROUND, |h| h.object)
+}
+
+#[test]
+fn a_pixel_called_smooth_shows_one_solid_everywhere() {
+    let mut rng = Rng(0x5eed_f00d);
+    let (mut smooth, mut not) = (0u32, 0u32);
+    for case in 0..40 {
+        let src = random_scene(&mut rng);
+        let s = common::scene(&src);
+        // The region reaches past the image, as a tile's border does.
+        let region = PixelRegion {
+            x: -2,
+            y: -2,
+            width: s.width as usize + 4,
+            height: s.height as usize + 4,
+        };
+        let fp = Footprints::new(&s, region);
+        for py in -2..s.height as i64 + 2 {
+            for px in -2..s.width as i64 + 2 {
+                // A probe anywhere in the pixel.
+                let (x, y) = (px as f64 + rng.unit(), py as f64 + rng.unit());
+                let sample = Sample {
+                    color: glam::DVec3::ZERO,
+                    object: seen(&s, x, y),
+                };
+                if !fp.is_smooth(px, py, x, y, &sample) {
+                    not += 1;
+                    continue;
+                }
+                smooth += 1;
+                // 9 × 9 points over the square, its edges and corners included.
+                for j in 0..=8 {
+                    for i in 0..=8 {
+                        let (qx, qy) = (px as f64 + i as f64 / 8.0, py as f64 + j as f64 / 8.0);
+                        assert_eq!(
+                            seen(&s, qx, qy),
+                            sample.object,
+                            "case {case}, pixel ({px}, {py}) called smooth, but ({qx}, {qy}) \
+                             sees another solid\n{src}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+    // Both answers are common, so the check above is not vacuous.
+    let total = f64::from(smooth + not);
+    assert!(
+        f64::from(smooth) > 0.3 * total,
+        "{smooth} smooth of {total}"
+    );
+    assert!(f64::from(not) > 0.1 * total, "{not} not smooth of {total}");
+}
+
+/// Shading that a shadow could change is never smooth: a plane under a sphere and a light is
+/// smooth nowhere while its shadow rays are traced, and wherever the horizon and the sphere
+/// are out of the pixel once `shadow = 0`.
+#[test]
+fn surfaces_that_may_be_shadowed_are_never_smooth() {
+    let src = "[GLOBALS]\nwidth = 40\nheight = 30\nshadow = 0.8\n[/GLOBALS]\n\
+               [CAMERA]\neye = <0, 6, 14>\nlook_at = <0, 0, 0>\n[/CAMERA]\n\
+               [LIGHT]\nposition = <4, 20, 6>\n[/LIGHT]\n\
+               [OBJECT]\ntype = sphere\nradius = 1.5\ntranslate = <0, 1.5, 0>\n[/OBJECT]\n\
+               [OBJECT]\ntype = plane\ncolor1 = 0.8\n[/OBJECT]\n";
+    let count = |src: &str| {
+        let s = common::scene(src);
+        let region = PixelRegion {
+            x: 0,
+            y: 0,
+            width: 40,
+            height: 30,
+        };
+        let fp = Footprints::new(&s, region);
+        let plane = 1;
+        let mut n = 0;
+        for py in 0..30 {
+            for px in 0..40 {
+                let (x, y) = (px as f64 + 0.5, py as f64 + 0.5);
+                let object = seen(&s, x, y);
+                let sample = Sample {
+                    color: DVec3::ZERO,
+                    object,
+                };
+                n += u32::from(object == plane && fp.is_smooth(px, py, x, y, &sample));
+            }
+        }
+        n
+    };
+    assert_eq!(count(src), 0, "shadowed plane pixels called smooth");
+    let unshadowed = src.replace("shadow = 0.8", "shadow = 0");
+    assert!(
+        count(&unshadowed) > 300,
+        "plain plane pixels should be smooth"
+    );
+}
+
+/// In a scene of plain spheres on the background, the adaptive sampler ends most pixels
+/// after one ray, and its image assembles from tiles byte for byte.
+#[test]
+fn plain_scenes_take_one_ray_in_flat_pixels_and_stay_tile_independent() {
+    let mut rng = Rng(7);
+    let mut spheres = String::new();
+    for _ in 0..12 {
+        spheres += &format!(
+            "[OBJECT]\ntype = sphere\nradius = {}\ntranslate = {}\ncolor1 = <0.9, 0.5, 0.2>\n[/OBJECT]\n",
+            rng.range(0.05, 0.8),
+            v(rng.vec(5.0))
+        );
+    }
+    let src = format!(
+        "[GLOBALS]\nwidth = 50\nheight = 40\nshadow = 0\nsampler = adaptive\nsamples = 8\nthreshold = 0.05\n[/GLOBALS]\n\
+         [CAMERA]\neye = <0, 0, 20>\n[/CAMERA]\n[LIGHT]\nposition = <5, 10, 20>\n[/LIGHT]\n{spheres}"
+    );
+    let s = common::scene(&src);
+    let (w, h) = (s.width, s.height);
+    let (whole, stats) = s.render_rect_stats(Rect::full(w, h));
+    let pixels = u64::from(w * h);
+    // Without the smoothness test every pixel would take at least its four-ray first pass.
+    assert!(
+        stats.primary < 4 * pixels,
+        "{} primary rays for {pixels} pixels",
+        stats.primary
+    );
+    for tile in [3u32, 8, 19] {
+        let mut assembled = vec![0u8; whole.len()];
+        for r in tessera_tracer::tile::tiles(w, h, tile) {
+            let bytes = s.render_rect(r);
+            for row in 0..r.height {
+                let src = &bytes[(row * r.width * 3) as usize..((row + 1) * r.width * 3) as usize];
+                let start = (((r.y + row) * w + r.x) * 3) as usize;
+                assembled[start..start + src.len()].copy_from_slice(src);
+            }
+        }
+        assert!(assembled == whole, "tiles of {tile} differ from the whole");
+    }
+}
