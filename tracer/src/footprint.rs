@@ -434,10 +434,13 @@ impl<'s> Footprints<'s> {
         }
         let ray = self.scene.camera.ray(x, y);
         let cone = Cone::new(ray.origin, ray.dir, self.aperture);
-        if let Some(o) = hit
-            && !covers(&self.scene.objects[o as usize], &cone)
-        {
-            return false;
+        if let Some(o) = hit {
+            let obj = &self.scene.objects[o as usize];
+            if !covers(obj, &cone)
+                || (obj.material.color2.is_some() && !one_cell(self.scene, obj, px, py))
+            {
+                return false;
+            }
         }
         self.planes
             .iter()
@@ -447,8 +450,8 @@ impl<'s> Footprints<'s> {
 
 impl Scene {
     /// Whether object `o` shades smoothly: a sphere placed by a similarity or a plane,
-    /// outside any CSG tree, plain (no texture, checker or mirror), with no shadow ray to
-    /// trace.
+    /// outside any CSG tree, plain (no texture or mirror, a checker only on a plane), with
+    /// no shadow ray to trace.
     fn plain(&self, o: u32) -> bool {
         let obj = &self.objects[o as usize];
         let m = &obj.material;
@@ -457,7 +460,9 @@ impl Scene {
             Shape::Plane => true,
             _ => false,
         };
-        if !shape_ok || obj.in_csg || m.texture.is_some() || m.color2.is_some() || m.mirror > 0.0 {
+        // A checker only on a plane, where `one_cell` can tell whether a pixel crosses it.
+        let checker_ok = m.color2.is_none() || matches!(obj.shape, Shape::Plane);
+        if !shape_ok || !checker_ok || obj.in_csg || m.texture.is_some() || m.mirror > 0.0 {
             return false;
         }
         // A sphere seen from outside (`covers` requires it) and a plane are left without
@@ -479,6 +484,34 @@ fn covers(obj: &Object, cone: &Cone) -> bool {
         }
         _ => false,
     }
+}
+
+/// Whether pixel `(px, py)`'s square, on checkered plane `obj` (which its every ray meets:
+/// `covers`), lies in one checker cell.
+///
+/// The rays through the square's corners meet the plane at the corners of the square's
+/// image, a convex quadrilateral (a projective map takes the square to the convex hull of
+/// its corners' images while no ray of it is parallel to the plane). The cells are the unit
+/// squares of the plane's own `x`, `z` (its `y` is 0 on every hit), so the pixel sees one
+/// cell when the corners' bounds, widened by 1e-9 of their magnitude (against the rounding
+/// of these intersections and of the renderer's), fit between the same integers.
+fn one_cell(scene: &Scene, obj: &Object, px: i64, py: i64) -> bool {
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)] {
+        let ray = obj
+            .transform
+            .ray_to_object(&scene.camera.ray(px as f64 + dx, py as f64 + dy));
+        let t = -ray.origin.y / ray.dir.y;
+        if !(t > 0.0 && t.is_finite()) {
+            return false;
+        }
+        let p = ray.at(t) * obj.own_scale;
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    let pad = 1e-9 * (1.0 + lo.abs().max(hi.abs()).max_element());
+    let same = |a: f64, b: f64| (a - pad).floor() == (b + pad).floor();
+    same(lo.x, hi.x) && same(lo.z, hi.z)
 }
 
 /// A plane object's world point and normal.
