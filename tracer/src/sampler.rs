@@ -6,7 +6,8 @@
 //! value depends only on the scene and the pixel: not on the tile, the thread or the machine.
 //!
 //! The adaptive sampler also looks at the first samples of the four neighbouring pixels; a
-//! tile computes those for a one-pixel border around itself, which keeps it tile-independent.
+//! tile computes those for a border around itself (two pixels for the probes, one for the
+//! first passes), which keeps it tile-independent.
 //! This module positions and combines samples; tracing them is the caller's closure.
 
 use crate::math::Color;
@@ -24,8 +25,11 @@ pub enum Sampler {
     Grid { n: u32 },
     /// `n × n` stratified rays, one placed by hash in each cell of the grid.
     Jitter { n: u32 },
-    /// A first pass of one jittered ray per pixel quadrant, then more where the image needs
-    /// them, in stages that reuse every ray already traced, up to `max × max` stratified rays
+    /// One ray (the *probe*), and no more where the renderer's smoothness test shows that
+    /// nothing but smooth shading changes in the pixel and no neighbour's probe on the same
+    /// surface differs from it by more than `threshold` (see
+    /// [`Sampler::render_rect_probed`]). Elsewhere a first pass of one jittered ray per
+    /// pixel quadrant (the probe among them), then more where the image needs them, in stages that reuse every ray already traced, up to `max × max` stratified rays
     /// (for even `max`, the very rays of `Jitter { n: max }`): where the first pass varies by
     /// more than `threshold` or meets two objects, or where a neighbour's first pass saw an
     /// edge, another object or another mean. For even `max ≥ 6`, a pixel only a neighbour
@@ -635,54 +639,72 @@ fn adaptive<F, S>(
             i64::from(rect.y) + by as i64 - 2,
         )
     };
-    // The rect and its one-pixel border without the corners: the pixels whose first passes
-    // the rect's decisions read.
-    let inner = |bx: usize, by: usize| {
-        (1..=w + 2).contains(&bx)
-            && (1..=h + 2).contains(&by)
-            && !((bx == 1 || bx == w + 2) && (by == 1 || by == h + 2))
-    };
     let neighbours =
         |bx: usize, by: usize| [(bx - 1, by), (bx + 1, by), (bx, by - 1), (bx, by + 1)];
 
-    // Which inner pixels end after their probe.
+    // Which inner pixels end after their probe, decided where needed: for every pixel of
+    // the rect, and for a border pixel next to one that goes on (its first pass is compared
+    // with). A pixel's probe is traced when first needed, and its neighbours' only once its
+    // own is smooth, so a region nothing can end in (a mirror) traces no probes beyond the
+    // first passes' first rays.
     let mut ends = vec![false; pw * ph];
     let mut probes: Vec<Option<((f64, f64), Sample)>> = vec![None; pw * ph];
     if let Some(smooth) = smooth {
-        for by in 0..ph {
-            for bx in 0..pw {
-                let wanted = inner(bx, by)
-                    || (bx > 0 && inner(bx - 1, by))
-                    || inner(bx + 1, by)
-                    || (by > 0 && inner(bx, by - 1))
-                    || inner(bx, by + 1);
-                if wanted {
-                    let (x, y) = pixel(bx, by);
-                    let hashes = FirstHashes::new(x, y);
-                    let ((sx, sy), _) = first_position(x, y, max, order, 0, &hashes);
-                    probes[at(bx, by)] = Some(((sx, sy), trace(sx, sy)));
-                }
+        let probe = |probes: &mut Vec<Option<((f64, f64), Sample)>>, bx: usize, by: usize| {
+            let i = at(bx, by);
+            if let Some(p) = probes[i] {
+                return p;
+            }
+            let (x, y) = pixel(bx, by);
+            let hashes = FirstHashes::new(x, y);
+            let ((sx, sy), _) = first_position(x, y, max, order, 0, &hashes);
+            let p = ((sx, sy), trace(sx, sy));
+            probes[i] = Some(p);
+            p
+        };
+        let decide = |probes: &mut Vec<Option<((f64, f64), Sample)>>, bx: usize, by: usize| {
+            let ((sx, sy), p) = probe(probes, bx, by);
+            let (x, y) = pixel(bx, by);
+            let gentle = |q: &Sample| {
+                q.object != p.object || (q.color - p.color).abs().max_element() <= threshold
+            };
+            // The neighbours already traced first, then the test, then the rest: each step
+            // is only taken if the ones before allow the pixel to end.
+            neighbours(bx, by)
+                .into_iter()
+                .all(|(nx, ny)| probes[at(nx, ny)].is_none_or(|(_, q)| gentle(&q)))
+                && smooth(x, y, sx, sy, &p)
+                && neighbours(bx, by)
+                    .into_iter()
+                    .all(|(nx, ny)| gentle(&probe(probes, nx, ny).1))
+        };
+        let mut decided = vec![false; pw * ph];
+        for by in 2..h + 2 {
+            for bx in 2..w + 2 {
+                ends[at(bx, by)] = decide(&mut probes, bx, by);
+                decided[at(bx, by)] = true;
             }
         }
-        for by in 1..=h + 2 {
-            for bx in 1..=w + 2 {
-                let Some(((sx, sy), p)) = probes[at(bx, by)].filter(|_| inner(bx, by)) else {
+        for by in 2..h + 2 {
+            for bx in 2..w + 2 {
+                if ends[at(bx, by)] {
                     continue;
-                };
-                let gentle = neighbours(bx, by).iter().all(|&(nx, ny)| {
-                    probes[at(nx, ny)].is_none_or(|(_, q)| {
-                        q.object != p.object || (q.color - p.color).abs().max_element() <= threshold
-                    })
-                });
-                let (x, y) = pixel(bx, by);
-                ends[at(bx, by)] = gentle && smooth(x, y, sx, sy, &p);
+                }
+                for (nx, ny) in neighbours(bx, by) {
+                    if !decided[at(nx, ny)] {
+                        ends[at(nx, ny)] = decide(&mut probes, nx, ny);
+                        decided[at(nx, ny)] = true;
+                    }
+                }
             }
         }
     }
 
     // First passes where the rect's decisions need them: its pixels that go on, and their
-    // neighbours that go on.
-    let mut passes: Vec<Option<FirstPass>> = vec![None; pw * ph];
+    // neighbours that go on (`slot` indexes `passes`, NONE where a pixel has none).
+    const NONE: u32 = u32::MAX;
+    let mut slot = vec![NONE; pw * ph];
+    let mut passes: Vec<FirstPass> = Vec::new();
     for by in 2..h + 2 {
         for bx in 2..w + 2 {
             if ends[at(bx, by)] {
@@ -690,25 +712,25 @@ fn adaptive<F, S>(
             }
             for (qx, qy) in std::iter::once((bx, by)).chain(neighbours(bx, by)) {
                 let i = at(qx, qy);
-                if passes[i].is_none() && !ends[i] {
+                if slot[i] == NONE && !ends[i] {
                     let (x, y) = pixel(qx, qy);
                     let probed = probes[i].map(|(_, p)| p);
-                    passes[i] = Some(first_pass(x, y, max, order, trace, probed));
+                    slot[i] = passes.len() as u32;
+                    passes.push(first_pass(x, y, max, order, trace, probed));
                 }
             }
         }
     }
-    // The tally a pixel's neighbours compare with: its first pass, or its probe's one ray.
-    let tally_of = |i: usize| -> Tally {
-        match (passes[i], probes[i]) {
-            (Some(fp), _) => fp.tally,
-            (None, Some((_, p))) => {
-                let mut t = Tally::new();
-                t.add(p);
-                t
+    // What a pixel's neighbours compare with: whether its first pass met two objects, its
+    // first object and its mean; for a pixel that ended, its probe's.
+    let seen = |i: usize| -> (bool, u32, Color) {
+        match (slot[i], probes[i]) {
+            (NONE, Some((_, p))) => (false, p.object, p.color),
+            (NONE, None) => (false, Sample::BACKGROUND, Color::ZERO),
+            (k, _) => {
+                let t = &passes[k as usize].tally;
+                (t.mixed, t.object, t.mean())
             }
-            // Every neighbour of a pixel that goes on has one or the other.
-            (None, None) => Tally::new(),
         }
     };
 
@@ -717,9 +739,12 @@ fn adaptive<F, S>(
         for bx in 2..w + 2 {
             let here = at(bx, by);
             let (x, y) = (rect.x + (bx - 2) as u32, rect.y + (by - 2) as u32);
-            out[i] = match (ends[here], probes[here], passes[here]) {
+            out[i] = match (ends[here], probes[here], slot[here]) {
                 (true, Some((_, p)), _) => p.color,
-                (_, _, Some(fp)) => {
+                // Unreachable: a pixel that does not end has its first pass.
+                (_, _, NONE) => Color::ZERO,
+                (_, _, k) => {
+                    let fp = &passes[k as usize];
                     let c = &fp.tally;
                     // More samples where the pixel's own samples disagree (contrast or a
                     // second object), or where a neighbour saw an edge, a different object or
@@ -728,20 +753,19 @@ fn adaptive<F, S>(
                     // inside fine texture (a checker near the horizon) still disagree with
                     // their neighbours'.
                     let own = c.contrast(threshold);
+                    let mean = c.mean();
                     let near = neighbours(bx, by).iter().any(|&(nx, ny)| {
-                        let nb = tally_of(at(nx, ny));
-                        nb.mixed
-                            || nb.object != c.object
-                            || (nb.mean() - c.mean()).abs().max_element() > threshold
+                        let (mixed, object, nb_mean) = seen(at(nx, ny));
+                        mixed
+                            || object != c.object
+                            || (nb_mean - mean).abs().max_element() > threshold
                     });
                     if own || near {
-                        refine(x, y, max, threshold, own, &fp, order, trace)
+                        refine(x, y, max, threshold, own, fp, order, trace)
                     } else {
-                        c.mean()
+                        mean
                     }
                 }
-                // Unreachable: a pixel that does not end has its first pass.
-                _ => Color::ZERO,
             };
             i += 1;
         }
@@ -1166,9 +1190,9 @@ mod tests {
             };
             s.render_rect_probed(rect, trace, |_, _, _, _, _| false, &mut probed);
             assert_eq!(probed, plain, "max {max}");
-            // The probes of the second border ring are the only extra rays.
-            let ring = 2 * (9 + 4) + 2 * (5 + 4) - 4 - 8;
-            assert_eq!(probed_rays.get(), plain_rays.get() + ring, "max {max}");
+            // Not one ray more: a probe is traced only where its first pass would be, and is
+            // its first ray; the second border ring is probed only around smooth pixels.
+            assert_eq!(probed_rays.get(), plain_rays.get(), "max {max}");
         }
     }
 
@@ -1204,19 +1228,18 @@ mod tests {
         s.render_rect_probed(rect, trace, |_, _, _, _, _| true, &mut out);
         let rays = rays.into_inner();
         for x in 0..12usize {
-            // Five probes in each column (rows −2 to 2: the rect, its border and the probes
-            // the border's pixels compare with), then three more rays per pixel that goes on
-            // to its first pass, in row 0 and in the rows above and below that a pixel in row
-            // 0 going on compares with.
+            // A pixel that ends took its probe and compared it with its neighbours' (rows −1
+            // and 1): three rays in its column. One that goes on takes three more, and so do
+            // the neighbours it compares its first pass with unless they end.
             let c = rays[x + 2];
             if x <= 4 {
-                assert_eq!(c, 5, "column {x} should end after its probe");
+                assert_eq!(c, 3, "column {x} should end after its probe");
                 let order = QuadrantOrder::new(4);
                 let hashes = FirstHashes::new(x as i64, 0);
                 let ((sx, sy), _) = first_position(x as i64, 0, 8, Some(&order), 0, &hashes);
                 assert_eq!(out[x], ramp(sx, sy).color);
             } else if x >= 7 {
-                assert!(c > 5, "column {x} should go on: {c} rays");
+                assert!(c > 3, "column {x} should go on: {c} rays");
             }
         }
     }
