@@ -4,7 +4,8 @@
 //! This crate turns `.ray` scene text into pixels. It parses and validates scenes
 //! ([`scene`]), places unit shapes with composite and inverse matrices ([`transform`],
 //! [`shape`]), shades them exactly as the format's "exact image" defines ([`render`]),
-//! samples pixels deterministically ([`sampler`]), and encodes sRGB PNGs ([`png_out`]).
+//! samples pixels deterministically ([`sampler`]; the adaptive sampler ends a pixel after one
+//! ray where the geometry proves it smooth, [`footprint`]), and encodes sRGB PNGs ([`png_out`]).
 //! It knows nothing of networks, databases or job queues: the farm's service and workers
 //! call [`Scene::render_rect`] on tiles, and a tile's pixels never depend on the tile.
 //!

@@ -213,12 +213,12 @@ impl Scene {
         // The adaptive sampler may end a pixel after one ray where geometry shows it smooth;
         // which solids may show in each pixel is worked out once for the tile and the border
         // the sampler looks at.
-        let border = u32::try_from(crate::sampler::PROBE_BORDER).unwrap_or(u32::MAX);
+        let border = crate::sampler::PROBE_BORDER;
         let region = PixelRegion {
-            x: i64::from(rect.x) - i64::from(border),
-            y: i64::from(rect.y) - i64::from(border),
-            width: (rect.width + 2 * border) as usize,
-            height: (rect.height + 2 * border) as usize,
+            x: i64::from(rect.x) - border as i64,
+            y: i64::from(rect.y) - border as i64,
+            width: rect.width as usize + 2 * border,
+            height: rect.height as usize + 2 * border,
         };
         let footprints =
             matches!(sampler, Sampler::Adaptive { .. }).then(|| Footprints::new(self, region));

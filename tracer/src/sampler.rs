@@ -605,14 +605,16 @@ fn se_bound(threshold: f64, rays: u32) -> f64 {
 
 /// The adaptive sampler over `rect`.
 ///
-/// With a smoothness test, every pixel of the rect and of a two-pixel border first traces
-/// its first ray alone (its *probe*); a pixel ends there, with that one ray, when no
-/// neighbour whose probe saw the same object differs from it by more than `threshold` (a
-/// steep shading gradient) and the test says it is smooth. Every other pixel takes its
-/// four-ray first pass, the probe's ray being the first of them, and goes on as without a
-/// test. The rect's pixels' decisions look at their neighbours' first passes, and whether a
-/// neighbour has one depends on its own neighbours' probes: hence the two-pixel border,
-/// which keeps every pixel's rays independent of the tile it is in.
+/// With a smoothness test, every pixel of the rect first traces its first ray alone (its
+/// *probe*); a pixel ends there, with that one ray, when no neighbour whose probe saw the
+/// same object differs from it by more than `threshold` (a steep shading gradient) and the
+/// test says it is smooth. Every other pixel takes its four-ray first pass, the probe's ray
+/// being the first of them, and goes on as without a test. A pixel that goes on compares its
+/// first pass with its neighbours', and whether a neighbour has one depends on that
+/// neighbour's own neighbours' probes: so the decision is made, the same way, for the
+/// border pixels next to a pixel that goes on, with probes up to two pixels beyond the
+/// rect ([`PROBE_BORDER`]). Every pixel's rays are thus what they would be in any other
+/// tile.
 fn adaptive<F, S>(
     rect: Rect,
     max: u32,
@@ -715,6 +717,8 @@ fn adaptive<F, S>(
                 if slot[i] == NONE && !ends[i] {
                     let (x, y) = pixel(qx, qy);
                     let probed = probes[i].map(|(_, p)| p);
+                    // At most one pass per pixel of the grown rect, whose size is bounded
+                    // by the image's (`Limits`) and far below u32::MAX.
                     slot[i] = passes.len() as u32;
                     passes.push(first_pass(x, y, max, order, trace, probed));
                 }
