@@ -61,6 +61,13 @@ impl Camera {
         2.0 * (diagonal * 0.5).atan()
     }
 
+    /// An upper bound on the angle between the ray through a pixel's centre and any other ray
+    /// through that pixel: as [`Camera::pixel_angle`], for half the diagonal.
+    pub fn pixel_angle_from_centre(&self) -> f64 {
+        let diagonal = (self.right_per_px + self.down_per_px).length();
+        2.0 * (diagonal * 0.25).atan()
+    }
+
     /// The image-plane position `(x, y)` in pixels of world point `p`, with its depth along
     /// `forward` (for depth > 0 only; otherwise `None`: no primary ray reaches such a point,
     /// since every primary direction has forward component 1 before normalisation).
@@ -167,6 +174,21 @@ mod tests {
             }
         }
         assert!(widest > bound * (1.0 - 1e-3), "{widest} vs {bound}");
+        // From the centre to the corners, the same for half the diagonal.
+        let from_centre = c.pixel_angle_from_centre();
+        let mut widest: f64 = 0.0;
+        for (px, py) in [(0.0, 0.0), (63.0, 47.0), (32.0, 24.0), (31.0, 23.0)] {
+            let centre = c.ray(px + 0.5, py + 0.5).dir;
+            for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)] {
+                let angle = centre.angle_between(c.ray(px + dx, py + dy).dir);
+                assert!(angle <= from_centre, "pixel ({px}, {py}): {angle}");
+                widest = widest.max(angle);
+            }
+        }
+        assert!(
+            widest > from_centre * (1.0 - 1e-3),
+            "{widest} vs {from_centre}"
+        );
     }
 
     /// `project` is the inverse of `ray`, and refuses points behind the eye.

@@ -132,10 +132,43 @@ impl Object {
     /// ([`crate::bvh::SLACK`]), a margin nine orders wider, and the slices share their end
     /// discs, so the padded boxes together hold the solid and every computed hit on it.
     pub fn pieces(&self) -> Vec<Aabb> {
+        self.slices().map_or_else(Vec::new, |(_, boxes)| boxes)
+    }
+
+    /// The same slices as [`Object::pieces`], each as a capsule that holds it: the segment
+    /// between its end discs' centres and a radius no smaller than either disc's (a disc of
+    /// radius `ρ` spanned by `ρ·M·x̂` and `ρ·M·ẑ` lies within `ρ·√(|M·x̂|² + |M·ẑ|²)` of its
+    /// centre, by Cauchy–Schwarz; the slice is the convex hull of its discs, so it lies in
+    /// the hull of the two balls). The radius is padded as [`crate::bvh::padded`] pads boxes.
+    /// Empty for shapes that are not cut.
+    pub fn piece_capsules(&self) -> Vec<(DVec3, DVec3, f64)> {
+        let Some((ends, _)) = self.slices() else {
+            return Vec::new();
+        };
+        let m = self.transform.to_world();
+        let (c0, c1, c2) = (m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis);
+        let across = (c0.length_squared() + c2.length_squared()).sqrt();
+        let radius = |y: f64| match self.shape {
+            Shape::Cone => (1.0 - y) / 2.0,
+            _ => 1.0,
+        };
+        ends.windows(2)
+            .map(|w| {
+                let (a, b) = (m.translation + c1 * w[0], m.translation + c1 * w[1]);
+                let r = across * radius(w[0]).max(radius(w[1]));
+                let size = a.abs().max(b.abs()).max_element() + r;
+                (a, b, r + size * crate::bvh::SLACK)
+            })
+            .collect()
+    }
+
+    /// The slicing of a cylinder or cone: the slices' end heights `y` in the unit shape
+    /// (`−1` first, `1` last) and their boxes; `None` for other shapes.
+    fn slices(&self) -> Option<(Vec<f64>, Vec<Aabb>)> {
         let radius: fn(f64) -> f64 = match self.shape {
             Shape::Cylinder => |_| 1.0,
             Shape::Cone => |y| (1.0 - y) / 2.0,
-            _ => return Vec::new(),
+            _ => return None,
         };
         let m = self.transform.to_world();
         let (c0, c1, c2) = (m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis);
@@ -144,17 +177,16 @@ impl Object {
             let (c, e) = (m.translation + c1 * y, spread * radius(y));
             Aabb::new(c - e, c + e)
         };
+        let end = |j: usize, k: usize| {
+            if j == k {
+                1.0
+            } else {
+                -1.0 + 2.0 * j as f64 / k as f64
+            }
+        };
         let slices = |k: usize| -> Vec<Aabb> {
             (0..k)
-                .map(|j| {
-                    let y0 = -1.0 + 2.0 * j as f64 / k as f64;
-                    let y1 = if j + 1 == k {
-                        1.0
-                    } else {
-                        -1.0 + 2.0 * (j + 1) as f64 / k as f64
-                    };
-                    disc(y0).union(&disc(y1))
-                })
+                .map(|j| disc(end(j, k)).union(&disc(end(j + 1, k))))
                 .collect()
         };
         let area = |b: &[Aabb]| b.iter().map(Aabb::surface_area).sum::<f64>();
@@ -169,7 +201,7 @@ impl Object {
             best = finer;
             k *= 2;
         }
-        best
+        Some(((0..=k).map(|j| end(j, k)).collect(), best))
     }
 }
 
