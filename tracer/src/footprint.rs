@@ -17,12 +17,14 @@
 //! The last is decided per tile, once, by projecting the solids onto the image
 //! ([`Footprints::new`]): a bounded solid's BVH boxes (a long cylinder's slices, see
 //! [`Object::pieces`]) are projected by their corners, and every pixel whose square meets
-//! the rectangle around them counts the solid; a similarity sphere counts only in pixels
-//! whose cone (below) meets it; a box reaching behind the eye's plane counts everywhere.
-//! Planes are tested per pixel.
+//! the rectangle around them counts the solid; a similarity sphere, and a long object's
+//! slice (as its capsule, [`Object::piece_capsules`]), count only in those pixels whose
+//! cone around the centre ray (below) meets them; a box reaching behind the eye's plane
+//! counts everywhere. Planes are tested per pixel.
 //!
 //! **Cones.** Every ray through a pixel's square lies within [`crate::camera::Camera::pixel_angle`]
-//! of any other, so within the cone of that half-angle around any one of them. A sphere of
+//! of any other, so within the cone of that half-angle around any one of them, and within
+//! [`crate::camera::Camera::pixel_angle_from_centre`] of the ray through its centre. A sphere of
 //! radius `r` at distance `d` fills the directions within `α = asin(r/d)` of its centre: the
 //! cone meets it when `θ ≤ α + φ` and lies inside it when `θ + φ ≤ α` (`θ` the angle from the
 //! cone's axis to the centre, `φ` the half-angle). These are compared as sines (`sin θ` from a
@@ -429,32 +431,18 @@ impl<'s> Footprints<'s> {
     /// rectangle of its box, each tested around the ray through its centre.
     fn add_sphere(&mut self, id: u32, c: DVec3, r: f64) {
         let b = Aabb::new(c - DVec3::splat(r), c + DVec3::splat(r));
-        let rect = match bvh::padded(&b).map(|p| self.project_box(&p)) {
-            Some(Projection::Behind) => return,
-            Some(Projection::Within(rect)) => rect,
-            _ => [
-                f64::NEG_INFINITY,
-                f64::NEG_INFINITY,
-                f64::INFINITY,
-                f64::INFINITY,
-            ],
-        };
-        let (xs, ys) = self.pixels_of(rect);
-        let reg = self.region;
-        for row in ys {
-            for col in xs.clone() {
-                let (px, py) = (reg.x + col as i64, reg.y + row as i64);
-                let ray = self.scene.camera.ray(px as f64 + 0.5, py as f64 + 0.5);
-                if Cone::new(ray.origin, ray.dir, self.centre_aperture).meets_sphere(c, r) {
-                    self.mark(row * reg.width + col, id);
-                }
-            }
-        }
+        self.add_where(id, &b, |cone| cone.meets_sphere(c, r));
     }
 
     /// Counts a slice of a long object in the pixels of its box's rectangle whose cone
     /// (around the centre ray) may meet its capsule.
     fn add_capsule(&mut self, id: u32, b: &Aabb, a: DVec3, e: DVec3, r: f64) {
+        self.add_where(id, b, |cone| cone.may_meet_capsule(a, e, r));
+    }
+
+    /// Counts `id` in the pixels of the rectangle of box `b` where `meets` holds for the
+    /// cone around the ray through the pixel's centre.
+    fn add_where(&mut self, id: u32, b: &Aabb, meets: impl Fn(&Cone) -> bool) {
         let rect = match bvh::padded(b).map(|p| self.project_box(&p)) {
             Some(Projection::Behind) => return,
             Some(Projection::Within(rect)) => rect,
@@ -471,7 +459,7 @@ impl<'s> Footprints<'s> {
             for col in xs.clone() {
                 let (px, py) = (reg.x + col as i64, reg.y + row as i64);
                 let ray = self.scene.camera.ray(px as f64 + 0.5, py as f64 + 0.5);
-                if Cone::new(ray.origin, ray.dir, self.centre_aperture).may_meet_capsule(a, e, r) {
+                if meets(&Cone::new(ray.origin, ray.dir, self.centre_aperture)) {
                     self.mark(row * reg.width + col, id);
                 }
             }
