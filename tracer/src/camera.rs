@@ -57,15 +57,20 @@ impl Camera {
     /// it subtends when centred on the foot of the perpendicular, and two points of one
     /// pixel's square are at most its diagonal apart.
     pub fn pixel_angle(&self) -> f64 {
-        let diagonal = (self.right_per_px + self.down_per_px).length();
-        2.0 * (diagonal * 0.5).atan()
+        self.widest_angle(1.0)
     }
 
     /// An upper bound on the angle between the ray through a pixel's centre and any other ray
     /// through that pixel: as [`Camera::pixel_angle`], for half the diagonal.
     pub fn pixel_angle_from_centre(&self) -> f64 {
-        let diagonal = (self.right_per_px + self.down_per_px).length();
-        2.0 * (diagonal * 0.25).atan()
+        self.widest_angle(0.5)
+    }
+
+    /// The widest angle a segment of `fraction` of a pixel's diagonal subtends (see
+    /// [`Camera::pixel_angle`]).
+    fn widest_angle(&self, fraction: f64) -> f64 {
+        let length = (self.right_per_px + self.down_per_px).length() * fraction;
+        2.0 * (length * 0.5).atan()
     }
 
     /// The image-plane position `(x, y)` in pixels of world point `p`, with its depth along

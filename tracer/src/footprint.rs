@@ -18,7 +18,7 @@
 //! ([`Footprints::new`]): a bounded solid's BVH boxes (a long cylinder's slices, see
 //! [`Object::pieces`]) are projected by their corners, and every pixel whose square meets
 //! the rectangle around them counts the solid; a similarity sphere, and a long object's
-//! slice (as its capsule, [`Object::piece_capsules`]), count only in those pixels whose
+//! slice (as its capsule, [`Object::slices`]), count only in those pixels whose
 //! cone around the centre ray (below) meets them; a box reaching behind the eye's plane
 //! counts everywhere. Planes are tested per pixel.
 //!
@@ -106,49 +106,52 @@ impl Cone {
 
     /// Whether some direction of the cone meets the ball of centre `c` and radius `r`.
     pub fn meets_sphere(&self, c: DVec3, r: f64) -> bool {
-        let v = c - self.origin;
-        let d2 = v.length_squared();
         // From inside (or on) the ball every direction meets it; NaN lands here too.
-        if !(d2 > r * r) {
+        let Some(seen) = self.sphere_seen(c, r) else {
             return true;
-        }
-        let d = d2.sqrt();
-        let (sin_a, cos_a) = (r / d, (1.0 - (r / d) * (r / d)).max(0.0).sqrt());
+        };
         let ap = &self.aperture;
         // β = α + φ + margin; as sines only while β stays well below 90°.
-        let (sin_m, cos_m) = (ANGLE_MARGIN.sin(), ANGLE_MARGIN.cos());
-        let sin_b0 = sin_a * ap.cos + cos_a * ap.sin;
-        let cos_b0 = cos_a * ap.cos - sin_a * ap.sin;
-        let sin_b = sin_b0 * cos_m + cos_b0 * sin_m;
+        let sin_b0 = seen.sin_a * ap.cos + seen.cos_a * ap.sin;
+        let cos_b0 = seen.cos_a * ap.cos - seen.sin_a * ap.sin;
+        let sin_b = sin_b0 * MARGIN_COS + cos_b0 * MARGIN_SIN;
         if !(sin_b < 0.9) {
-            let alpha = sin_a.asin();
-            return angle_between(self.axis, v) <= alpha + ap.half_angle + ANGLE_MARGIN;
+            let alpha = seen.sin_a.asin();
+            return angle_between(self.axis, seen.v) <= alpha + ap.half_angle + ANGLE_MARGIN;
         }
-        let cos_t = self.axis.dot(v);
-        cos_t > 0.0 && self.axis.cross(v).length() <= sin_b * d
+        seen.within(self.axis, sin_b)
     }
 
     /// Whether every direction of the cone meets the ball of centre `c` and radius `r`, the
     /// origin being outside it.
     pub fn inside_sphere(&self, c: DVec3, r: f64) -> bool {
+        let Some(seen) = self.sphere_seen(c, r) else {
+            return false;
+        };
+        let ap = &self.aperture;
+        // γ = α − φ − margin, which must be positive; below 90° since α is.
+        let sin_g0 = seen.sin_a * ap.cos - seen.cos_a * ap.sin;
+        let cos_g0 = seen.cos_a * ap.cos + seen.sin_a * ap.sin;
+        let sin_g = sin_g0 * MARGIN_COS - cos_g0 * MARGIN_SIN;
+        sin_g > 0.0 && seen.within(self.axis, sin_g)
+    }
+
+    /// The ball of centre `c` and radius `r` as seen from the origin: `None` from inside it
+    /// (or for NaN).
+    fn sphere_seen(&self, c: DVec3, r: f64) -> Option<SphereSeen> {
         let v = c - self.origin;
         let d2 = v.length_squared();
         if !(d2 > r * r) {
-            return false;
+            return None;
         }
         let d = d2.sqrt();
-        let (sin_a, cos_a) = (r / d, (1.0 - (r / d) * (r / d)).max(0.0).sqrt());
-        let ap = &self.aperture;
-        // γ = α − φ − margin, which must be positive; below 90° since α is.
-        let (sin_m, cos_m) = (ANGLE_MARGIN.sin(), ANGLE_MARGIN.cos());
-        let sin_g0 = sin_a * ap.cos - cos_a * ap.sin;
-        let cos_g0 = cos_a * ap.cos + sin_a * ap.sin;
-        let sin_g = sin_g0 * cos_m - cos_g0 * sin_m;
-        if !(sin_g > 0.0) {
-            return false;
-        }
-        let cos_t = self.axis.dot(v);
-        cos_t > 0.0 && self.axis.cross(v).length() <= sin_g * d
+        let sin_a = r / d;
+        Some(SphereSeen {
+            v,
+            d,
+            sin_a,
+            cos_a: (1.0 - sin_a * sin_a).max(0.0).sqrt(),
+        })
     }
 
     /// Whether the cone may meet the capsule of radius `r` around the segment from `a` to
@@ -213,6 +216,27 @@ impl Cone {
     }
 }
 
+/// A ball seen from a cone's origin: the direction `v` and distance `d` to its centre, and
+/// the sine and cosine of the angle `α` it fills around that direction.
+struct SphereSeen {
+    v: DVec3,
+    d: f64,
+    sin_a: f64,
+    cos_a: f64,
+}
+
+impl SphereSeen {
+    /// Whether the angle from unit `axis` to the centre is below 90° and has sine at most
+    /// `sin` (`|axis × v| = d·sin θ`, exact to a few ulps even for tiny angles).
+    fn within(&self, axis: DVec3, sin: f64) -> bool {
+        axis.dot(self.v) > 0.0 && axis.cross(self.v).length() <= sin * self.d
+    }
+}
+
+/// `sin` and `cos` of [`ANGLE_MARGIN`] (its sine is itself to 17 digits, its cosine 1).
+const MARGIN_SIN: f64 = ANGLE_MARGIN;
+const MARGIN_COS: f64 = 1.0;
+
 /// The angle between two non-zero vectors, to a few ulps at any size (`atan2` of the cross
 /// and dot products).
 fn angle_between(a: DVec3, b: DVec3) -> f64 {
@@ -237,17 +261,22 @@ pub struct Footprints<'s> {
     /// Around any ray through a pixel, and around the ray through its centre.
     aperture: Aperture,
     centre_aperture: Aperture,
-    /// Per pixel, row-major: how many solids may show in it (0, 1, or 2 for "more"), and
-    /// which one when it is 1.
-    count: Vec<u8>,
-    sole: Vec<u32>,
+    /// Per pixel, row-major: [`NOTHING`], the one solid that may show in it, or
+    /// [`SEVERAL`].
+    shown: Vec<u32>,
     /// The planes (world point, normal, object), tested per pixel.
     planes: Vec<(DVec3, DVec3, u32)>,
 }
 
+/// A pixel no solid may show in.
+const NOTHING: u32 = u32::MAX;
+/// A pixel more than one solid may show in.
+const SEVERAL: u32 = u32::MAX - 1;
 /// The object number a CSG tree counts under: never a hit's object (those are the tree's
-/// children, and a child is never plain anyway).
-const CSG: u32 = u32::MAX - 1;
+/// children, and a child is never plain anyway). Object numbers stay below all three: a
+/// scene holds at most `Limits::max_objects` objects (a million by default), and the
+/// renderer numbers them in `u32` with `u32::MAX` meaning the background.
+const CSG: u32 = u32::MAX - 2;
 
 /// Where a box's projection lies.
 enum Projection {
@@ -268,8 +297,7 @@ impl<'s> Footprints<'s> {
             region,
             aperture: Aperture::new(scene.camera.pixel_angle()),
             centre_aperture: Aperture::new(scene.camera.pixel_angle_from_centre()),
-            count: vec![0; n],
-            sole: vec![0; n],
+            shown: vec![NOTHING; n],
             planes: Vec::new(),
         };
         // The prims that may show in the region: every prim, or those the BVH finds whose
@@ -315,20 +343,16 @@ impl<'s> Footprints<'s> {
                     self.add_sphere(*o, c, r2.sqrt());
                     return;
                 }
-                let pieces = obj.pieces();
-                let capsules = obj.piece_capsules();
-                if !capsules.is_empty() && capsules.len() == pieces.len() {
-                    for (b, (a, e, r)) in pieces.iter().zip(capsules) {
-                        self.add_capsule(*o, b, a, e, r);
+                let pieces = obj.slices();
+                if pieces.is_empty() {
+                    (*o, obj.bounds.into_iter().collect::<Vec<Aabb>>())
+                } else {
+                    for p in pieces {
+                        let (a, e) = p.axis;
+                        self.add_where(*o, &p.bounds, |cone| cone.may_meet_capsule(a, e, p.radius));
                     }
                     return;
                 }
-                let boxes = if pieces.is_empty() {
-                    obj.bounds.into_iter().collect()
-                } else {
-                    pieces
-                };
-                (*o, boxes)
             }
             prim @ Prim::Csg(_) => (CSG, prim.bounds(&scene.objects).into_iter().collect()),
         };
@@ -422,7 +446,7 @@ impl<'s> Footprints<'s> {
     }
 
     fn mark_all(&mut self, id: u32) {
-        for i in 0..self.count.len() {
+        for i in 0..self.shown.len() {
             self.mark(i, id);
         }
     }
@@ -432,12 +456,6 @@ impl<'s> Footprints<'s> {
     fn add_sphere(&mut self, id: u32, c: DVec3, r: f64) {
         let b = Aabb::new(c - DVec3::splat(r), c + DVec3::splat(r));
         self.add_where(id, &b, |cone| cone.meets_sphere(c, r));
-    }
-
-    /// Counts a slice of a long object in the pixels of its box's rectangle whose cone
-    /// (around the centre ray) may meet its capsule.
-    fn add_capsule(&mut self, id: u32, b: &Aabb, a: DVec3, e: DVec3, r: f64) {
-        self.add_where(id, b, |cone| cone.may_meet_capsule(a, e, r));
     }
 
     /// Counts `id` in the pixels of the rectangle of box `b` where `meets` holds for the
@@ -468,11 +486,11 @@ impl<'s> Footprints<'s> {
 
     #[inline]
     fn mark(&mut self, i: usize, id: u32) {
-        if self.count[i] == 0 {
-            self.count[i] = 1;
-            self.sole[i] = id;
-        } else if self.sole[i] != id {
-            self.count[i] = 2;
+        let shown = &mut self.shown[i];
+        if *shown == NOTHING {
+            *shown = id;
+        } else if *shown != id {
+            *shown = SEVERAL;
         }
     }
 
@@ -488,10 +506,10 @@ impl<'s> Footprints<'s> {
         }
         let i = cy as usize * reg.width + cx as usize;
         let hit = (seen.object != Sample::BACKGROUND).then_some(seen.object);
-        let alone = match self.count[i] {
-            0 => true,
-            1 => Some(self.sole[i]) == hit,
-            _ => false,
+        let alone = match self.shown[i] {
+            NOTHING => true,
+            SEVERAL => false,
+            one => Some(one) == hit,
         };
         if !alone || hit.is_some_and(|o| !self.scene.plain(o)) {
             return false;

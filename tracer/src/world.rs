@@ -132,43 +132,16 @@ impl Object {
     /// ([`crate::bvh::SLACK`]), a margin nine orders wider, and the slices share their end
     /// discs, so the padded boxes together hold the solid and every computed hit on it.
     pub fn pieces(&self) -> Vec<Aabb> {
-        self.slices().map_or_else(Vec::new, |(_, boxes)| boxes)
+        self.slices().into_iter().map(|p| p.bounds).collect()
     }
 
-    /// The same slices as [`Object::pieces`], each as a capsule that holds it: the segment
-    /// between its end discs' centres and a radius no smaller than either disc's (a disc of
-    /// radius `ρ` spanned by `ρ·M·x̂` and `ρ·M·ẑ` lies within `ρ·√(|M·x̂|² + |M·ẑ|²)` of its
-    /// centre, by Cauchy–Schwarz; the slice is the convex hull of its discs, so it lies in
-    /// the hull of the two balls). The radius is padded as [`crate::bvh::padded`] pads boxes.
-    /// Empty for shapes that are not cut.
-    pub fn piece_capsules(&self) -> Vec<(DVec3, DVec3, f64)> {
-        let Some((ends, _)) = self.slices() else {
-            return Vec::new();
-        };
-        let m = self.transform.to_world();
-        let (c0, c1, c2) = (m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis);
-        let across = (c0.length_squared() + c2.length_squared()).sqrt();
-        let radius = |y: f64| match self.shape {
-            Shape::Cone => (1.0 - y) / 2.0,
-            _ => 1.0,
-        };
-        ends.windows(2)
-            .map(|w| {
-                let (a, b) = (m.translation + c1 * w[0], m.translation + c1 * w[1]);
-                let r = across * radius(w[0]).max(radius(w[1]));
-                let size = a.abs().max(b.abs()).max_element() + r;
-                (a, b, r + size * crate::bvh::SLACK)
-            })
-            .collect()
-    }
-
-    /// The slicing of a cylinder or cone: the slices' end heights `y` in the unit shape
-    /// (`−1` first, `1` last) and their boxes; `None` for other shapes.
-    fn slices(&self) -> Option<(Vec<f64>, Vec<Aabb>)> {
+    /// The same slices as [`Object::pieces`], each with its box and a capsule that holds it
+    /// (see [`Piece`]); empty for shapes that are not cut.
+    pub fn slices(&self) -> Vec<Piece> {
         let radius: fn(f64) -> f64 = match self.shape {
             Shape::Cylinder => |_| 1.0,
             Shape::Cone => |y| (1.0 - y) / 2.0,
-            _ => return None,
+            _ => return Vec::new(),
         };
         let m = self.transform.to_world();
         let (c0, c1, c2) = (m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis);
@@ -201,8 +174,35 @@ impl Object {
             best = finer;
             k *= 2;
         }
-        Some(((0..=k).map(|j| end(j, k)).collect(), best))
+        // The capsules: a disc of radius ρ spanned by ρ·M·x̂ and ρ·M·ẑ lies within
+        // ρ·√(|M·x̂|² + |M·ẑ|²) of its centre (Cauchy–Schwarz).
+        let across = (c0.length_squared() + c2.length_squared()).sqrt();
+        best.into_iter()
+            .enumerate()
+            .map(|(j, bounds)| {
+                let (y0, y1) = (end(j, k), end(j + 1, k));
+                let (a, b) = (m.translation + c1 * y0, m.translation + c1 * y1);
+                let r = across * radius(y0).max(radius(y1));
+                let size = a.abs().max(b.abs()).max_element() + r;
+                Piece {
+                    bounds,
+                    axis: (a, b),
+                    radius: r + size * crate::bvh::SLACK,
+                }
+            })
+            .collect()
     }
+}
+
+/// A slice of a long cylinder or cone (see [`Object::pieces`]): its box, and a capsule that
+/// holds it: the segment `axis` between its end discs' centres, and a radius no smaller than
+/// either disc's (the slice is the convex hull of its discs, so it lies in the hull of the
+/// two balls), padded as [`crate::bvh::padded`] pads boxes.
+#[derive(Debug, Clone, Copy)]
+pub struct Piece {
+    pub bounds: Aabb,
+    pub axis: (DVec3, DVec3),
+    pub radius: f64,
 }
 
 /// The test of [`Object::certainly_missed_by`] for centre `c` and squared radius `r2`.
