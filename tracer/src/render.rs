@@ -104,6 +104,14 @@ impl SurfacePoint {
     pub fn origin_towards(&self, dir: DVec3) -> DVec3 {
         offset_ray_origin(self.p, self.err, self.n, dir)
     }
+
+    /// Origin for a secondary ray leaving on the side the incoming ray came from (`n`'s):
+    /// every ray the shader spawns does, a shadow ray only towards a light with `n·l > 0`
+    /// and a mirror ray by reflection. It is [`Self::origin_towards`] of any such direction,
+    /// computed once per hit rather than once per ray.
+    pub fn origin_ahead(&self) -> DVec3 {
+        offset_ray_origin(self.p, self.err, self.n, self.n)
+    }
 }
 
 impl Scene {
@@ -142,6 +150,8 @@ impl Scene {
         let sp = SurfacePoint::new(obj, &hit.local, ray.dir);
         let self_skip = self.self_skip(&hit, sp.outside);
 
+        // Every secondary ray leaves on the incoming side: one origin serves them all.
+        let mut ahead: Option<DVec3> = None;
         let mut color = Color::ZERO;
         if m.mirror < 1.0 {
             let mut light_sum = Color::ZERO;
@@ -166,7 +176,7 @@ impl Scene {
                     let mut v = 1.0;
                     if can_block && !known_clear {
                         Counters::bump(&c.shadow);
-                        let origin = sp.origin_towards(to_light);
+                        let origin = *ahead.get_or_insert_with(|| sp.origin_ahead());
                         let shadow_ray = Ray::new(origin, light.position - origin);
                         if self.occluded(&shadow_ray, 1.0, self_skip) {
                             v = 1.0 - self.shadow;
@@ -182,7 +192,8 @@ impl Scene {
             Counters::bump(&c.mirror);
             let d = ray.dir.normalize();
             let r = d - sp.n * (2.0 * d.dot(sp.n));
-            let mirror_ray = Ray::new(sp.origin_towards(r), r);
+            let origin = *ahead.get_or_insert_with(|| sp.origin_ahead());
+            let mirror_ray = Ray::new(origin, r);
             let (reflected, _) = self.radiance(&mirror_ray, bounces_left - 1, self_skip, c);
             color += reflected * m.mirror;
         }

@@ -224,6 +224,8 @@ fn offsets_prevent_the_self_hits_that_raw_hit_points_make() {
         };
         raw_self_hits += usize::from(self_hit(sp.p));
         lifted_self_hits += usize::from(self_hit(sp.origin_towards(out)));
+        // The shader lifts once per hit, for every ray leaving on the incoming side.
+        assert_eq!(sp.origin_ahead(), sp.origin_towards(out));
     }
     assert!(tested > 1000, "{tested}");
     assert_eq!(lifted_self_hits, 0);
