@@ -32,6 +32,7 @@
 //! Spindle and horn tori (`minor ≥ major`) are refused by the parser: their quartic also
 //! vanishes on an inner surface that is not the solid's boundary.
 
+use arrayvec::ArrayVec;
 use glam::{DVec2, DVec3};
 
 use super::{Crossing, LocalHit, Span, SurfaceUv, Wrap, line_box, unit_dir};
@@ -107,7 +108,14 @@ fn bracketed_root(f: impl Fn(f64) -> (f64, f64), mut a: f64, mut b: f64, pos_a: 
 }
 
 /// Real roots of `A s² + B s + C` inside `(lo, hi)`, ascending, appended to `out`.
-fn quadratic_roots_in(a: f64, b: f64, c: f64, lo: f64, hi: f64, out: &mut Vec<f64>) {
+fn quadratic_roots_in<const N: usize>(
+    a: f64,
+    b: f64,
+    c: f64,
+    lo: f64,
+    hi: f64,
+    out: &mut ArrayVec<f64, N>,
+) {
     let mut push = |r: f64| {
         if r > lo && r < hi {
             out.push(r);
@@ -183,13 +191,16 @@ fn roots(ray: &Ray, major: f64, minor: f64) -> Roots {
         return out;
     }
 
-    // Split points where q' is monotone: the roots of q''.
-    let mut split: Vec<f64> = Vec::with_capacity(4);
+    // Split points where q' is monotone: the roots of q''. On the stack (at most two roots
+    // between the ends), as are the critical points below: a heap allocation per ray cost
+    // more than the root finding on rays that miss.
+    let mut split: ArrayVec<f64, 4> = ArrayVec::new();
     split.push(lo);
     quadratic_roots_in(12.0 * c[4], 6.0 * c[3], 2.0 * c[2], lo, hi, &mut split);
     split.push(hi);
     // Critical points of q: one root of q' per sign change between split points.
-    let mut crit: Vec<f64> = Vec::with_capacity(6);
+    // At most one root of q' per window between split points: three, plus the ends.
+    let mut crit: ArrayVec<f64, 5> = ArrayVec::new();
     crit.push(lo);
     for w in split.windows(2) {
         let (fa, fb) = (cubic(&c, w[0]).0, cubic(&c, w[1]).0);
@@ -202,7 +213,7 @@ fn roots(ray: &Ray, major: f64, minor: f64) -> Roots {
     // outside by construction; classifying them so makes the count even however rounding
     // falls.
     let n = crit.len();
-    let inside: Vec<bool> = crit
+    let inside: ArrayVec<bool, 5> = crit
         .iter()
         .enumerate()
         .map(|(i, &s)| i != 0 && i != n - 1 && quartic(&c, s).0 <= 0.0)
@@ -214,8 +225,10 @@ fn roots(ray: &Ray, major: f64, minor: f64) -> Roots {
         let (a, bnd) = (crit[i], crit[i + 1]);
         let mut s = bracketed_root(|s| quartic(&c, s), a, bnd, !inside[i]);
         // Polish on the signed distance, inside this monotone interval, only while it helps.
+        // The distance at an accepted step is the next step's starting value, so each step
+        // evaluates it once (two `hypot`s, the polish's whole cost).
+        let (mut g, mut slope) = sd_slope(o + d * s, d, r);
         for _ in 0..4 {
-            let (g, slope) = sd_slope(o + d * s, d, r);
             if g == 0.0 {
                 break;
             }
@@ -223,10 +236,11 @@ fn roots(ray: &Ray, major: f64, minor: f64) -> Roots {
             if !(next >= a && next <= bnd) {
                 break;
             }
-            if !(sd_slope(o + d * next, d, r).0.abs() < g.abs()) {
+            let (g_next, slope_next) = sd_slope(o + d * next, d, r);
+            if !(g_next.abs() < g.abs()) {
                 break;
             }
-            s = next;
+            (s, g, slope) = (next, g_next, slope_next);
         }
         out.t[out.n] = (um + s) * major / len;
         out.n += 1;
