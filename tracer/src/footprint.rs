@@ -1,5 +1,6 @@
-//! Whether a pixel can hold an edge: the geometric test that lets the adaptive sampler end a
-//! pixel after its first ray.
+//! Whether a pixel can hold an edge: the geometric tests that let the adaptive sampler end a
+//! pixel after its first ray, and make it refine a pixel where a thin solid may hide between
+//! its first rays.
 //!
 //! **What it is for.** A pixel's exact value differs from the radiance of one ray through it
 //! only through what changes inside the pixel's square: a solid's silhouette, a plane's
@@ -21,6 +22,15 @@
 //! slice (as its capsule, [`Object::slices`]), count only in those pixels whose
 //! cone around the centre ray (below) meets them; a box reaching behind the eye's plane
 //! counts everywhere. Planes are tested per pixel.
+//!
+//! **Thin solids.** The same projection answers the opposite question,
+//! [`Footprints::may_hide`]: may a solid other than the one a pixel's first rays all saw show
+//! in its square? A sphere or rod thinner than the first rays' spacing can fall between them
+//! and leave them agreeing; the sampler then refines the pixel as if they had disagreed. Only
+//! the solids tested pixel by pixel (similarity spheres, and long objects' slices as
+//! capsules) are asked about: a box's rectangle is far larger than what it holds, and would
+//! send every pixel around a cube to the cap. Sub-pixel features come from small spheres and
+//! thin rods; other thin solids keep the sampler's colour and neighbour rules alone.
 //!
 //! **Cones.** Every ray through a pixel's square lies within [`crate::camera::Camera::pixel_angle`]
 //! of any other, so within the cone of that half-angle around any one of them, and within
@@ -253,7 +263,8 @@ pub struct PixelRegion {
     pub height: usize,
 }
 
-/// Which solids may show in each pixel of a region, for [`Footprints::is_smooth`].
+/// Which solids may show in each pixel of a region, for [`Footprints::is_smooth`] and
+/// [`Footprints::may_hide`].
 #[derive(Debug, Clone)]
 pub struct Footprints<'s> {
     scene: &'s Scene,
@@ -264,6 +275,9 @@ pub struct Footprints<'s> {
     /// Per pixel, row-major: [`NOTHING`], the one solid that may show in it, or
     /// [`SEVERAL`].
     shown: Vec<u32>,
+    /// Per pixel, as `shown`, but only the solids whose footprint is tested pixel by pixel
+    /// (spheres, and long rods slice by slice): what [`Footprints::may_hide`] answers from.
+    fitted: Vec<u32>,
     /// The planes (world point, normal, object), tested per pixel.
     planes: Vec<(DVec3, DVec3, u32)>,
 }
@@ -277,6 +291,16 @@ const SEVERAL: u32 = u32::MAX - 1;
 /// scene holds at most `Limits::max_objects` objects (a million by default), and the
 /// renderer numbers them in `u32` with `u32::MAX` meaning the background.
 const CSG: u32 = u32::MAX - 2;
+
+/// Counts solid `id` in a pixel's record: [`NOTHING`] → `id` → [`SEVERAL`].
+#[inline]
+fn count(record: &mut u32, id: u32) {
+    if *record == NOTHING {
+        *record = id;
+    } else if *record != id {
+        *record = SEVERAL;
+    }
+}
 
 /// Where a box's projection lies.
 enum Projection {
@@ -298,6 +322,7 @@ impl<'s> Footprints<'s> {
             aperture: Aperture::new(scene.camera.pixel_angle()),
             centre_aperture: Aperture::new(scene.camera.pixel_angle_from_centre()),
             shown: vec![NOTHING; n],
+            fitted: vec![NOTHING; n],
             planes: Vec::new(),
         };
         // The prims that may show in the region: every prim, or those the BVH finds whose
@@ -478,7 +503,9 @@ impl<'s> Footprints<'s> {
                 let (px, py) = (reg.x + col as i64, reg.y + row as i64);
                 let ray = self.scene.camera.ray(px as f64 + 0.5, py as f64 + 0.5);
                 if meets(&Cone::new(ray.origin, ray.dir, self.centre_aperture)) {
-                    self.mark(row * reg.width + col, id);
+                    let i = row * reg.width + col;
+                    self.mark(i, id);
+                    count(&mut self.fitted[i], id);
                 }
             }
         }
@@ -486,12 +513,20 @@ impl<'s> Footprints<'s> {
 
     #[inline]
     fn mark(&mut self, i: usize, id: u32) {
-        let shown = &mut self.shown[i];
-        if *shown == NOTHING {
-            *shown = id;
-        } else if *shown != id {
-            *shown = SEVERAL;
+        count(&mut self.shown[i], id);
+    }
+
+    /// Whether a similarity sphere or a long object's slice other than `object` (a hit's
+    /// object, or [`Sample::BACKGROUND`]) may show in pixel `(px, py)`'s square: its cone
+    /// around the centre ray meets one. Pixels outside the region: no.
+    pub fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
+        let reg = self.region;
+        let (cx, cy) = (px - reg.x, py - reg.y);
+        if cx < 0 || cy < 0 || cx >= reg.width as i64 || cy >= reg.height as i64 {
+            return false;
         }
+        let f = self.fitted[cy as usize * reg.width + cx as usize];
+        f != NOTHING && f != object
     }
 
     /// Whether pixel `(px, py)`, where the primary ray through image position `(x, y)` (a
@@ -553,6 +588,16 @@ impl Scene {
         let all_clear = n <= 64 && self.clear_lights(o) == u64::MAX >> (64 - n.max(1));
         let traces_shadows = self.shadow > 0.0 && m.diffuse > 0.0 && self.anything_else(Some(o));
         n == 0 || !traces_shadows || all_clear
+    }
+}
+
+impl crate::sampler::PixelGeometry for Footprints<'_> {
+    fn is_smooth(&self, px: i64, py: i64, x: f64, y: f64, seen: &Sample) -> bool {
+        Footprints::is_smooth(self, px, py, x, y, seen)
+    }
+
+    fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
+        Footprints::may_hide(self, px, py, object)
     }
 }
 

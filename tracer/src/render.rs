@@ -221,24 +221,22 @@ impl Scene {
         let counters = Counters::default();
         let mut out = vec![Color::ZERO; rect.pixel_count()];
         let trace = |x, y| self.primary(x, y, &counters);
-        // The adaptive sampler may end a pixel after one ray where geometry shows it smooth;
-        // which solids may show in each pixel is worked out once for the tile and the border
-        // the sampler looks at.
-        let border = crate::sampler::PROBE_BORDER;
-        let region = PixelRegion {
-            x: i64::from(rect.x) - border as i64,
-            y: i64::from(rect.y) - border as i64,
-            width: rect.width as usize + 2 * border,
-            height: rect.height as usize + 2 * border,
-        };
-        let footprints =
-            matches!(sampler, Sampler::Adaptive { .. }).then(|| Footprints::new(self, region));
-        let smooth = |px, py, x, y, seen: &Sample| {
-            footprints
-                .as_ref()
-                .is_some_and(|f| f.is_smooth(px, py, x, y, seen))
-        };
-        sampler.render_rect_probed(rect, trace, smooth, &mut out);
+        if matches!(sampler, Sampler::Adaptive { .. }) {
+            // The adaptive sampler asks the geometry which pixels may end after one ray and
+            // which may hide a solid their first rays missed; which solids may show in each
+            // pixel is worked out once for the tile and the border the sampler looks at.
+            let border = crate::sampler::PROBE_BORDER;
+            let region = PixelRegion {
+                x: i64::from(rect.x) - border as i64,
+                y: i64::from(rect.y) - border as i64,
+                width: rect.width as usize + 2 * border,
+                height: rect.height as usize + 2 * border,
+            };
+            let footprints = Footprints::new(self, region);
+            sampler.render_rect_probed(rect, trace, &footprints, &mut out);
+        } else {
+            sampler.render_rect(rect, trace, &mut out);
+        }
         (out, counters.stats())
     }
 

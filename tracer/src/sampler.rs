@@ -31,8 +31,10 @@ pub enum Sampler {
     /// [`Sampler::render_rect_probed`]). Elsewhere a first pass of one jittered ray per
     /// pixel quadrant (the probe among them), then more where the image needs them, in stages that reuse every ray already traced, up to `max × max` stratified rays
     /// (for even `max`, the very rays of `Jitter { n: max }`): where the first pass varies by
-    /// more than `threshold` or meets two objects, or where a neighbour's first pass saw an
-    /// edge, another object or another mean. For even `max ≥ 6`, a pixel only a neighbour
+    /// more than `threshold` or meets two objects, where the scene's geometry says a solid
+    /// the first pass did not see may show in the pixel ([`PixelGeometry::may_hide`]), or
+    /// where a neighbour's first pass saw an edge, another object or another mean. For even
+    /// `max ≥ 6`, a pixel only a neighbour
     /// asked for takes one more ray per quadrant first and stops there unless they disagree,
     /// and a pixel at 16 rays (or, for `max/2` a power of two, 32, 64, …) stops there once
     /// the standard error of its mean is at most `threshold` · √(rays/16) (see `refine` and
@@ -119,31 +121,34 @@ impl Sampler {
     where
         F: Fn(f64, f64) -> Sample,
     {
-        self.render_rect_inner(rect, &trace, None::<&NoProbe>, out);
+        self.render_rect_inner(rect, &trace, None::<&NoGeometry>, out);
     }
 
-    /// [`Sampler::render_rect`] with a test of smoothness for the adaptive sampler:
-    /// `smooth(px, py, x, y, seen)` says whether pixel `(px, py)`, where `trace` saw `seen`
-    /// through its point `(x, y)`, is known to hold no edge, texture, reflection or shadow edge, so
-    /// that its exact value differs from that one ray's only by smooth shading (the tracer's
-    /// [`crate::footprint::Footprints::is_smooth`] decides, by geometry). Such a pixel may
-    /// end after that ray. Other samplers never call it.
-    pub fn render_rect_probed<F, S>(&self, rect: Rect, trace: F, smooth: S, out: &mut [Color])
+    /// [`Sampler::render_rect`] with what the scene's geometry knows of each pixel's square
+    /// (see [`PixelGeometry`]): the adaptive sampler ends pixels it calls smooth after one
+    /// ray, and refines pixels where a solid their first pass did not see may show. Other
+    /// samplers never ask it.
+    pub fn render_rect_probed<F, G>(&self, rect: Rect, trace: F, geometry: &G, out: &mut [Color])
     where
         F: Fn(f64, f64) -> Sample,
-        S: Fn(i64, i64, f64, f64, &Sample) -> bool,
+        G: PixelGeometry,
     {
-        self.render_rect_inner(rect, &trace, Some(&smooth), out);
+        self.render_rect_inner(rect, &trace, Some(geometry), out);
     }
 
-    fn render_rect_inner<F, S>(&self, rect: Rect, trace: &F, smooth: Option<&S>, out: &mut [Color])
-    where
+    fn render_rect_inner<F, G>(
+        &self,
+        rect: Rect,
+        trace: &F,
+        geometry: Option<&G>,
+        out: &mut [Color],
+    ) where
         F: Fn(f64, f64) -> Sample,
-        S: Fn(i64, i64, f64, f64, &Sample) -> bool,
+        G: PixelGeometry,
     {
         debug_assert_eq!(out.len(), rect.pixel_count());
         if let Sampler::Adaptive { max, threshold } = *self {
-            adaptive(rect, max, threshold, trace, smooth, out);
+            adaptive(rect, max, threshold, trace, geometry, out);
             return;
         }
         let mut i = 0;
@@ -175,7 +180,7 @@ impl Sampler {
                     max,
                     threshold,
                     trace,
-                    None::<&NoProbe>,
+                    None::<&NoGeometry>,
                     &mut one,
                 );
                 one[0]
@@ -201,8 +206,36 @@ impl Sample {
 /// about the pixels within one less).
 pub const PROBE_BORDER: usize = 2;
 
-/// The smoothness test of renders without one.
-type NoProbe = fn(i64, i64, f64, f64, &Sample) -> bool;
+/// What the scene's geometry knows about one pixel's square, for the adaptive sampler:
+/// the tracer's [`crate::footprint::Footprints`] answers from the solids' projections. The
+/// sampler itself knows no geometry. Both answers must err one way only, or a pixel loses
+/// detail: `is_smooth` may say no where yes is true, `may_hide` yes where no is true.
+pub trait PixelGeometry {
+    /// Whether pixel `(px, py)`, where the primary ray through its point `(x, y)` saw
+    /// `seen`, is known to hold no edge, texture, reflection or shadow edge, so that its
+    /// exact value differs from that one ray's only by smooth shading. Such a pixel may end
+    /// after that ray.
+    fn is_smooth(&self, px: i64, py: i64, x: f64, y: f64, seen: &Sample) -> bool;
+
+    /// Whether a solid other than `object` ([`Sample::BACKGROUND`] for none) may show in
+    /// pixel `(px, py)`'s square: a feature that every ray of a pixel's first pass saw
+    /// `object` may have slipped between. Such a pixel is refined as if its own rays
+    /// disagreed.
+    fn may_hide(&self, px: i64, py: i64, object: u32) -> bool;
+}
+
+/// The geometry of renders without a footprint: nothing is known smooth, nothing hidden.
+struct NoGeometry;
+
+impl PixelGeometry for NoGeometry {
+    fn is_smooth(&self, _: i64, _: i64, _: f64, _: f64, _: &Sample) -> bool {
+        false
+    }
+
+    fn may_hide(&self, _: i64, _: i64, _: u32) -> bool {
+        false
+    }
+}
 
 const SEED_JITTER: u64 = 0x9e37_79b9_7f4a_7c15;
 const SEED_FIRST: u64 = 0xc2b2_ae3d_27d4_eb4f;
@@ -615,16 +648,16 @@ fn se_bound(threshold: f64, rays: u32) -> f64 {
 /// border pixels next to a pixel that goes on, with probes up to two pixels beyond the
 /// rect ([`PROBE_BORDER`]). Every pixel's rays are thus what they would be in any other
 /// tile.
-fn adaptive<F, S>(
+fn adaptive<F, G>(
     rect: Rect,
     max: u32,
     threshold: f64,
     trace: &F,
-    smooth: Option<&S>,
+    geometry: Option<&G>,
     out: &mut [Color],
 ) where
     F: Fn(f64, f64) -> Sample,
-    S: Fn(i64, i64, f64, f64, &Sample) -> bool,
+    G: PixelGeometry,
 {
     let order = max.is_multiple_of(2).then(|| QuadrantOrder::new(max / 2));
     let order = order.as_ref();
@@ -651,7 +684,7 @@ fn adaptive<F, S>(
     // first passes' first rays.
     let mut ends = vec![false; pw * ph];
     let mut probes: Vec<Option<((f64, f64), Sample)>> = vec![None; pw * ph];
-    if let Some(smooth) = smooth {
+    if let Some(geometry) = geometry {
         let probe = |probes: &mut Vec<Option<((f64, f64), Sample)>>, bx: usize, by: usize| {
             let i = at(bx, by);
             if let Some(p) = probes[i] {
@@ -675,7 +708,7 @@ fn adaptive<F, S>(
             neighbours(bx, by)
                 .into_iter()
                 .all(|(nx, ny)| probes[at(nx, ny)].is_none_or(|(_, q)| gentle(&q)))
-                && smooth(x, y, sx, sy, &p)
+                && geometry.is_smooth(x, y, sx, sy, &p)
                 && neighbours(bx, by)
                     .into_iter()
                     .all(|(nx, ny)| gentle(&probe(probes, nx, ny).1))
@@ -751,13 +784,17 @@ fn adaptive<F, S>(
                     let fp = &passes[k as usize];
                     let c = &fp.tally;
                     // More samples where the pixel's own samples disagree (contrast or a
-                    // second object), or where a neighbour saw an edge, a different object or
-                    // a different mean: an edge or a thin feature there may reach into this
-                    // pixel between its own samples, and four samples that happen to agree
-                    // inside fine texture (a checker near the horizon) still disagree with
-                    // their neighbours'.
-                    let own = c.contrast(threshold);
+                    // second object) or the geometry says a solid they did not see may show
+                    // in it (one thinner than their spacing, slipped between them: refined
+                    // as if they had seen it), or where a neighbour saw an edge, a different
+                    // object or a different mean: an edge or a thin feature there may reach
+                    // into this pixel between its own samples, and four samples that happen
+                    // to agree inside fine texture (a checker near the horizon) still
+                    // disagree with their neighbours'.
                     let mean = c.mean();
+                    let own = c.contrast(threshold)
+                        || geometry
+                            .is_some_and(|g| g.may_hide(i64::from(x), i64::from(y), c.object));
                     let near = neighbours(bx, by).iter().any(|&(nx, ny)| {
                         let (mixed, object, nb_mean) = seen(at(nx, ny));
                         mixed
@@ -785,6 +822,28 @@ mod tests {
             color: Color::splat(color),
             object: 0,
         }
+    }
+
+    /// A [`PixelGeometry`] from two closures: `smooth(px, py)` and `hides(px, py, object)`.
+    struct Geo<S, H>(S, H);
+
+    impl<S, H> PixelGeometry for Geo<S, H>
+    where
+        S: Fn(i64, i64) -> bool,
+        H: Fn(i64, i64, u32) -> bool,
+    {
+        fn is_smooth(&self, px: i64, py: i64, _: f64, _: f64, _: &Sample) -> bool {
+            (self.0)(px, py)
+        }
+
+        fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
+            (self.1)(px, py, object)
+        }
+    }
+
+    /// A geometry that knows nothing hidden, and smooth pixels by `smooth`.
+    fn smooth_where(smooth: impl Fn(i64, i64) -> bool) -> impl PixelGeometry {
+        Geo(smooth, |_, _, _| false)
     }
 
     /// A vertical edge at x = 10.3: white to its left.
@@ -1192,7 +1251,7 @@ mod tests {
                 probed_rays.set(probed_rays.get() + 1);
                 edge(x, y)
             };
-            s.render_rect_probed(rect, trace, |_, _, _, _, _| false, &mut probed);
+            s.render_rect_probed(rect, trace, &smooth_where(|_, _| false), &mut probed);
             assert_eq!(probed, plain, "max {max}");
             // Not one ray more: a probe is traced only where its first pass would be, and is
             // its first ray; the second border ring is probed only around smooth pixels.
@@ -1229,7 +1288,7 @@ mod tests {
             ramp(x, y)
         };
         let mut out = vec![Color::ZERO; 12];
-        s.render_rect_probed(rect, trace, |_, _, _, _, _| true, &mut out);
+        s.render_rect_probed(rect, trace, &smooth_where(|_, _| true), &mut out);
         let rays = rays.into_inner();
         for x in 0..12usize {
             // A pixel that ends took its probe and compared it with its neighbours' (rows −1
@@ -1248,11 +1307,14 @@ mod tests {
         }
     }
 
-    /// With a smoothness test that vouches for some pixels and not others, a pixel's value
-    /// still does not depend on the tile it is rendered in.
+    /// With a geometry that vouches for some pixels, and says others may hide a solid, a
+    /// pixel's value still does not depend on the tile it is rendered in.
     #[test]
     fn probed_pixels_do_not_depend_on_the_tile() {
-        let smooth = |px: i64, py: i64, _: f64, _: f64, _: &Sample| (px * 7 + py * 3) % 5 != 0;
+        let geometry = Geo(
+            |px: i64, py: i64| (px * 7 + py * 3) % 5 != 0,
+            |px: i64, py: i64, _| (px * 5 + py) % 4 == 0,
+        );
         let disc = |x: f64, y: f64| {
             let inside = (x - 8.3).powi(2) + (y - 5.1).powi(2) < 9.0;
             Sample {
@@ -1276,11 +1338,11 @@ mod tests {
         ] {
             let whole_rect = Rect::new(0, 0, 17, 11);
             let mut whole = vec![Color::ZERO; whole_rect.pixel_count()];
-            s.render_rect_probed(whole_rect, disc, smooth, &mut whole);
+            s.render_rect_probed(whole_rect, disc, &geometry, &mut whole);
             for tile in [1u32, 2, 5] {
                 for r in crate::tile::tiles(17, 11, tile) {
                     let mut part = vec![Color::ZERO; r.pixel_count()];
-                    s.render_rect_probed(r, disc, smooth, &mut part);
+                    s.render_rect_probed(r, disc, &geometry, &mut part);
                     for (i, c) in part.iter().enumerate() {
                         let (x, y) = (r.x + i as u32 % r.width, r.y + i as u32 / r.width);
                         assert_eq!(*c, whole[(y * 17 + x) as usize], "{s:?} tile {tile}");
@@ -1288,5 +1350,93 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Where the geometry says a solid may hide, a pixel whose first rays all agree is
+    /// refined as if they had not: to jitter's rays for caps up to 4 (a cap of 3 adds its
+    /// 3 × 3 to its first four), and to the 16 of its first complete stage above that; the
+    /// pixel beside it, which the geometry does not flag, stops at its first four.
+    #[test]
+    fn a_pixel_that_may_hide_a_solid_is_refined_though_its_rays_agree() {
+        use std::cell::RefCell;
+        // A flat image: no contrast anywhere, so only the geometry can ask for more rays.
+        for (max, flagged) in [(2, 4), (3, 13), (4, 16), (6, 16), (8, 16), (16, 16)] {
+            let s = Sampler::Adaptive {
+                max,
+                threshold: 0.02,
+            };
+            let rays = RefCell::new(Vec::new());
+            let trace = |x: f64, y: f64| {
+                rays.borrow_mut().push((x, y));
+                Sample {
+                    color: Color::splat(0.5),
+                    object: Sample::BACKGROUND,
+                }
+            };
+            // Pixel (4, 2) may hide a solid other than the background; nothing is smooth.
+            let hides =
+                |px: i64, py: i64, object: u32| (px, py) == (4, 2) && object == Sample::BACKGROUND;
+            let mut out = vec![Color::ZERO; 2];
+            s.render_rect_probed(
+                Rect::new(4, 2, 2, 1),
+                trace,
+                &Geo(|_, _| false, hides),
+                &mut out,
+            );
+            let rays = rays.into_inner();
+            assert_eq!(rays_in(&rays, 4, 2).len(), flagged, "max {max}");
+            assert_eq!(rays_in(&rays, 5, 2).len(), 4, "max {max}");
+            assert_eq!(out, vec![Color::splat(0.5); 2], "max {max}");
+        }
+    }
+
+    /// A line a twentieth of a pixel wide, which four rays mostly miss: where the geometry
+    /// flags the pixels it crosses, adaptive with cap 4 gives jitter 4 × 4's value in every
+    /// one of them (the second method), however its first rays fell; without the geometry,
+    /// some of those pixels stop at four rays that all missed it.
+    #[test]
+    fn flagged_thin_features_get_jitters_estimate() {
+        // A diagonal line of width 0.05 px (measured across x), object 1, on a flat ground.
+        let line = |x: f64, y: f64| {
+            let on = (x - 0.37 * y - 2.0).abs() < 0.025;
+            Sample {
+                color: Color::splat(if on { 1.0 } else { 0.2 }),
+                object: if on { 1 } else { Sample::BACKGROUND },
+            }
+        };
+        // The pixels the line crosses (each row y covers x in 2 + 0.37·[y, y + 1] ± 0.025).
+        let crosses = |px: i64, py: i64| {
+            let (lo, hi) = (
+                2.0 + 0.37 * py as f64 - 0.025,
+                2.0 + 0.37 * (py + 1) as f64 + 0.025,
+            );
+            (px as f64) < hi && (px + 1) as f64 > lo
+        };
+        let rect = Rect::new(0, 0, 12, 24);
+        let mut jit = vec![Color::ZERO; rect.pixel_count()];
+        Sampler::Jitter { n: 4 }.render_rect(rect, line, &mut jit);
+        let s = Sampler::Adaptive {
+            max: 4,
+            threshold: 0.02,
+        };
+        let geometry = Geo(
+            |_, _| false,
+            |px, py, object| crosses(px, py) && object != 1,
+        );
+        let mut flagged = vec![Color::ZERO; rect.pixel_count()];
+        s.render_rect_probed(rect, line, &geometry, &mut flagged);
+        let mut plain = vec![Color::ZERO; rect.pixel_count()];
+        s.render_rect(rect, line, &mut plain);
+        let mut missed = 0;
+        for (i, ((f, p), j)) in flagged.iter().zip(&plain).zip(&jit).enumerate() {
+            let (px, py) = ((i % 12) as i64, (i / 12) as i64);
+            if crosses(px, py) {
+                assert!((*f - *j).abs().max_element() < 1e-12, "pixel ({px}, {py})");
+                missed += usize::from(*p == Color::splat(0.2) && *j != Color::splat(0.2));
+            }
+        }
+        // The failure the geometry is there for: without it, some crossed pixels kept
+        // none of the line that jitter found.
+        assert!(missed > 0, "no pixel lost the line without the geometry");
     }
 }
