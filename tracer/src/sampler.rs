@@ -553,6 +553,8 @@ fn first_pass<F: Fn(f64, f64) -> Sample>(
 }
 
 /// The estimate of a pixel whose first pass, or a neighbour's, asked for more samples.
+/// `own` is true when the pixel itself asked: its first pass disagreed, or the geometry says
+/// a solid it did not see may show in it.
 ///
 /// Even `n`, in stages of ranks per quadrant (see [`QuadrantOrder`]), each stage reusing the
 /// ones before:
