@@ -111,6 +111,16 @@ fn seen_cell(s: &Scene, x: f64, y: f64) -> (u32, i64) {
     (h.object, cell & 1)
 }
 
+/// The whole image and two pixels beyond it on every side, as a tile's border reaches.
+fn past_the_image(s: &Scene) -> PixelRegion {
+    PixelRegion {
+        x: -2,
+        y: -2,
+        width: s.width as usize + 4,
+        height: s.height as usize + 4,
+    }
+}
+
 #[test]
 fn a_pixel_called_smooth_shows_one_solid_everywhere() {
     let mut rng = Rng(0x5eed_f00d);
@@ -118,14 +128,7 @@ fn a_pixel_called_smooth_shows_one_solid_everywhere() {
     for case in 0..40 {
         let src = random_scene(&mut rng);
         let s = common::scene(&src);
-        // The region reaches past the image, as a tile's border does.
-        let region = PixelRegion {
-            x: -2,
-            y: -2,
-            width: s.width as usize + 4,
-            height: s.height as usize + 4,
-        };
-        let fp = Footprints::new(&s, region);
+        let fp = Footprints::new(&s, past_the_image(&s));
         for py in -2..s.height as i64 + 2 {
             for px in -2..s.width as i64 + 2 {
                 // A probe anywhere in the pixel.
@@ -181,13 +184,7 @@ fn a_sphere_or_rod_that_shows_in_a_pixel_is_never_hidden() {
     for case in 0..40 {
         let src = random_scene(&mut rng);
         let s = common::scene(&src);
-        let region = PixelRegion {
-            x: -2,
-            y: -2,
-            width: s.width as usize + 4,
-            height: s.height as usize + 4,
-        };
-        let fp = Footprints::new(&s, region);
+        let fp = Footprints::new(&s, past_the_image(&s));
         let fitted = |o: u32| {
             s.objects.get(o as usize).is_some_and(|obj| {
                 !obj.in_csg && (obj.similarity_sphere().is_some() || !obj.slices().is_empty())
