@@ -5,7 +5,8 @@
 //! ([`scene`]), places unit shapes with composite and inverse matrices ([`transform`],
 //! [`shape`]), shades them exactly as the format's "exact image" defines ([`render`]),
 //! samples pixels deterministically ([`sampler`]; the adaptive sampler ends a pixel after one
-//! ray where the geometry proves it smooth, [`footprint`]), and encodes sRGB PNGs ([`png_out`]).
+//! ray where the geometry proves it smooth, and refines one where a thin sphere or rod may
+//! hide between its first rays, [`footprint`]), and encodes sRGB PNGs ([`png_out`]).
 //! It knows nothing of networks, databases or job queues: the farm's service and workers
 //! call [`Scene::render_rect`] on tiles, and a tile's pixels never depend on the tile.
 //!

@@ -108,14 +108,7 @@ fn bracketed_root(f: impl Fn(f64) -> (f64, f64), mut a: f64, mut b: f64, pos_a: 
 }
 
 /// Real roots of `A s² + B s + C` inside `(lo, hi)`, ascending, appended to `out`.
-fn quadratic_roots_in<const N: usize>(
-    a: f64,
-    b: f64,
-    c: f64,
-    lo: f64,
-    hi: f64,
-    out: &mut ArrayVec<f64, N>,
-) {
+fn quadratic_roots_in(a: f64, b: f64, c: f64, lo: f64, hi: f64, out: &mut ArrayVec<f64, 4>) {
     let mut push = |r: f64| {
         if r > lo && r < hi {
             out.push(r);
