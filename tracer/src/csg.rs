@@ -34,7 +34,7 @@ use glam::DVec3;
 
 use crate::math::{Aabb, Ray};
 use crate::scene::CsgOp;
-use crate::shape::Span;
+use crate::shape::{Shape, Span};
 use crate::world::Object;
 
 /// Crossings of different children closer than this fraction of `|origin|/|dir| + |t|`
@@ -91,20 +91,68 @@ pub struct Csg {
     /// Each child's bounds enlarged for [`line_meets`] (computed once here rather than on
     /// every ray); `None` for an unbounded child, which is always evaluated.
     line_boxes: Vec<Option<Aabb>>,
+    /// Balls that every line meeting the solid meets (see [`Ball`]): tested after the box
+    /// and before the tree is evaluated. Empty when none is known.
+    balls: Vec<Ball>,
 }
 
 impl Csg {
-    /// The node `op` over `children`, whose bounds are `child_bounds`.
-    pub fn new(op: CsgOp, children: Vec<Prim>, child_bounds: &[Option<Aabb>]) -> Csg {
+    /// The node `op` over `children`, which are placed among `objects`.
+    pub fn new(op: CsgOp, children: Vec<Prim>, objects: &[Object]) -> Csg {
+        let child_bounds: Vec<Option<Aabb>> = children.iter().map(|p| p.bounds(objects)).collect();
+        // A line that misses a ball some child needs misses that child, and so the whole
+        // solid when the solid lies inside that child: any child of an intersection, the
+        // body of a difference. A union needs no one child, so it has no such ball.
+        let balls = match op {
+            CsgOp::Union => Vec::new(),
+            CsgOp::Intersection => children.iter().flat_map(|c| c.balls(objects)).collect(),
+            CsgOp::Difference => children
+                .first()
+                .map(|c| c.balls(objects))
+                .unwrap_or_default(),
+        };
         Csg {
             op,
-            bounds: combine_bounds(op, child_bounds),
+            bounds: combine_bounds(op, &child_bounds),
             line_boxes: child_bounds
                 .iter()
                 .map(|b| b.map(|b| enlarged(&b)))
                 .collect(),
+            balls,
             children,
         }
+    }
+}
+
+/// A ball that holds a sphere placed in a CSG tree by a rotation, a uniform scale and a
+/// translation ([`crate::transform::Transform::rigid_ball`]): a line that passes clearly
+/// outside it has no spans on that sphere, so a tree that needs the sphere (see
+/// [`Csg::new`]) is answered "no boundary" without evaluating any child.
+///
+/// **Why it never changes an answer.** The sphere's own test ([`crate::shape::Shape::spans`])
+/// runs on the object-space ray, `N·o + t'` and `N·d` with `N` the inverse linear part. That
+/// ray carries rounding of about `γ(3)·(|o| + |c|)/s` (the products with the inverse,
+/// which [`crate::transform::Transform::is_valid`] also holds to `1e-9` of the forward
+/// matrix), and the root finder decides "hit" to a few ulps of `|f|/s`. The ball's squared
+/// radius already bounds the sphere's from above; the test rejects a line only when its
+/// squared distance from the centre exceeds it by `1e-6·(|f|² + r² + |o|² + |c|²)`
+/// (`f = o − c`), which is millions of times those errors (Lagrange's identity as in
+/// [`crate::world::Object::certainly_missed_by`], whose computed form is off by at most
+/// `2γ(6)·|f|²|d|²`). An overflow or a NaN fails the comparison and rejects nothing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ball {
+    pub centre: DVec3,
+    pub r2: f64,
+}
+
+impl Ball {
+    /// Whether the ray's line certainly misses the ball (see the type's comment).
+    #[inline]
+    pub fn certainly_missed(&self, ray: &Ray) -> bool {
+        let f = ray.origin - self.centre;
+        let (ff, dd, fd) = (f.dot(f), ray.dir.dot(ray.dir), f.dot(ray.dir));
+        let room = ff + self.r2 + ray.origin.length_squared() + self.centre.length_squared();
+        ff * dd - fd * fd > dd * (self.r2 + 1e-6 * room)
     }
 }
 
@@ -201,6 +249,26 @@ impl Prim {
         }
     }
 
+    /// The balls every line meeting the solid meets: a sphere's own ball when it is placed
+    /// by a rotation, uniform scale and translation; a tree's [`Csg::balls`].
+    fn balls(&self, objects: &[Object]) -> Vec<Ball> {
+        match self {
+            Prim::Object(i) => {
+                let o = &objects[*i as usize];
+                match o.shape {
+                    Shape::Sphere => o
+                        .transform
+                        .rigid_ball()
+                        .map(|(centre, r2)| Ball { centre, r2 }),
+                    _ => None,
+                }
+                .into_iter()
+                .collect()
+            }
+            Prim::Csg(c) => c.balls.clone(),
+        }
+    }
+
     /// Whether a world point is in the closed solid.
     pub fn contains(&self, objects: &[Object], p: DVec3) -> bool {
         match self {
@@ -243,8 +311,9 @@ impl Csg {
     /// The nearest boundary of the solid with `0 < t < t_max`: its `t` and the primitive
     /// surface there. See [`first_boundary`] for how the surface a ray leaves is told apart.
     ///
-    /// The box test comes first: only a ray that enters the box takes this thread's scratch
-    /// buffers (see [`with_scratch`]) and evaluates the tree.
+    /// The box test comes first, then the tree's balls ([`Ball`]): only a ray that passes
+    /// both takes this thread's scratch buffers (see [`with_scratch`]) and evaluates the
+    /// tree.
     pub fn first_hit(&self, objects: &[Object], ray: &Ray, t_max: f64) -> Option<Boundary> {
         // The box is only a shortcut: it must never decide between hits. Against `t_max`
         // itself it could, by rounding: a boundary on the box's own face can come out an ulp
@@ -258,6 +327,9 @@ impl Csg {
             && b.hit_interval(ray.origin, inv, t_max + t_max * crate::bvh::SLACK)
                 .is_none()
         {
+            return None;
+        }
+        if self.balls.iter().any(|b| b.certainly_missed(ray)) {
             return None;
         }
         with_scratch(|scratch| {
@@ -885,5 +957,176 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A line through `c` at distance `rho` from it, leaving from `back` behind the closest
+    /// point along a random direction (scaled at random, as world rays are not unit).
+    fn line_at(rng: &mut Rng, c: DVec3, rho: f64, back: f64) -> Ray {
+        let u = rng.direction();
+        let w = u.any_orthonormal_vector();
+        let w = w * rng.range(-1.0, 1.0) + u.cross(w) * rng.range(-1.0, 1.0);
+        let closest = c + w.normalize() * rho;
+        Ray::new(closest - u * back, u * rng.range(0.1, 10.0))
+    }
+
+    /// The failure case of a "certainly missed" test is the grazing line: one the sphere's
+    /// own test, rounding and all, still finds a crossing on. For spheres placed by
+    /// rotations, scales from 0.01 to 100 and offsets up to 10⁴ radii, lines from within a
+    /// hair of the tangent (distances (1 ± 10⁻¹⁶…10⁻⁶)·s), near and far: whenever the
+    /// sphere's spans are not empty, the ball must not reject. And it must work: a line
+    /// that misses by 1 % from nearby is rejected.
+    #[test]
+    fn a_rigid_ball_never_rejects_a_line_its_sphere_meets() {
+        use crate::transform::{Transform, TransformOp};
+        let mut rng = Rng::new(41);
+        let (mut grazing_hits, mut rejected) = (0, 0);
+        for case in 0..300 {
+            let s = 10f64.powf(rng.range(-2.0, 2.0));
+            let offset = if case % 3 == 0 { 1e4 } else { 10.0 };
+            let t = [
+                TransformOp::Scale(DVec3::splat(s)),
+                TransformOp::Rotate(rng.in_ball(1.0) * 360.0),
+                TransformOp::Translate(rng.in_ball(offset * s)),
+            ]
+            .iter()
+            .fold(Transform::IDENTITY, |t, &op| {
+                t.then(&Transform::from_op(op))
+            });
+            let (centre, r2) = t.rigid_ball().expect("a rotation and a uniform scale");
+            assert!(
+                r2 >= s * s * (1.0 - 1e-15) && r2 <= s * s * (1.0 + 1e-9),
+                "{r2} vs {s}²"
+            );
+            let ball = Ball { centre, r2 };
+            let spans = |r: &Ray| {
+                let mut out = Vec::new();
+                Shape::Sphere.spans(&t.ray_to_object(r), &mut out);
+                out
+            };
+            for back in [2.0 * s, 1e3 * s] {
+                for k in -10i32..=10 {
+                    let rel = f64::from(k.signum()) * 10f64.powi(k.abs() - 16);
+                    let r = line_at(&mut rng, centre, s * (1.0 + rel), back);
+                    if !spans(&r).is_empty() {
+                        grazing_hits += 1;
+                        assert!(
+                            !ball.certainly_missed(&r),
+                            "{t:?}\n{r:?}: met, yet rejected"
+                        );
+                    }
+                }
+            }
+            if offset == 10.0 {
+                let r = line_at(&mut rng, centre, s * 1.01, 2.0 * s);
+                assert!(spans(&r).is_empty());
+                assert!(ball.certainly_missed(&r), "{t:?}\n{r:?}: a clear miss kept");
+                rejected += 1;
+            }
+        }
+        assert!(
+            grazing_hits > 3000,
+            "only {grazing_hits} grazing lines met the sphere"
+        );
+        assert!(rejected == 200);
+        // A non-uniform scale makes an ellipsoid: no ball.
+        let squashed = Transform::from_op(TransformOp::Scale(DVec3::new(1.0, 2.0, 1.0)));
+        assert_eq!(squashed.rigid_ball(), None);
+    }
+
+    /// Which balls a tree keeps: every sphere of an intersection, a difference's body's, none
+    /// for a union (no one child is needed) or for a squashed sphere.
+    #[test]
+    fn a_tree_keeps_the_balls_of_the_children_it_needs() {
+        let sphere = |extra: &str| format!("[OBJECT]\ntype = sphere\n{extra}[/OBJECT]\n");
+        let cube = "[OBJECT]\ntype = cube\n[/OBJECT]\n";
+        let lens = format!(
+            "[CSG]\nop = intersection\nrotate = <10, 20, 30>\n{}{}[/CSG]\n",
+            sphere("translate = <0.5, 0, 0>\n"),
+            sphere("translate = <-0.5, 0, 0>\n")
+        );
+        for (tree, balls) in [
+            (lens.clone(), 2),
+            (
+                format!("[CSG]\nop = difference\n{lens}{}[/CSG]", sphere("")),
+                2,
+            ),
+            (format!("[CSG]\nop = difference\n{cube}{lens}[/CSG]"), 0),
+            (
+                format!("[CSG]\nop = union\n{}{}[/CSG]", sphere(""), sphere("")),
+                0,
+            ),
+            (
+                format!(
+                    "[CSG]\nop = intersection\n{cube}{}[/CSG]",
+                    sphere("scale = <1, 2, 1>\n")
+                ),
+                0,
+            ),
+            (
+                format!(
+                    "[CSG]\nop = intersection\nscale = 3\n{cube}{}[/CSG]",
+                    sphere("")
+                ),
+                1,
+            ),
+        ] {
+            let s = scene(&tree);
+            assert_eq!(root(&s).balls.len(), balls, "{tree}");
+        }
+    }
+
+    /// The balls change no answer: for trees with rotated spheres in every role, on random
+    /// rays and on lines grazing each ball, the tree's first boundary is the one its spans
+    /// give (which are found without the balls), for every limit; and the balls do reject.
+    #[test]
+    fn balls_change_no_first_boundary() {
+        let mut rng = Rng::new(42);
+        let trees = [
+            TREES[1],
+            TREES[5],
+            // The CSG example's lens and die, rotated off the axes.
+            "[CSG]\nop = intersection\nrotate = <0, -70, 0>\ntranslate = <6, -0.17, 0>\n\
+             [OBJECT]\ntype = sphere\nradius = 2\ntranslate = <1.5, 0, 0>\n[/OBJECT]\n\
+             [OBJECT]\ntype = sphere\nradius = 2\ntranslate = <-1.5, 0, 0>\n[/OBJECT]\n[/CSG]",
+            "[CSG]\nop = difference\nrotate = <25, 35, 0>\ntranslate = <-2, -0.15, 0>\n\
+             [CSG]\nop = intersection\n[OBJECT]\ntype = cube\n[/OBJECT]\n\
+             [OBJECT]\ntype = sphere\nradius = 1.35\n[/OBJECT]\n[/CSG]\n\
+             [OBJECT]\ntype = cylinder\nradius = 0.45\nscale = <1, 1.5, 1>\n[/OBJECT]\n[/CSG]",
+        ];
+        let mut rejected = 0;
+        for tree in trees {
+            let s = scene(tree);
+            let c = root(&s);
+            assert!(!c.balls.is_empty(), "{tree}");
+            let centre = c
+                .bounds
+                .map(|b| (b.min + b.max) * 0.5)
+                .unwrap_or(DVec3::ZERO);
+            for i in 0..2000 {
+                let r = if i % 2 == 0 {
+                    let o = centre + rng.direction() * 8.0;
+                    Ray::new(o, centre + rng.in_ball(3.0) - o)
+                } else {
+                    let b = c.balls[i / 2 % c.balls.len()];
+                    let rel = rng.range(-1e-6, 1e-6) * 10f64.powf(rng.range(-10.0, 0.0));
+                    let back = rng.range(0.0, 20.0);
+                    line_at(&mut rng, b.centre, b.r2.sqrt() * (1.0 + rel), back)
+                };
+                if c.balls.iter().any(|b| b.certainly_missed(&r)) {
+                    rejected += 1;
+                }
+                let spans = spans_of(&s, &r);
+                for t_max in [f64::INFINITY, rng.range(0.0, 3.0)] {
+                    let expected =
+                        first_boundary(&spans, t_max, || c.contains(&s.objects, r.origin));
+                    assert_eq!(
+                        c.first_hit(&s.objects, &r, t_max),
+                        expected,
+                        "{tree}\n{r:?}"
+                    );
+                }
+            }
+        }
+        assert!(rejected > 1000, "the balls rejected only {rejected} rays");
     }
 }

@@ -164,6 +164,43 @@ impl Transform {
         self.normal * n
     }
 
+    /// For a transform that is a uniform scale times a rotation (plus a translation): the
+    /// world centre and a squared radius of a ball that holds the image of the unit ball.
+    /// `None` for any other linear part (a non-uniform scale or a shear), whose image of the
+    /// unit ball is an ellipsoid that no ball fits closely.
+    ///
+    /// "Uniform scale times a rotation" means that the columns of the linear part `M` are
+    /// orthogonal and of one length `s`, to within `1e-6·s²` in every entry of their Gram
+    /// matrix `MᵀM` (exact `s²·I` for a rotation; the composed sines and cosines leave a few
+    /// ulps). The squared radius is Gershgorin's bound on the largest eigenvalue of `MᵀM`,
+    /// the largest row sum of its absolute entries, so it holds `|M·u|²` for every unit `u`
+    /// however the entries were rounded, enlarged by `1e-12` of itself for the rounding of
+    /// the Gram matrix.
+    pub fn rigid_ball(&self) -> Option<(DVec3, f64)> {
+        let m = &self.to_world.matrix3;
+        let cols = [m.x_axis, m.y_axis, m.z_axis];
+        let gram = |i: usize, j: usize| cols[i].dot(cols[j]);
+        let s2 = gram(0, 0);
+        if !(s2 > 0.0 && s2.is_finite()) {
+            return None;
+        }
+        let tol = 1e-6 * s2;
+        let mut bound = 0.0f64;
+        for i in 0..3 {
+            let mut row = 0.0;
+            for j in 0..3 {
+                let g = gram(i, j);
+                let off = if i == j { g - s2 } else { g };
+                if !(off.abs() <= tol) {
+                    return None;
+                }
+                row += g.abs();
+            }
+            bound = bound.max(row);
+        }
+        Some((self.to_world.translation, bound * (1.0 + 1e-12)))
+    }
+
     /// World bounds of an object-space box (the box of its transformed corners).
     pub fn bounds_to_world(&self, b: &Aabb) -> Aabb {
         b.corners().iter().fold(Aabb::EMPTY, |acc, &c| {

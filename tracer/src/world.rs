@@ -788,9 +788,7 @@ impl Placer<'_, '_> {
                     .iter()
                     .filter_map(|ch| self.place(ch, Some(&transform)))
                     .collect();
-                let child_bounds: Vec<Option<Aabb>> =
-                    children.iter().map(|p| p.bounds(self.objects)).collect();
-                Some(Prim::Csg(Csg::new(c.op, children, &child_bounds)))
+                Some(Prim::Csg(Csg::new(c.op, children, self.objects)))
             }
         }
     }
