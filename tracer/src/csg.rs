@@ -467,6 +467,52 @@ fn pushes_towards(op: CsgOp, e: &Event, entering: bool) -> bool {
     }
 }
 
+/// The node's spans when the sweep could only copy them: when every event comes from one
+/// child whose state is the node's (a union's child, a difference's body, an intersection's
+/// only child) and no two consecutive events fall in one group (see [`sweep`]). Then every
+/// group is a single event that changes the state, so the sweep would report each event as
+/// a boundary, unchanged; and events that are strictly increasing need no sorting. `None`
+/// when the sweep must run.
+fn lone_spans(
+    op: CsgOp,
+    n: usize,
+    events: &[Event],
+    scale: f64,
+) -> Option<impl Iterator<Item = CsgSpan> + '_> {
+    let child = events.first()?.child;
+    let follows = match op {
+        CsgOp::Union => true,
+        CsgOp::Difference => child == 0,
+        CsgOp::Intersection => n == 1,
+    };
+    if !follows || events.iter().any(|e| e.child != child) {
+        return None;
+    }
+    // The sweep's grouping test, negated: a NaN gap (two infinities) fails `>` and so
+    // falls back to the sweep.
+    let apart = events.windows(2).all(|w| {
+        let t0 = w[0].t;
+        let tol = if t0.is_finite() {
+            COINCIDENT_REL * (scale + t0.abs())
+        } else {
+            0.0
+        };
+        w[1].t != t0 && w[1].t - t0 > tol
+    });
+    apart.then(|| {
+        events.chunks_exact(2).map(|pair| CsgSpan {
+            enter: Boundary {
+                t: pair[0].t,
+                surface: pair[0].surface,
+            },
+            exit: Boundary {
+                t: pair[1].t,
+                surface: pair[1].surface,
+            },
+        })
+    })
+}
+
 /// The sweep over `scratch.events[ev_start..]` (children's span ends): appends the node's
 /// spans to `scratch.spans`, applying the coincident-surface rule of the module comment.
 fn sweep(op: CsgOp, n: usize, ev_start: usize, scale: f64, scratch: &mut Scratch) {
@@ -477,6 +523,10 @@ fn sweep(op: CsgOp, n: usize, ev_start: usize, scale: f64, scratch: &mut Scratch
         ..
     } = scratch;
     let events = &mut events[ev_start..];
+    if let Some(alone) = lone_spans(op, n, events, scale) {
+        spans.extend(alone);
+        return;
+    }
     // Stable: a child's own end points keep their order when equal.
     events.sort_by(|a, b| a.t.total_cmp(&b.t));
     inside.clear();
@@ -956,6 +1006,50 @@ mod tests {
                     assert!(h.local.p.is_finite() && h.local.n.is_finite());
                 }
             }
+        }
+    }
+
+    /// The sweep's shortcut for one child's events must group as the sweep does: spans of
+    /// one child that nearly touch merge, a span shorter than the coincidence tolerance
+    /// vanishes, and only well-separated spans are copied as they are. The expected spans
+    /// are worked out by hand from the rule in the module comment.
+    #[test]
+    fn one_childs_spans_are_grouped_like_any_others() {
+        let surface = |face| Surface {
+            object: 0,
+            face,
+            flip: false,
+        };
+        let run = |op: CsgOp, n: usize, ends: &[(f64, f64)]| {
+            let mut scratch = Scratch::default();
+            for &(a, b) in ends {
+                for (t, enter, face) in [(a, true, 0), (b, false, 1)] {
+                    scratch.events.push(Event {
+                        t,
+                        child: 0,
+                        enter,
+                        surface: surface(face),
+                    });
+                }
+            }
+            sweep(op, n, 0, 1.0, &mut scratch);
+            scratch
+                .spans
+                .iter()
+                .map(|s| (s.enter.t, s.exit.t))
+                .collect::<Vec<_>>()
+        };
+        let apart = [(1.0, 2.0), (3.0, 4.0)];
+        let touching = [(1.0, 2.0), (2.0 + 1e-13, 4.0)];
+        let sliver = [(1.0, 1.0 + 1e-13), (3.0, 4.0)];
+        for (op, n) in [
+            (CsgOp::Union, 2),
+            (CsgOp::Difference, 2),
+            (CsgOp::Intersection, 1),
+        ] {
+            assert_eq!(run(op, n, &apart), apart.to_vec(), "{op:?}");
+            assert_eq!(run(op, n, &touching), vec![(1.0, 4.0)], "{op:?}");
+            assert_eq!(run(op, n, &sliver), vec![(3.0, 4.0)], "{op:?}");
         }
     }
 
