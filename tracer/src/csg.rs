@@ -311,7 +311,7 @@ impl Csg {
     /// The nearest boundary of the solid with `0 < t < t_max`: its `t` and the primitive
     /// surface there. See [`first_boundary`] for how the surface a ray leaves is told apart.
     ///
-    /// The box test comes first, then the tree's balls ([`Ball`]): only a ray that passes
+    /// The tree's balls ([`Ball`]) and its box are tested first: only a ray that passes
     /// both takes this thread's scratch buffers (see [`with_scratch`]) and evaluates the
     /// tree.
     pub fn first_hit(&self, objects: &[Object], ray: &Ray, t_max: f64) -> Option<Boundary> {
@@ -322,14 +322,15 @@ impl Csg {
         // gap would have to be ~10⁹ ulps wide, so the answer is "the first boundary, if
         // before `t_max`" whatever `t_max` is, which is what lets the BVH visit solids in
         // any order and still agree with the plain loop (see `Scene::intersect`).
+        // The balls first: they need no division, and they are the tighter test.
+        if self.balls.iter().any(|b| b.certainly_missed(ray)) {
+            return None;
+        }
         let inv = ray.inv_dir();
         if let Some(b) = self.bounds
             && b.hit_interval(ray.origin, inv, t_max + t_max * crate::bvh::SLACK)
                 .is_none()
         {
-            return None;
-        }
-        if self.balls.iter().any(|b| b.certainly_missed(ray)) {
             return None;
         }
         with_scratch(|scratch| {
