@@ -91,8 +91,8 @@ pub struct Csg {
     /// Each child's bounds enlarged for [`line_meets`] (computed once here rather than on
     /// every ray); `None` for an unbounded child, which is always evaluated.
     line_boxes: Vec<Option<Aabb>>,
-    /// Balls that every line meeting the solid meets (see [`Ball`]): tested after the box
-    /// and before the tree is evaluated. Empty when none is known.
+    /// Balls that every line meeting the solid meets (see [`Ball`]): tested before the box
+    /// and the tree. Empty when none is known.
     balls: Vec<Ball>,
 }
 
@@ -315,6 +315,10 @@ impl Csg {
     /// both takes this thread's scratch buffers (see [`with_scratch`]) and evaluates the
     /// tree.
     pub fn first_hit(&self, objects: &[Object], ray: &Ray, t_max: f64) -> Option<Boundary> {
+        // The balls first: they need no division, and they are the tighter test.
+        if self.balls.iter().any(|b| b.certainly_missed(ray)) {
+            return None;
+        }
         // The box is only a shortcut: it must never decide between hits. Against `t_max`
         // itself it could, by rounding: a boundary on the box's own face can come out an ulp
         // before the slab test's entry, and a `t_max` in that gap (another solid's hit on a
@@ -322,10 +326,6 @@ impl Csg {
         // gap would have to be ~10⁹ ulps wide, so the answer is "the first boundary, if
         // before `t_max`" whatever `t_max` is, which is what lets the BVH visit solids in
         // any order and still agree with the plain loop (see `Scene::intersect`).
-        // The balls first: they need no division, and they are the tighter test.
-        if self.balls.iter().any(|b| b.certainly_missed(ray)) {
-            return None;
-        }
         let inv = ray.inv_dir();
         if let Some(b) = self.bounds
             && b.hit_interval(ray.origin, inv, t_max + t_max * crate::bvh::SLACK)
@@ -468,6 +468,16 @@ fn pushes_towards(op: CsgOp, e: &Event, entering: bool) -> bool {
     }
 }
 
+/// How far past a group's first crossing at `t0` other crossings still join it: the
+/// coincidence tolerance of the module comment ([`COINCIDENT_REL`]); none at an infinite end.
+fn tolerance(t0: f64, scale: f64) -> f64 {
+    if t0.is_finite() {
+        COINCIDENT_REL * (scale + t0.abs())
+    } else {
+        0.0
+    }
+}
+
 /// The node's spans when the sweep could only copy them: when every event comes from one
 /// child whose state is the node's (a union's child, a difference's body, an intersection's
 /// only child) and no two consecutive events fall in one group (see [`sweep`]). Then every
@@ -491,15 +501,9 @@ fn lone_spans(
     }
     // The sweep's grouping test, negated: a NaN gap (two infinities) fails `>` and so
     // falls back to the sweep.
-    let apart = events.windows(2).all(|w| {
-        let t0 = w[0].t;
-        let tol = if t0.is_finite() {
-            COINCIDENT_REL * (scale + t0.abs())
-        } else {
-            0.0
-        };
-        w[1].t != t0 && w[1].t - t0 > tol
-    });
+    let apart = events
+        .windows(2)
+        .all(|w| w[1].t != w[0].t && w[1].t - w[0].t > tolerance(w[0].t, scale));
     apart.then(|| {
         events.chunks_exact(2).map(|pair| CsgSpan {
             enter: Boundary {
@@ -545,11 +549,7 @@ fn sweep(op: CsgOp, n: usize, ev_start: usize, scale: f64, scratch: &mut Scratch
     let mut i = 0;
     while i < events.len() {
         let t0 = events[i].t;
-        let tol = if t0.is_finite() {
-            COINCIDENT_REL * (scale + t0.abs())
-        } else {
-            0.0
-        };
+        let tol = tolerance(t0, scale);
         let mut j = i;
         // The group: events[i] and every later one within `tol` of it (at least one, so
         // the sweep always advances).
