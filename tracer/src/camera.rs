@@ -149,17 +149,22 @@ mod tests {
         assert!(top.y > centre.y);
     }
 
-    /// Two rays through one pixel are never further apart than `pixel_angle`, anywhere in
-    /// the image, and the bound is reached (within 1e-3) at the centre.
-    #[test]
-    fn pixel_angle_bounds_every_pixel() {
+    /// A `w × h` camera looking down and sideways at an angle, with field of view `fov`.
+    fn tilted(w: u32, h: u32, fov: f64) -> Camera {
         let desc = CameraDesc {
             eye: DVec3::new(1.0, 2.0, 3.0),
             look_at: DVec3::new(-4.0, 0.5, -2.0),
             up: DVec3::Y,
-            fov_degrees: 100.0,
+            fov_degrees: fov,
         };
-        let c = Camera::new(&desc, 64, 48);
+        Camera::new(&desc, w, h)
+    }
+
+    /// Two rays through one pixel are never further apart than `pixel_angle`, anywhere in
+    /// the image, and the bound is reached (within 1e-3) at the centre.
+    #[test]
+    fn pixel_angle_bounds_every_pixel() {
+        let c = tilted(64, 48, 100.0);
         let bound = c.pixel_angle();
         let mut widest: f64 = 0.0;
         for (px, py) in [
@@ -199,13 +204,7 @@ mod tests {
     /// `project` is the inverse of `ray`, and refuses points behind the eye.
     #[test]
     fn projection_inverts_the_rays() {
-        let desc = CameraDesc {
-            eye: DVec3::new(1.0, 2.0, 3.0),
-            look_at: DVec3::new(-4.0, 0.5, -2.0),
-            up: DVec3::Y,
-            fov_degrees: 50.0,
-        };
-        let c = Camera::new(&desc, 64, 48);
+        let c = tilted(64, 48, 50.0);
         for (x, y) in [(0.0, 0.0), (12.25, 40.5), (63.9, 47.9), (-5.0, 60.0)] {
             let r = c.ray(x, y);
             for t in [0.5, 10.0, 1e4] {

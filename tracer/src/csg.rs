@@ -143,15 +143,26 @@ impl Csg {
 pub struct Ball {
     pub centre: DVec3,
     pub r2: f64,
+    /// `|c|²`, which every test's margin uses: computed once here.
+    c2: f64,
 }
 
 impl Ball {
+    /// The ball of centre `centre` and squared radius `r2`.
+    pub fn new(centre: DVec3, r2: f64) -> Ball {
+        Ball {
+            centre,
+            r2,
+            c2: centre.length_squared(),
+        }
+    }
+
     /// Whether the ray's line certainly misses the ball (see the type's comment).
     #[inline]
     pub fn certainly_missed(&self, ray: &Ray) -> bool {
         let f = ray.origin - self.centre;
         let (ff, dd, fd) = (f.dot(f), ray.dir.dot(ray.dir), f.dot(ray.dir));
-        let room = ff + self.r2 + ray.origin.length_squared() + self.centre.length_squared();
+        let room = ff + self.r2 + ray.origin.length_squared() + self.c2;
         ff * dd - fd * fd > dd * (self.r2 + 1e-6 * room)
     }
 }
@@ -259,7 +270,7 @@ impl Prim {
                     Shape::Sphere => o
                         .transform
                         .rigid_ball()
-                        .map(|(centre, r2)| Ball { centre, r2 }),
+                        .map(|(centre, r2)| Ball::new(centre, r2)),
                     _ => None,
                 }
                 .into_iter()
@@ -1092,7 +1103,7 @@ mod tests {
                 r2 >= s * s * (1.0 - 1e-15) && r2 <= s * s * (1.0 + 1e-9),
                 "{r2} vs {s}²"
             );
-            let ball = Ball { centre, r2 };
+            let ball = Ball::new(centre, r2);
             let spans = |r: &Ray| {
                 let mut out = Vec::new();
                 Shape::Sphere.spans(&t.ray_to_object(r), &mut out);

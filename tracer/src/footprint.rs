@@ -520,13 +520,16 @@ impl<'s> Footprints<'s> {
     /// object, or [`Sample::BACKGROUND`]) may show in pixel `(px, py)`'s square: its cone
     /// around the centre ray meets one. Pixels outside the region: no.
     pub fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
+        self.index(px, py)
+            .is_some_and(|i| self.fitted[i] != NOTHING && self.fitted[i] != object)
+    }
+
+    /// Pixel `(px, py)`'s place in the per-pixel records; `None` outside the region.
+    fn index(&self, px: i64, py: i64) -> Option<usize> {
         let reg = self.region;
         let (cx, cy) = (px - reg.x, py - reg.y);
-        if cx < 0 || cy < 0 || cx >= reg.width as i64 || cy >= reg.height as i64 {
-            return false;
-        }
-        let f = self.fitted[cy as usize * reg.width + cx as usize];
-        f != NOTHING && f != object
+        let inside = cx >= 0 && cy >= 0 && cx < reg.width as i64 && cy < reg.height as i64;
+        inside.then(|| cy as usize * reg.width + cx as usize)
     }
 
     /// Whether pixel `(px, py)`, where the primary ray through image position `(x, y)` (a
@@ -534,12 +537,9 @@ impl<'s> Footprints<'s> {
     /// shadow edge: its exact value then differs from that ray's only by smooth shading.
     /// Pixels outside the region are never known smooth.
     pub fn is_smooth(&self, px: i64, py: i64, x: f64, y: f64, seen: &Sample) -> bool {
-        let reg = self.region;
-        let (cx, cy) = (px - reg.x, py - reg.y);
-        if cx < 0 || cy < 0 || cx >= reg.width as i64 || cy >= reg.height as i64 {
+        let Some(i) = self.index(px, py) else {
             return false;
-        }
-        let i = cy as usize * reg.width + cx as usize;
+        };
         let hit = (seen.object != Sample::BACKGROUND).then_some(seen.object);
         let alone = match self.shown[i] {
             NOTHING => true,
@@ -681,37 +681,34 @@ mod tests {
         assert!(!k.inside_sphere(DVec3::ZERO, 1.0));
     }
 
+    /// A point with every coordinate in `[−0.5, 0.5)`.
+    fn half_cube(rng: &mut crate::shape::test_support::Rng) -> DVec3 {
+        DVec3::new(
+            rng.range(-0.5, 0.5),
+            rng.range(-0.5, 0.5),
+            rng.range(-0.5, 0.5),
+        )
+    }
+
     /// Against brute force: whenever some point of a capsule lies in the cone, the capsule
     /// test says "may meet"; and it says "no" for most capsules clear of the cone.
     #[test]
     fn capsule_test_never_misses_a_point_in_the_cone() {
-        struct Xorshift(u64);
-        impl Xorshift {
-            fn unit(&mut self) -> f64 {
-                self.0 ^= self.0 << 13;
-                self.0 ^= self.0 >> 7;
-                self.0 ^= self.0 << 17;
-                (self.0 >> 11) as f64 / (1u64 << 53) as f64
-            }
-            fn vec(&mut self) -> DVec3 {
-                DVec3::new(self.unit() - 0.5, self.unit() - 0.5, self.unit() - 0.5)
-            }
-        }
-        let mut rng = Xorshift(0x1234_5678);
+        let mut rng = crate::shape::test_support::Rng::new(0x1234_5678);
         let (mut met, mut cleared) = (0, 0);
         for _ in 0..4000 {
-            let axis = (DVec3::new(0.0, 0.0, -1.0) + rng.vec() * 0.3).normalize();
+            let axis = (DVec3::new(0.0, 0.0, -1.0) + half_cube(&mut rng) * 0.3).normalize();
             let k = cone(axis, 0.02 * rng.unit() + 1e-4);
-            let centre = axis * (2.0 + 20.0 * rng.unit()) + rng.vec() * 2.0;
-            let a = centre + rng.vec() * 3.0 * rng.unit();
-            let b = centre + rng.vec() * 3.0 * rng.unit();
+            let centre = axis * (2.0 + 20.0 * rng.unit()) + half_cube(&mut rng) * 2.0;
+            let a = centre + half_cube(&mut rng) * 3.0 * rng.unit();
+            let b = centre + half_cube(&mut rng) * 3.0 * rng.unit();
             let r = 0.2 * rng.unit() + 1e-3;
             let says = k.may_meet_capsule(a, b, r);
             // Points of the capsule: on the segment, then moved up to r in a direction.
             let mut inside = false;
             for _ in 0..400 {
                 let along = a + (b - a) * rng.unit();
-                let q = along + rng.vec().normalize_or_zero() * r * rng.unit().sqrt();
+                let q = along + half_cube(&mut rng).normalize_or_zero() * r * rng.unit().sqrt();
                 if angle_between(axis, q) <= k.aperture.half_angle {
                     inside = true;
                     break;
