@@ -8,7 +8,7 @@
 //! arrives, only the bands not yet encoded (usually its own) remain.
 //!
 //! Memory stays bounded whatever the image size: per job being encoded, one band of RGB rows
-//! (image width × tile height × 3 bytes) while it is encoded, the encoder's state, and at
+//! (image width × tile height × 3 bytes, kept from one band to the next), the encoder's state, and at
 //! most one pending chunk of compressed output ([`CHUNK`]). The PNG goes into the database in
 //! chunks as it is encoded, so a finished image survives a restart and a download streams it
 //! back chunk by chunk. The encoder is the tracer's, fed the same rows in the same order, so
@@ -46,6 +46,9 @@ struct Encoder {
     png: PngWriter<SharedBuffer>,
     sink: SharedBuffer,
     pending: Vec<u8>,
+    /// The band being put together, kept from band to band so that its pages are not
+    /// allocated and faulted in again for each (a 1920-pixel band of 256 rows is 1.5 MB).
+    rows: Vec<u8>,
     seq: u32,
     total: u64,
     /// The first row not yet encoded.
@@ -69,6 +72,7 @@ impl Encoder {
             png,
             sink,
             pending: Vec::with_capacity(CHUNK + CHUNK / 4),
+            rows: Vec::new(),
             seq: 0,
             total: 0,
             y: 0,
@@ -84,35 +88,38 @@ impl Encoder {
     /// Encodes the band of tiles whose top row is `self.y`; every tile of it must be stored.
     async fn band(&mut self, queue: &Queue, id: &str) -> Result<(), AssembleError> {
         let (y, width) = (self.y, self.width);
-        let band = queue.band(id, y).await?;
-        let Some(bh) = band.first().map(|t| t.2) else {
-            return Err(AssembleError::Gap {
-                y,
-                covered: 0,
-                width,
-            });
-        };
         let row_bytes = width as usize * 3;
-        let mut rows = vec![0u8; row_bytes * bh as usize];
-        let mut covered = 0u64;
-        for (x, w, h, rgb) in &band {
-            if *h != bh || rgb.len() != *w as usize * *h as usize * 3 {
-                return Err(AssembleError::Gap { y, covered, width });
-            }
-            let tile_row = *w as usize * 3;
-            for (r, src) in rgb.chunks_exact(tile_row).enumerate() {
-                let start = r * row_bytes + *x as usize * 3;
-                rows[start..start + tile_row].copy_from_slice(src);
-            }
-            covered += u64::from(*w);
-        }
-        if covered != u64::from(width) {
+        // The band's height is its first tile's; every other tile must match it.
+        let mut bh = None;
+        let rows = &mut self.rows;
+        let (mut covered, mut fits) = (0u64, true);
+        queue
+            .band(id, y, |x, w, h, rgb| {
+                let bh = *bh.get_or_insert_with(|| {
+                    rows.clear();
+                    rows.resize(row_bytes * h as usize, 0);
+                    h
+                });
+                let tile_row = w as usize * 3;
+                let inside = u64::from(x) + u64::from(w) <= u64::from(width);
+                if !fits || h != bh || !inside || rgb.len() != tile_row * h as usize {
+                    fits = false;
+                    return;
+                }
+                for (r, src) in rgb.chunks_exact(tile_row).enumerate() {
+                    let start = r * row_bytes + x as usize * 3;
+                    rows[start..start + tile_row].copy_from_slice(src);
+                }
+                covered += u64::from(w);
+            })
+            .await?;
+        let Some(bh) = bh.filter(|_| fits && covered == u64::from(width)) else {
             return Err(AssembleError::Gap { y, covered, width });
-        }
+        };
         // One band with `Fast` compression is about a millisecond of encoding: short enough
         // to run on the async thread between two database round trips.
         let started = std::time::Instant::now();
-        self.png.write_rows(&rows)?;
+        self.png.write_rows(&self.rows)?;
         self.pending.extend_from_slice(&self.sink.take());
         if self.pending.len() >= CHUNK {
             self.flush(queue, id).await?;

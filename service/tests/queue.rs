@@ -60,6 +60,15 @@ fn pixels(r: Rect) -> Vec<u8> {
     vec![7; r.pixel_count() * 3]
 }
 
+/// The stored tiles of the band at row `y`, as `Queue::band` hands them over.
+async fn band(q: &Queue, id: &str, y: u32) -> Vec<(u32, u32, u32, Vec<u8>)> {
+    let mut out = Vec::new();
+    q.band(id, y, |x, w, h, rgb| out.push((x, w, h, rgb.to_vec())))
+        .await
+        .expect("band");
+    out
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn concurrent_claimers_never_share_a_tile() {
     let db = Db::new("claims");
@@ -306,7 +315,7 @@ async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
             .await
             .expect("complete");
         assert!(matches!(stored, Completion::Stored { last: false, .. }));
-        assert_eq!(q.band(id, 0).await.expect("band").len(), 1);
+        assert_eq!(band(&q, id, 0).await.len(), 1);
         q.put_image_chunk(id, 0, b"PNG so far")
             .await
             .expect("chunk");
@@ -318,7 +327,7 @@ async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
         q.cancel("cancelled", 5).await.expect("cancel").as_deref(),
         Some("running")
     );
-    assert!(q.band("cancelled", 0).await.expect("band").is_empty());
+    assert!(band(&q, "cancelled", 0).await.is_empty());
     assert_eq!(q.image_chunks("cancelled").await.expect("count"), 0);
     // An encoding still under way cannot bring the image back.
     q.put_image_chunk("cancelled", 1, b"more")
@@ -342,8 +351,46 @@ async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
         q.job("failed").await.expect("read").expect("job").state,
         "failed"
     );
-    assert!(q.band("failed", 0).await.expect("band").is_empty());
+    assert!(band(&q, "failed", 0).await.is_empty());
     assert_eq!(q.image_chunks("failed").await.expect("count"), 0);
+}
+
+/// A band is read back left to right whatever order its tiles arrived in, each with its
+/// own pixels, and only once stored; the other bands' tiles stay out of it.
+#[tokio::test]
+async fn a_band_reads_back_its_stored_tiles_left_to_right() {
+    let db = Db::new("band");
+    let q = Queue::open(&db.url()).await.expect("open");
+    // 3 tiles across (the last 4 pixels wide), 2 bands (the last 3 rows high).
+    let rects = job(&q, "b", 20, 11, 8).await;
+    let mut claims = Vec::new();
+    while let Some(c) = q.claim("w", 0, 60_000, 1).await.expect("claim") {
+        claims.push(c);
+    }
+    assert_eq!(claims.len(), rects.len());
+    // The bottom band's tiles and the top band's first tile, right to left.
+    for c in claims
+        .iter()
+        .rev()
+        .filter(|c| c.rect().y == 8 || c.rect().x == 0)
+    {
+        let stored = q
+            .complete("b", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .await
+            .expect("complete");
+        assert!(matches!(stored, Completion::Stored { .. }));
+    }
+    let top = band(&q, "b", 0).await;
+    assert_eq!(top, vec![(0, 8, 8, tile_rgb(rects[0]))]);
+    let bottom = band(&q, "b", 8).await;
+    let expected: Vec<_> = rects
+        .iter()
+        .filter(|r| r.y == 8)
+        .map(|r| (r.x, r.width, r.height, tile_rgb(*r)))
+        .collect();
+    assert_eq!(expected.iter().map(|t| t.0).collect::<Vec<_>>(), [0, 8, 16]);
+    assert_eq!(bottom, expected);
+    assert!(band(&q, "b", 4).await.is_empty(), "no band starts at row 4");
 }
 
 /// A pixel value that differs between neighbouring pixels and tiles.

@@ -5,6 +5,7 @@
 
 use std::time::Duration;
 
+use bytes::Bytes;
 use reqwest::{StatusCode, Url};
 
 use crate::protocol::{Accepted, Claim, ClaimRequest, FailRequest, JobSpec, Renewed};
@@ -206,7 +207,7 @@ impl Client {
 
     /// Posts a tile blob (see [`crate::protocol::encode_tile`]). With `next` (this worker's
     /// name), the answer also carries the worker's next tile when there is one at once.
-    pub async fn post_tile(&self, c: &Claim, blob: Vec<u8>, next: Option<&str>) -> Result<Posted> {
+    pub async fn post_tile(&self, c: &Claim, blob: Bytes, next: Option<&str>) -> Result<Posted> {
         let what = "post tile";
         let mut url = self.tile_url(c, None);
         if let Some(name) = next {

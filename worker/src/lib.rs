@@ -18,6 +18,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
+use bytes::Bytes;
 use tessera_tracer::{Limits, MemoryAssets, Rect, Sampler, Scene, TextureLimits};
 use tokio::sync::{Mutex, oneshot, watch};
 use tokio::task::JoinHandle;
@@ -683,7 +684,8 @@ async fn work(
         }
     };
     debug!(job = %c.job, tile = c.idx, ms = started.elapsed().as_millis() as u64, "rendered");
-    let blob = encode_tile(c.rect(), &rgb);
+    // `Bytes`: a post that is retried sends the same buffer again instead of a copy.
+    let blob = Bytes::from(encode_tile(c.rect(), &rgb));
     // Unless a claim is already under way or answered, this post also asks for the slot's
     // next tile: one round trip instead of two. The tile after the one now queued is thus
     // asked for as soon as this one is rendered, as it would be by a separate claim.
@@ -731,7 +733,7 @@ fn spawn_claim(
 async fn post(
     shared: Arc<Shared>,
     c: Claim,
-    blob: Vec<u8>,
+    blob: Bytes,
     mut ride: Option<Ride>,
 ) -> Result<(), ClientError> {
     let give_up_at = Instant::now() + Duration::from_millis(c.lease_ms.max(1000) * 4);
