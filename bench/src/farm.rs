@@ -70,6 +70,30 @@ fn scene_at(w: u32, h: u32) -> String {
         .join("\n")
 }
 
+/// CPU ticks of a service's threads by kind (see [`Service::thread_cpu`]).
+#[derive(Debug, Default, Clone, Copy)]
+struct ThreadCpu {
+    render: u64,
+    sqlite: u64,
+    other: u64,
+}
+
+impl ThreadCpu {
+    /// What the service's own threads (tokio's, SQLite's) used between two readings, as
+    /// shares of what its render threads used: the farm's own work, on a measure that the
+    /// host's drifting speed scales alike on both sides.
+    fn shares_since(&self, before: &ThreadCpu) -> Option<(f64, f64)> {
+        let render = self.render.checked_sub(before.render)?;
+        (render > 0).then(|| {
+            let share = |now: u64, then: u64| now.saturating_sub(then) as f64 / render as f64;
+            (
+                share(self.other, before.other),
+                share(self.sqlite, before.sqlite),
+            )
+        })
+    }
+}
+
 /// A service child process.
 struct Service {
     child: Child,
@@ -118,6 +142,37 @@ impl Service {
             url,
             _dir: TempDir(dir),
         })
+    }
+
+    /// CPU time used so far by the service's threads (Linux), in clock ticks, summed by
+    /// kind: the local workers' render threads, SQLite's connection threads, and the rest
+    /// (tokio's threads: HTTP on both sides, the queue's async code, the PNG bands). Only
+    /// ratios of these are reported, so the tick's length does not matter.
+    fn thread_cpu(&self) -> Option<ThreadCpu> {
+        let tasks = std::fs::read_dir(format!("/proc/{}/task", self.child.id())).ok()?;
+        let mut cpu = ThreadCpu::default();
+        for task in tasks.flatten() {
+            let path = task.path();
+            let (Ok(name), Ok(stat)) = (
+                std::fs::read_to_string(path.join("comm")),
+                std::fs::read_to_string(path.join("stat")),
+            ) else {
+                continue; // the thread ended meanwhile
+            };
+            // Fields after the command name (which may hold spaces) start at the state,
+            // field 3; utime and stime are fields 14 and 15.
+            let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+            let ticks: u64 =
+                fields.get(11)?.parse::<u64>().ok()? + fields.get(12)?.parse::<u64>().ok()?;
+            if name.starts_with("tessera-render") {
+                cpu.render += ticks;
+            } else if name.starts_with("sqlx-sqlite") {
+                cpu.sqlite += ticks;
+            } else {
+                cpu.other += ticks;
+            }
+        }
+        Some(cpu)
     }
 
     /// Peak resident memory so far (Linux), in bytes.
@@ -288,6 +343,7 @@ pub fn run(args: &Args) -> Result<()> {
             // ratio: on a shared machine whose speed drifts from minute to minute, a pair run
             // back to back sees the same machine.
             let svc = Service::start(&service_args(threads, args.tile))?;
+            let cpu_before = svc.thread_cpu();
             let (mut t_local, mut t_farm, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
             let mut tile = 0;
             for _ in 0..reps.max(1) {
@@ -301,6 +357,7 @@ pub fn run(args: &Args) -> Result<()> {
                 t_local.push(tl);
                 t_farm.push(tf);
             }
+            let cpu_after = svc.thread_cpu();
             drop(svc);
             let ratio = Spread::of(ratios);
             let pct = |r: f64| (r - 1.0) * 100.0;
@@ -318,6 +375,17 @@ pub fn run(args: &Args) -> Result<()> {
                 pct(ratio.lo),
                 pct(ratio.hi),
             );
+            if let Some((other, sqlite)) = cpu_after
+                .zip(cpu_before)
+                .and_then(|(after, before)| after.shares_since(&before))
+            {
+                println!(
+                    "    the service's own CPU over those jobs, as a share of its render threads': {:.1} % (tokio's threads {:.1} %: HTTP, the queue, the PNG bands, which tessera-render encodes too; SQLite's {:.1} %)",
+                    (other + sqlite) * 100.0,
+                    other * 100.0,
+                    sqlite * 100.0,
+                );
+            }
         }
         if !args.quick && args.wants("tiles") {
             // The measurement behind the automatic tile size (`auto_tile` in the service).

@@ -178,6 +178,17 @@ fn farm_quick_reports_overhead_scaling_queue_and_memory() {
     for part in ["overhead (", "scaling (", "queue:", "memory:"] {
         assert!(stdout.contains(part), "no {part} line in\n{stdout}");
     }
+    // The service's threads are read from /proc: at least the 4×4 job renders long enough
+    // for its render threads to count clock ticks, and the shares are percentages.
+    if cfg!(target_os = "linux") {
+        let shares: Vec<f64> = stdout
+            .lines()
+            .filter_map(|l| l.split_once("render threads': ")?.1.split(" %").next())
+            .map(|x| x.parse().expect("a share"))
+            .collect();
+        assert!(!shares.is_empty(), "no service CPU line in\n{stdout}");
+        assert!(shares.iter().all(|s| (0.0..1000.0).contains(s)), "{stdout}");
+    }
     let per_s: f64 = stdout
         .lines()
         .find(|l| l.contains("claims+results/s"))
