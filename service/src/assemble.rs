@@ -8,11 +8,12 @@
 //! arrives, only the bands not yet encoded (usually its own) remain.
 //!
 //! Memory stays bounded whatever the image size: per job being encoded, one band of RGB rows
-//! (image width × tile height × 3 bytes, kept from one band to the next), the encoder's state, and at
-//! most one pending chunk of compressed output ([`CHUNK`]). The PNG goes into the database in
-//! chunks as it is encoded, so a finished image survives a restart and a download streams it
-//! back chunk by chunk. The encoder is the tracer's, fed the same rows in the same order, so
-//! the PNG is byte-identical to `tessera-render`'s however the rows were grouped.
+//! (image width × tile height × 3 bytes, kept from one band to the next), the encoder's
+//! state, and at most one pending chunk of compressed output ([`CHUNK`]). The PNG goes into
+//! the database in chunks as it is encoded, so a finished image survives a restart and a
+//! download streams it back chunk by chunk. The encoder is the tracer's, fed the same rows in
+//! the same order, so the PNG is byte-identical to `tessera-render`'s however the rows were
+//! grouped.
 //!
 //! This module does not decide when a job is complete: the queue does, and says so with the
 //! result that completes it.

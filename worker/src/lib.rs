@@ -684,7 +684,7 @@ async fn work(
         }
     };
     debug!(job = %c.job, tile = c.idx, ms = started.elapsed().as_millis() as u64, "rendered");
-    // `Bytes`: a post that is retried sends the same buffer again instead of a copy.
+    // `Bytes`: every attempt at posting (see `post`) sends this buffer, not a copy of it.
     let blob = Bytes::from(encode_tile(c.rect(), &rgb));
     // Unless a claim is already under way or answered, this post also asks for the slot's
     // next tile: one round trip instead of two. The tile after the one now queued is thus
