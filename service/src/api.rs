@@ -276,6 +276,9 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
         )));
     }
     let name = params.name.clone().or(file_name);
+    if let Some(n) = &name {
+        check_job_name(n)?;
+    }
     let job = validate(&state, source, uploads, &params, tile, name).await?;
     let (new_job, rects, assets) = job;
     // Followed before it is stored, so that no stored tile goes uncounted.
@@ -370,11 +373,32 @@ fn percent_decode(s: &str) -> String {
     String::from_utf8(out).unwrap_or_else(|_| s.to_string())
 }
 
+/// Longest job name, in bytes, as for asset names: it is shown in lists and becomes the
+/// download's file name.
+pub const MAX_NAME: usize = 255;
+
+/// A job's name (`name=`, or the uploaded scene's file name) is shown in every job list and
+/// page: at most [`MAX_NAME`] bytes and no control characters.
+pub fn check_job_name(name: &str) -> Result<(), ApiError> {
+    if name.len() > MAX_NAME {
+        return Err(ApiError::bad_request(format!(
+            "the job name is {} bytes long; at most {MAX_NAME} are allowed",
+            name.len()
+        )));
+    }
+    if name.chars().any(char::is_control) {
+        return Err(ApiError::bad_request(
+            "the job name may not hold control characters (line breaks, tabs …)",
+        ));
+    }
+    Ok(())
+}
+
 /// Asset names are names, not paths: relative, `/`-separated, no `.` or `..` segments, no
 /// backslashes or control characters. Nothing ever resolves them on a file system anyway.
 pub fn check_asset_name(name: &str) -> Result<(), ApiError> {
     let bad = name.is_empty()
-        || name.len() > 255
+        || name.len() > MAX_NAME
         || name.starts_with('/')
         || name.contains('\\')
         || name.chars().any(char::is_control)

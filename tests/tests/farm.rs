@@ -206,6 +206,16 @@ fn bad_requests_get_json_errors_and_store_nothing() {
         .send()
         .expect("answer");
     assert_eq!(r.status(), 400);
+    // A job name too long for a list or a file name, or with a line break in it.
+    for name in ["n".repeat(256), "two%0Alines".to_string()] {
+        let r = http
+            .post(format!("{}/jobs?name={name}", svc.url))
+            .body(read("thesis.ray"))
+            .send()
+            .expect("answer");
+        assert_eq!(r.status(), 400, "{name}");
+        assert!(r.json::<Value>().expect("json")["error"].is_string());
+    }
 
     // Nothing was stored.
     assert_eq!(svc.get_json("/jobs"), Value::Array(vec![]));
@@ -217,8 +227,10 @@ fn bad_requests_get_json_errors_and_store_nothing() {
     assert_eq!(svc.get("/jobs/does-not-exist/image.png").status(), 404);
     assert_eq!(svc.get("/nothing-here").status(), 404);
 
-    // An image before the job is done: 409 saying how far it is.
-    let job = svc.submit(&read("thesis.ray"), "");
+    // An image before the job is done: 409 saying how far it is. (Its name is as long as
+    // a name may be.)
+    let job = svc.submit(&read("thesis.ray"), &format!("?name={}", "n".repeat(255)));
+    assert_eq!(job["name"].as_str().map(str::len), Some(255));
     let id = job["id"].as_str().expect("id");
     let r = svc.get(&format!("/jobs/{id}/image.png"));
     assert_eq!(r.status(), 409);
