@@ -373,8 +373,8 @@ fn percent_decode(s: &str) -> String {
     String::from_utf8(out).unwrap_or_else(|_| s.to_string())
 }
 
-/// Longest job name, in bytes, as for asset names: it is shown in lists and becomes the
-/// download's file name.
+/// Longest job or asset name, in bytes (a file name's usual limit: a job's name becomes the
+/// download's file name).
 pub const MAX_NAME: usize = 255;
 
 /// A job's name (`name=`, or the uploaded scene's file name) is shown in every job list and
