@@ -355,6 +355,28 @@ async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
     assert_eq!(q.image_chunks("failed").await.expect("count"), 0);
 }
 
+/// A job of more tiles than one insert statement holds (1,000) is stored tile for tile as
+/// the tiler cut it: every index once, each with its own rectangle, in claim order.
+#[tokio::test]
+async fn a_job_of_many_tiles_is_stored_as_the_tiler_cut_it() {
+    let db = Db::new("many");
+    let q = Queue::open(&db.url()).await.expect("open");
+    // 51 × 50 = 2,550 tiles, so two full statements and part of a third; the last column
+    // and the last row of tiles are 4 pixels.
+    let rects = job(&q, "m", 404, 396, 8).await;
+    assert_eq!(rects.len(), 51 * 50);
+    assert_eq!(
+        q.job("m").await.expect("read").expect("job").tiles_total,
+        rects.len() as i64
+    );
+    let mut claimed = Vec::new();
+    while let Some(c) = q.claim("w", 0, 60_000, 1).await.expect("claim") {
+        claimed.push((c.idx as usize, c.rect()));
+    }
+    let expected: Vec<(usize, Rect)> = rects.iter().copied().enumerate().collect();
+    assert_eq!(claimed, expected);
+}
+
 /// A band is read back left to right whatever order its tiles arrived in, each with its
 /// own pixels, and only once stored; the other bands' tiles stay out of it.
 #[tokio::test]
