@@ -160,10 +160,8 @@ impl Ball {
     /// Whether the ray's line certainly misses the ball (see the type's comment).
     #[inline]
     pub fn certainly_missed(&self, ray: &Ray) -> bool {
-        let f = ray.origin - self.centre;
-        let (ff, dd, fd) = (f.dot(f), ray.dir.dot(ray.dir), f.dot(ray.dir));
-        let room = ff + self.r2 + ray.origin.length_squared() + self.c2;
-        ff * dd - fd * fd > dd * (self.r2 + 1e-6 * room)
+        let extra = ray.origin.length_squared() + self.c2;
+        crate::world::line_clears_ball(self.centre, self.r2, ray, extra)
     }
 }
 

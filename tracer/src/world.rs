@@ -210,9 +210,18 @@ pub struct Piece {
 /// fails for both), which is how prims other than similarity spheres pass through it.
 #[inline]
 fn sphere_certainly_missed(c: DVec3, r2: f64, ray: &Ray) -> bool {
+    line_clears_ball(c, r2, ray, 0.0)
+}
+
+/// Whether the ray's line passes outside the ball of centre `c` and squared radius `r2` by
+/// a margin: its squared distance from `c` (Lagrange's identity, `|f×d|²/|d|²` with
+/// `f = o − c`) exceeds `r2 + 1e-6·(|f|² + r2 + extra)`. `extra` widens the margin for
+/// callers whose sphere test carries more rounding (see [`crate::csg::Ball`]).
+#[inline]
+pub(crate) fn line_clears_ball(c: DVec3, r2: f64, ray: &Ray, extra: f64) -> bool {
     let f = ray.origin - c;
     let (ff, dd, fd) = (f.dot(f), ray.dir.dot(ray.dir), f.dot(ray.dir));
-    ff * dd - fd * fd > dd * (r2 + 1e-6 * (ff + r2))
+    ff * dd - fd * fd > dd * (r2 + 1e-6 * (ff + r2 + extra))
 }
 
 /// What the BVH search reads first about each of its prims, packed in the tree's item
