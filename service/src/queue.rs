@@ -15,6 +15,8 @@
 //! SQL stays portable and tests control the clock. This module knows nothing of HTTP.
 
 use std::str::FromStr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use serde::Serialize;
@@ -163,6 +165,52 @@ pub struct Queue {
     /// under load left workers waiting milliseconds for claims. One connection makes writers
     /// queue in the pool instead, in order, and wake as soon as the connection is free.
     writer: SqlitePool,
+    /// Checkpoints the WAL off the writer; `None` for an in-memory database (no WAL).
+    wal: Option<Arc<WalKeeper>>,
+}
+
+/// Tile and image bytes written between two background checkpoints (see [`WalKeeper`]).
+pub const CHECKPOINT_EVERY_BYTES: u64 = 48 << 20;
+
+/// WAL pages (of 4 KB) after which the writer checkpoints by itself, should the background
+/// checkpoints fall behind. A background checkpoint starts at about 16,000 pages (the
+/// pixels and the pages around them), and one WAL that missed starting over (a reader was
+/// in it at that moment) reaches about 32,000 by the next: three times the pixels' pages
+/// stays above both.
+const WRITER_CHECKPOINT_PAGES: u64 = 3 * (CHECKPOINT_EVERY_BYTES >> 12);
+
+/// Background checkpoints: the WAL's pages are copied into the database file by a reading
+/// connection while the writer goes on writing.
+///
+/// SQLite's automatic checkpoint runs on the connection that commits past the threshold,
+/// inside that statement: it copies the WAL's pages and `fsync`s the WAL and the database.
+/// On the one writer, that held every claim and result of every job for the copy and both
+/// `fsync`s: 70–100 ms, five times in forty 1920×1080 jobs, during which workers ran out of
+/// tiles (sqlx's statement log). A `PASSIVE` checkpoint from another connection does the
+/// same work while the writer goes on appending: SQLite's WAL lets one checkpointer and
+/// one writer run at once. Only a last, short pass runs on the writer, for the pages
+/// appended meanwhile (1–13 ms in the same forty jobs): with every page copied, SQLite
+/// starts the WAL over at the next write instead of letting it grow. The writer keeps an
+/// automatic checkpoint as a backstop, at [`WRITER_CHECKPOINT_PAGES`], which it reaches
+/// only if these fall behind.
+#[derive(Debug)]
+struct WalKeeper {
+    /// Bytes of tile pixels and image stored since the last checkpoint began.
+    written: AtomicU64,
+    /// A checkpoint is under way (at most one at a time).
+    running: AtomicBool,
+    /// Checkpoints finished, for tests to wait on.
+    done: tokio::sync::watch::Sender<u64>,
+    every: u64,
+}
+
+/// What a checkpoint did, in WAL frames (pages).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Checkpoint {
+    /// Frames in the WAL.
+    pub log: i64,
+    /// Frames of it now copied into the database file.
+    pub copied: i64,
 }
 
 impl Queue {
@@ -194,17 +242,18 @@ impl Queue {
         // The writer's connection keeps
         // - 16 MB of pages (SQLite's default is 2 MB): enough to still hold the tiles of a
         //   band when the band is read back for the PNG (see `band`);
-        // - up to 16,384 pages (64 MB) of WAL before it checkpoints, instead of 1,000. Tile
+        // - its automatic checkpoint only as a backstop ([`WalKeeper`] checkpoints off the
+        //   writer, every 48 MB of pixels, instead of SQLite's every 1,000 pages). Tile
         //   pixels fill pages that are freed when their job's image is done and then reused
         //   by the next jobs' tiles; each checkpoint copies a page into the database file
         //   once however often it was rewritten since the last, so checkpointing once per
         //   several jobs instead of several times per job copies far less (checkpoints were
-        //   a sixth of SQLite's time on a 1920×1080 job, `perf`). The cost: a WAL file of up
-        //   to about 64 MB beside the database.
+        //   a sixth of SQLite's time on a 1920×1080 job, `perf`). The cost: a WAL file of
+        //   about 64 MB (at most about 150 MB) beside the database.
         let writer_opts = opts
             .clone()
             .pragma("cache_size", "-16384")
-            .pragma("wal_autocheckpoint", "16384");
+            .pragma("wal_autocheckpoint", WRITER_CHECKPOINT_PAGES.to_string());
         let writer = connect(1, writer_opts).await?;
         MIGRATOR.run(&writer).await?;
         // An in-memory database exists once per connection: it has only the writer's.
@@ -213,7 +262,93 @@ impl Queue {
         } else {
             connect(8, opts).await?
         };
-        Ok(Queue { pool, writer })
+        let wal = (!in_memory).then(|| {
+            Arc::new(WalKeeper {
+                written: AtomicU64::new(0),
+                running: AtomicBool::new(false),
+                done: tokio::sync::watch::Sender::new(0),
+                every: CHECKPOINT_EVERY_BYTES,
+            })
+        });
+        Ok(Queue { pool, writer, wal })
+    }
+
+    /// The same queue, checkpointing after every `bytes` of tiles and images instead of
+    /// [`CHECKPOINT_EVERY_BYTES`] (tests).
+    pub fn checkpoint_every(mut self, bytes: u64) -> Queue {
+        if let Some(w) = &self.wal {
+            self.wal = Some(Arc::new(WalKeeper {
+                written: AtomicU64::new(0),
+                running: AtomicBool::new(false),
+                done: w.done.clone(),
+                every: bytes,
+            }));
+        }
+        self
+    }
+
+    /// Copies the WAL's committed pages into the database file, from a reading connection
+    /// and without blocking the writer (`PASSIVE`). Pages the writer appends meanwhile wait
+    /// for the next checkpoint. `None` for an in-memory database.
+    pub async fn checkpoint(&self) -> Result<Option<Checkpoint>> {
+        if self.wal.is_none() {
+            return Ok(None);
+        }
+        self.checkpoint_on(false).await.map(Some)
+    }
+
+    async fn checkpoint_on(&self, writer: bool) -> Result<Checkpoint> {
+        let conn = if writer { &self.writer } else { &self.pool };
+        let (_busy, log, copied): (i64, i64, i64) =
+            sqlx::query_as("PRAGMA wal_checkpoint(PASSIVE)")
+                .fetch_one(conn)
+                .await?;
+        Ok(Checkpoint { log, copied })
+    }
+
+    /// Background checkpoints finished so far, as a watch (tests wait on it).
+    pub fn checkpoints(&self) -> Option<tokio::sync::watch::Receiver<u64>> {
+        self.wal.as_ref().map(|w| w.done.subscribe())
+    }
+
+    /// Counts `bytes` written to the WAL and, past the threshold, starts a background
+    /// checkpoint unless one is under way.
+    fn wrote(&self, bytes: usize) {
+        let Some(w) = &self.wal else { return };
+        let total = w.written.fetch_add(bytes as u64, Ordering::Relaxed) + bytes as u64;
+        if total < w.every || w.running.swap(true, Ordering::AcqRel) {
+            return;
+        }
+        w.written.store(0, Ordering::Relaxed);
+        let queue = self.clone();
+        tokio::spawn(async move {
+            // A pass copies what was committed when it began; the writer appends more
+            // meanwhile (a few hundred pages during a first pass of 16,000, fewer during
+            // the second). Two passes on a reading connection, then a last one on the
+            // writer, which nothing can write under: it leaves every page copied, and
+            // SQLite starts the WAL over from its beginning at the next write (it does so
+            // only when no page is left to copy).
+            for on_writer in [false, false, true] {
+                let t = std::time::Instant::now();
+                match queue.checkpoint_on(on_writer).await {
+                    Ok(c) => tracing::debug!(
+                        log = c.log,
+                        copied = c.copied,
+                        on_writer,
+                        us = t.elapsed().as_micros() as u64,
+                        "WAL checkpoint"
+                    ),
+                    Err(e) => {
+                        tracing::warn!("WAL checkpoint: {e}");
+                        break;
+                    }
+                }
+            }
+            if let Some(w) = &queue.wal {
+                w.running.store(false, Ordering::Release);
+                w.done.send_modify(|n| *n += 1);
+            }
+        });
     }
 
     /// Answers when the database does.
@@ -466,6 +601,7 @@ impl Queue {
         .fetch_optional(&self.writer)
         .await?;
         if let Some((done_before, total, worker)) = stored {
+            self.wrote(rgb.len());
             // `RETURNING` is computed before the trigger counts this tile (see the migration).
             return Ok(Completion::Stored {
                 last: done_before + 1 == total,
@@ -773,6 +909,7 @@ impl Queue {
         .bind(bytes)
         .execute(&self.writer)
         .await?;
+        self.wrote(bytes.len());
         Ok(())
     }
 

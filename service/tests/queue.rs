@@ -415,6 +415,57 @@ async fn a_band_reads_back_its_stored_tiles_left_to_right() {
     assert!(band(&q, "b", 4).await.is_empty(), "no band starts at row 4");
 }
 
+/// Tile pixels past the threshold start a checkpoint off the writer. It copies every page
+/// committed before it into the database file, and the WAL then starts over from its
+/// beginning at the next write instead of growing.
+#[tokio::test]
+async fn stored_pixels_past_the_threshold_are_checkpointed_in_the_background() {
+    let db = Db::new("checkpoint");
+    const EVERY: usize = 100_000;
+    let q = Queue::open(&db.url())
+        .await
+        .expect("open")
+        .checkpoint_every(EVERY as u64);
+    let mut finished = q.checkpoints().expect("a database file has a WAL");
+    job(&q, "c", 256, 256, 64).await; // 16 tiles of 12,288 bytes
+    let mut stored = 0;
+    while let Some(c) = q.claim("w", 0, 60_000, 1).await.expect("claim") {
+        if stored < EVERY {
+            assert_eq!(*finished.borrow(), 0, "checkpointed before the threshold");
+        }
+        let rgb = pixels(c.rect());
+        let done = q
+            .complete("c", c.idx, &c.lease, c.rect(), &rgb)
+            .await
+            .expect("complete");
+        assert!(matches!(done, Completion::Stored { .. }));
+        stored += rgb.len();
+    }
+    assert!(stored > EVERY);
+    // A timeout only turns a checkpoint that never comes into a failure.
+    tokio::time::timeout(
+        std::time::Duration::from_secs(60),
+        finished.wait_for(|n| *n >= 1),
+    )
+    .await
+    .expect("a checkpoint within a minute")
+    .expect("the queue is alive");
+    // The next write starts the WAL over once every page in it is copied: from then on it
+    // holds fewer pages than the pixels alone filled.
+    job(&q, "d", 8, 8, 8).await;
+    let wal = q.checkpoint().await.expect("checkpoint").expect("a WAL");
+    assert!(
+        (wal.log as usize) * 4096 < stored,
+        "the WAL started over: {wal:?} after {stored} bytes of pixels"
+    );
+    assert_eq!(wal.copied, wal.log, "every page is in the database file");
+    assert_eq!(band(&q, "c", 192).await.len(), 4, "the pixels read back");
+
+    let memory = Queue::open("sqlite::memory:").await.expect("open");
+    assert!(memory.checkpoints().is_none());
+    assert_eq!(memory.checkpoint().await.expect("no error"), None);
+}
+
 /// A pixel value that differs between neighbouring pixels and tiles.
 fn shade(x: u32, y: u32, c: u32) -> u8 {
     (x.wrapping_mul(7) ^ y.wrapping_mul(13) ^ (c * 85)) as u8
