@@ -204,6 +204,17 @@ struct WalKeeper {
     every: u64,
 }
 
+impl WalKeeper {
+    fn new(every: u64, done: tokio::sync::watch::Sender<u64>) -> Arc<WalKeeper> {
+        Arc::new(WalKeeper {
+            written: AtomicU64::new(0),
+            running: AtomicBool::new(false),
+            done,
+            every,
+        })
+    }
+}
+
 /// What a checkpoint did, in WAL frames (pages).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Checkpoint {
@@ -262,14 +273,8 @@ impl Queue {
         } else {
             connect(8, opts).await?
         };
-        let wal = (!in_memory).then(|| {
-            Arc::new(WalKeeper {
-                written: AtomicU64::new(0),
-                running: AtomicBool::new(false),
-                done: tokio::sync::watch::Sender::new(0),
-                every: CHECKPOINT_EVERY_BYTES,
-            })
-        });
+        let wal = (!in_memory)
+            .then(|| WalKeeper::new(CHECKPOINT_EVERY_BYTES, tokio::sync::watch::Sender::new(0)));
         Ok(Queue { pool, writer, wal })
     }
 
@@ -277,12 +282,7 @@ impl Queue {
     /// [`CHECKPOINT_EVERY_BYTES`] (tests).
     pub fn checkpoint_every(mut self, bytes: u64) -> Queue {
         if let Some(w) = &self.wal {
-            self.wal = Some(Arc::new(WalKeeper {
-                written: AtomicU64::new(0),
-                running: AtomicBool::new(false),
-                done: w.done.clone(),
-                every: bytes,
-            }));
+            self.wal = Some(WalKeeper::new(bytes, w.done.clone()));
         }
         self
     }
