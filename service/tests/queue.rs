@@ -415,9 +415,8 @@ async fn a_band_reads_back_its_stored_tiles_left_to_right() {
     assert!(band(&q, "b", 4).await.is_empty(), "no band starts at row 4");
 }
 
-/// Tile pixels past the threshold start a checkpoint off the writer. It copies every page
-/// committed before it into the database file, and the WAL then starts over from its
-/// beginning at the next write instead of growing.
+/// Tile pixels past the threshold start a checkpoint off the writer, which copies the pages
+/// committed before it from the WAL into the database file.
 #[tokio::test]
 async fn stored_pixels_past_the_threshold_are_checkpointed_in_the_background() {
     let db = Db::new("checkpoint");
@@ -428,6 +427,10 @@ async fn stored_pixels_past_the_threshold_are_checkpointed_in_the_background() {
         .checkpoint_every(EVERY as u64);
     let mut finished = q.checkpoints().expect("a database file has a WAL");
     job(&q, "c", 256, 256, 64).await; // 16 tiles of 12,288 bytes
+    let file = std::fs::metadata(db.0.join("q.db"))
+        .expect("database file")
+        .len();
+    assert!(file < 100_000, "a new database file is small: {file} bytes");
     let mut stored = 0;
     while let Some(c) = q.claim("w", 0, 60_000, 1).await.expect("claim") {
         if stored < EVERY {
@@ -450,14 +453,16 @@ async fn stored_pixels_past_the_threshold_are_checkpointed_in_the_background() {
     .await
     .expect("a checkpoint within a minute")
     .expect("the queue is alive");
-    // The next write starts the WAL over once every page in it is copied: from then on it
-    // holds fewer pages than the pixels alone filled.
-    job(&q, "d", 8, 8, 8).await;
-    let wal = q.checkpoint().await.expect("checkpoint").expect("a WAL");
+    // Until a checkpoint, committed pages live in the WAL only; the database file holds the
+    // pixels once they are copied into it.
+    let file = std::fs::metadata(db.0.join("q.db"))
+        .expect("database file")
+        .len();
     assert!(
-        (wal.log as usize) * 4096 < stored,
-        "the WAL started over: {wal:?} after {stored} bytes of pixels"
+        file as usize > stored,
+        "the pixels' pages are in the database file: {file} bytes after {stored} of pixels"
     );
+    let wal = q.checkpoint().await.expect("checkpoint").expect("a WAL");
     assert_eq!(wal.copied, wal.log, "every page is in the database file");
     assert_eq!(band(&q, "c", 192).await.len(), 4, "the pixels read back");
 
