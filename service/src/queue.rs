@@ -320,7 +320,7 @@ impl Queue {
             return;
         }
         w.written.store(0, Ordering::Relaxed);
-        let queue = self.clone();
+        let (queue, keeper) = (self.clone(), w.clone());
         tokio::spawn(async move {
             // A pass copies what was committed when it began; the writer appends more
             // meanwhile (a few hundred pages during a first pass of 16,000, fewer during
@@ -344,10 +344,8 @@ impl Queue {
                     }
                 }
             }
-            if let Some(w) = &queue.wal {
-                w.running.store(false, Ordering::Release);
-                w.done.send_modify(|n| *n += 1);
-            }
+            keeper.running.store(false, Ordering::Release);
+            keeper.done.send_modify(|n| *n += 1);
         });
     }
 
