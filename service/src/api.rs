@@ -517,6 +517,7 @@ async fn validate(
     })??;
     let (source, width, height, kept, rays) = checked;
     let tile = tile.unwrap_or_else(|| auto_tile(width, height, rays));
+    check_tile_count(width, height, tile, state.cfg.max_tiles)?;
     let job = NewJob {
         id: uuid::Uuid::new_v4().simple().to_string()[..16].to_string(),
         scene: source,
@@ -533,9 +534,73 @@ async fn validate(
     Ok((job, rects, kept))
 }
 
+/// Refuses a job of more than `max_tiles` tiles (`--max-tiles`), naming the smallest tile
+/// edge that would do, if any does.
+fn check_tile_count(width: u32, height: u32, tile: u32, max_tiles: u64) -> Result<(), ApiError> {
+    let count = tile_count(width, height, tile);
+    if count <= max_tiles {
+        return Ok(());
+    }
+    // The count only falls as the edge grows, so the first edge that fits is the smallest.
+    let fits = (tile..=MAX_TILE).find(|&e| tile_count(width, height, e) <= max_tiles);
+    let hint = match fits {
+        Some(edge) => format!("; ask for tile={edge} or more"),
+        None => format!("; no tile edge up to {MAX_TILE} makes so few"),
+    };
+    let err = ApiError::bad_request(format!(
+        "tiles of {tile} px make {count} tiles of this {width}×{height} image; a job may have \
+         at most {max_tiles} (--max-tiles){hint}"
+    ))
+    .with("tiles", count)
+    .with("max_tiles", max_tiles);
+    Err(match fits {
+        Some(edge) => err.with("min_tile", edge),
+        None => err,
+    })
+}
+
+/// Tiles of edge `tile` that cover a `width × height` image.
+fn tile_count(width: u32, height: u32, tile: u32) -> u64 {
+    u64::from(width.div_ceil(tile)) * u64::from(height.div_ceil(tile))
+}
+
 #[cfg(test)]
 mod tests {
-    use super::{check_asset_name, percent_decode};
+    use super::{MAX_TILE, MIN_TILE, check_asset_name, check_tile_count, percent_decode};
+
+    /// Over many sizes and caps: a job is refused exactly when the tiler would make more
+    /// tiles than the cap (counted by the tiler itself), and the edge it suggests is the
+    /// smallest that the tiler keeps under the cap.
+    #[test]
+    fn jobs_of_too_many_tiles_are_refused_with_the_smallest_edge_that_fits() {
+        let count = |w: u32, h: u32, e: u32| tessera_tracer::tiles(w, h, e).len() as u64;
+        for (w, h) in [(1, 1), (100, 100), (333, 7), (1920, 1080), (7680, 4320)] {
+            for max in [1, 2, 10, 169, 1000, 65_536] {
+                for tile in [MIN_TILE, 9, 31, 256, MAX_TILE] {
+                    let n = count(w, h, tile);
+                    match check_tile_count(w, h, tile, max) {
+                        Ok(()) => assert!(n <= max, "{w}×{h} tile {tile} max {max}"),
+                        Err(e) => {
+                            assert!(n > max, "{w}×{h} tile {tile} max {max}");
+                            assert_eq!(e.status, 400);
+                            assert_eq!(e.body["tiles"], n);
+                            match e.body.get("min_tile").and_then(|v| v.as_u64()) {
+                                Some(m) => {
+                                    let m = m as u32;
+                                    assert!(m > tile && m <= MAX_TILE && count(w, h, m) <= max);
+                                    assert!(count(w, h, m - 1) > max, "{w}×{h} max {max}: {m}");
+                                    let msg = e.body.get("error").and_then(|v| v.as_str());
+                                    let msg = msg.unwrap_or_default();
+                                    assert!(msg.contains(&format!("tile={m}")), "{msg}");
+                                }
+                                None => assert!(count(w, h, MAX_TILE) > max),
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
 
     #[test]
     fn part_names_are_percent_decoded() {

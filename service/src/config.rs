@@ -84,6 +84,12 @@ pub struct Config {
     /// Largest image width or height.
     #[arg(long, env = "TESSERA_MAX_DIMENSION", default_value_t = 16_384)]
     pub max_dimension: u32,
+    /// Most tiles in one job. A job's tiles are stored in the one transaction that holds the
+    /// queue's only writer, so no claim or result of another job is stored meanwhile (about
+    /// 0.5 s for 65,536 tiles); a job asking for more is refused with the smallest tile edge
+    /// that would do.
+    #[arg(long, env = "TESSERA_MAX_TILES", default_value_t = 65_536)]
+    pub max_tiles: u64,
     /// Most objects in a scene, CSG children included.
     #[arg(long, env = "TESSERA_MAX_OBJECTS", default_value_t = 100_000)]
     pub max_objects: usize,

@@ -231,6 +231,11 @@ pub async fn serve(
             api::MAX_TILE
         )));
     }
+    if cfg.max_tiles == 0 {
+        return Err(ServiceError::Config(
+            "--max-tiles must be at least 1".into(),
+        ));
+    }
     if cfg.lease_ms < 100 || cfg.max_attempts == 0 {
         return Err(ServiceError::Config(
             "--lease-ms must be at least 100 and --max-attempts at least 1".into(),

@@ -158,6 +158,8 @@ fn limits_refuse_oversized_input_and_store_nothing() {
             "2",
             "--max-texture-pixels",
             "4096",
+            "--max-tiles",
+            "10",
         ],
     );
     let http = client();
@@ -231,7 +233,31 @@ fn limits_refuse_oversized_input_and_store_nothing() {
     let e: Value = r.json().expect("json");
     assert!(e["error"].as_str().unwrap_or("").contains("texels"), "{e}");
 
+    // Too many tiles, asked for or picked by the service: refused with the smallest edge
+    // that makes at most 10 (`⌈100/e⌉² ≤ 10` needs `⌈100/e⌉ ≤ 3`, so `e ≥ 34`).
+    let hundred = "[GLOBALS]\nwidth = 100\nheight = 100\n[/GLOBALS]\n";
+    for query in ["?tile=8", ""] {
+        let r = http
+            .post(format!("{}/jobs{query}", svc.url))
+            .body(format!("{hundred}{sphere}"))
+            .send()
+            .expect("answer");
+        assert_eq!(r.status(), 400, "{query}");
+        let e: Value = r.json().expect("json");
+        assert_eq!(e["max_tiles"], 10, "{e}");
+        assert_eq!(e["min_tile"], 34, "{e}");
+        assert!(e["error"].as_str().unwrap_or("").contains("tile=34"), "{e}");
+    }
+
     assert_eq!(svc.get_json("/jobs"), json!([]), "nothing stored");
+
+    let r = http
+        .post(format!("{}/jobs?tile=34", svc.url))
+        .body(format!("{hundred}{sphere}"))
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 201, "the smallest edge that fits is taken");
+    assert_eq!(r.json::<Value>().expect("json")["tiles_total"], 9);
 }
 
 #[test]
