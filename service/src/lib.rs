@@ -308,6 +308,8 @@ fn spawn_local_workers(
         addr.to_string()
     };
     let base_name = tessera_worker::default_name();
+    // One cache of built scenes for all of them: a job's scene is fetched and built once.
+    let scenes = tessera_worker::SceneCache::default();
     (0..n)
         .map(|i| {
             let mut wc = tessera_worker::WorkerConfig::new(format!("http://{host}"));
@@ -316,11 +318,12 @@ fn spawn_local_workers(
             wc.name = format!("{base_name}-local{i}");
             wc.idle_max = Duration::from_millis(500);
             let mut stop = stop.clone();
+            let scenes = scenes.clone();
             tokio::spawn(async move {
                 let stopped = async move {
                     let _ = stop.wait_for(|s| *s).await;
                 };
-                if let Err(e) = tessera_worker::run(wc, stopped).await {
+                if let Err(e) = tessera_worker::run_sharing(wc, scenes, stopped).await {
                     error!("local worker {i} stopped: {e}");
                 }
             })

@@ -118,6 +118,27 @@ fn multipart_scene_with_textures_matches_tessera_render() {
     let id = job["id"].as_str().expect("id");
     assert_eq!(svc.wait_finished(id, JOB_TIME)["state"], "done");
     assert!(svc.image(id) == local_png(&examples().join("textures.ray"), None, None));
+
+    // Both local workers rendered tiles of the job, yet its scene (and its textures) was
+    // fetched and built once: they share one cache of built scenes.
+    let workers = svc.get_json("/workers");
+    let locals: Vec<&Value> = workers
+        .as_array()
+        .expect("a list")
+        .iter()
+        .filter(|w| w["name"].as_str().is_some_and(|n| n.contains("-local")))
+        .collect();
+    assert_eq!(locals.len(), 2, "{workers}");
+    assert!(
+        locals.iter().all(|w| w["claims"].as_u64() > Some(0)),
+        "{workers}"
+    );
+    let log = svc.log();
+    let builds = log
+        .lines()
+        .filter(|l| l.contains("scene built") && l.contains(id))
+        .count();
+    assert_eq!(builds, 1, "{log}");
 }
 
 #[test]

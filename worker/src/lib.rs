@@ -108,12 +108,29 @@ enum Unusable {
     Client(ClientError),
 }
 
+/// Built scenes by job id, most recently used last: shared by the slots of one worker, and
+/// by several workers of one service (the service's `--local-workers`), so that a job's
+/// scene is fetched and built once however many of them render its tiles. Job ids are one
+/// service's own, so a cache must not be shared by workers of different services.
+///
+/// An async mutex guards it and is held while a missing scene is fetched and built, so no
+/// two users fetch the same scene at once; a user wanting another job's scene waits for
+/// that build too, as the slots of one worker always have.
+#[derive(Clone, Default)]
+pub struct SceneCache {
+    scenes: Arc<Mutex<Vec<(String, Arc<Prepared>)>>>,
+}
+
+impl std::fmt::Debug for SceneCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SceneCache").finish_non_exhaustive()
+    }
+}
+
 struct Shared {
     cfg: WorkerConfig,
     client: Client,
-    /// Recently used scenes, most recent last. Guarded by an async mutex that is held while a
-    /// missing scene is fetched, so slots do not fetch the same scene at once.
-    cache: Mutex<Vec<(String, Arc<Prepared>)>>,
+    cache: SceneCache,
     tiles: AtomicU64,
     released: AtomicU64,
     failed: AtomicU64,
@@ -125,6 +142,16 @@ const CACHE_SCENES: usize = 4;
 /// a refusal that retrying cannot fix (a wrong token).
 pub async fn run(
     cfg: WorkerConfig,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<Summary, WorkerError> {
+    run_sharing(cfg, SceneCache::default(), shutdown).await
+}
+
+/// [`run`], with built scenes kept in (and taken from) `scenes`, which other workers of the
+/// same service may share.
+pub async fn run_sharing(
+    cfg: WorkerConfig,
+    scenes: SceneCache,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<Summary, WorkerError> {
     if cfg.threads == 0 {
@@ -142,7 +169,7 @@ pub async fn run(
     );
     let shared = Arc::new(Shared {
         client,
-        cache: Mutex::new(Vec::new()),
+        cache: scenes,
         tiles: AtomicU64::new(0),
         released: AtomicU64::new(0),
         failed: AtomicU64::new(0),
@@ -535,7 +562,7 @@ async fn submit(
 
 /// The scene of `job`, from the cache or fetched and built.
 async fn prepared(shared: &Shared, job: &str) -> Result<Arc<Prepared>, Unusable> {
-    let mut cache = shared.cache.lock().await;
+    let mut cache = shared.cache.scenes.lock().await;
     if let Some(i) = cache.iter().position(|(id, _)| id == job) {
         let entry = cache.remove(i);
         let p = entry.1.clone();
@@ -559,6 +586,7 @@ async fn prepared(shared: &Shared, job: &str) -> Result<Arc<Prepared>, Unusable>
             .map_err(Unusable::Client)?;
         assets.insert(name.clone(), bytes);
     }
+    let started = Instant::now();
     let built = tokio::task::spawn_blocking(move || -> Result<Prepared, String> {
         let limits = Limits::default();
         let desc = tessera_tracer::parse(&spec.scene, &limits).map_err(|e| e.to_string())?;
@@ -575,6 +603,11 @@ async fn prepared(shared: &Shared, job: &str) -> Result<Arc<Prepared>, Unusable>
     .await
     .map_err(|e| Unusable::Invalid(format!("building the scene panicked: {e}")))?
     .map_err(Unusable::Invalid)?;
+    info!(
+        job,
+        ms = started.elapsed().as_millis() as u64,
+        "scene built"
+    );
     let p = Arc::new(built);
     if cache.len() >= CACHE_SCENES {
         cache.remove(0);
