@@ -118,8 +118,11 @@ enum Unusable {
 /// that build too, as the slots of one worker always have.
 #[derive(Clone, Default)]
 pub struct SceneCache {
-    scenes: Arc<Mutex<Vec<(String, Arc<Prepared>)>>>,
+    scenes: Arc<Mutex<Vec<Cached>>>,
 }
+
+/// A job id and its built scene.
+type Cached = (String, Arc<Prepared>);
 
 impl std::fmt::Debug for SceneCache {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
