@@ -210,20 +210,41 @@ pub async fn image(
     if let Some(n) = row.png_bytes {
         headers.insert(header::CONTENT_LENGTH, HeaderValue::from(n));
     }
-    let file = row
-        .name
-        .as_deref()
-        .and_then(|n| n.rsplit('/').next())
-        .unwrap_or(&row.id);
-    let stem = file.strip_suffix(".ray").unwrap_or(file);
-    let safe: String = stem
-        .chars()
-        .filter(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
-        .collect();
-    if let Ok(v) = HeaderValue::from_str(&format!("inline; filename=\"{safe}.png\"")) {
+    if let Ok(v) = HeaderValue::from_str(&content_disposition(row.name.as_deref(), &row.id)) {
         headers.insert(header::CONTENT_DISPOSITION, v);
     }
     Ok((headers, Body::from_stream(stream)).into_response())
+}
+
+/// The download's `Content-Disposition`: the job's name (its last `/` segment, `.ray`
+/// dropped) as a `.png` file name. `filename` holds its ASCII letters, digits, `-`, `_` and
+/// `.` (the job id when that leaves no name); when that is not the whole name, `filename*`
+/// (RFC 6266, RFC 8187) carries all of it, UTF-8 percent-encoded, for clients that read it.
+fn content_disposition(name: Option<&str>, id: &str) -> String {
+    let file = name.and_then(|n| n.rsplit('/').next()).unwrap_or(id);
+    let stem = file.strip_suffix(".ray").unwrap_or(file);
+    let plain = |c: char| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.');
+    let safe: String = stem.chars().filter(|&c| plain(c)).collect();
+    let fallback = if safe.chars().all(|c| c == '.') {
+        id
+    } else {
+        &safe
+    };
+    let mut header = format!("inline; filename=\"{fallback}.png\"");
+    if !stem.chars().all(plain) && !stem.trim().is_empty() {
+        // RFC 8187 `attr-char`s stand for themselves; every other byte is `%XX`.
+        let attr = |b: u8| b.is_ascii_alphanumeric() || b"!#$&+-.^_`|~".contains(&b);
+        let mut encoded = String::new();
+        for b in stem.bytes() {
+            if attr(b) {
+                encoded.push(char::from(b));
+            } else {
+                encoded.push_str(&format!("%{b:02X}"));
+            }
+        }
+        header.push_str(&format!("; filename*=UTF-8''{encoded}.png"));
+    }
+    header
 }
 
 /// `POST /jobs` query parameters.
@@ -275,7 +296,12 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
             "tile must be from {MIN_TILE} to {MAX_TILE} pixels"
         )));
     }
-    let name = params.name.clone().or(file_name);
+    // An empty `name=` (a form's empty field) names nothing.
+    let name = params
+        .name
+        .clone()
+        .filter(|n| !n.trim().is_empty())
+        .or(file_name);
     if let Some(n) = &name {
         check_job_name(n)?;
     }
@@ -599,6 +625,41 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// The header's plain `filename` is always a safe ASCII name, and `filename*` (when
+    /// present) decodes back to the whole name: checked with the module's own decoder.
+    #[test]
+    fn download_names_keep_what_they_can_and_carry_the_rest_encoded() {
+        let id = "0123456789abcdef";
+        let parts = |h: &str| -> (String, Option<String>) {
+            let plain = h
+                .split("filename=\"")
+                .nth(1)
+                .and_then(|r| r.split('"').next())
+                .unwrap_or_default()
+                .to_string();
+            let star = h
+                .split("filename*=UTF-8''")
+                .nth(1)
+                .map(|e| percent_decode(e.split(';').next().unwrap_or_default()));
+            (plain, star)
+        };
+        for (name, plain, star) in [
+            (Some("scene.ray"), "scene.png", None),
+            (Some("dir/sub/thesis.ray"), "thesis.png", None),
+            (None, "0123456789abcdef.png", None),
+            (Some("😀.ray"), "0123456789abcdef.png", Some("😀.png")),
+            (Some("a b&c\"d;.ray"), "abcd.png", Some("a b&c\"d;.png")),
+            (Some("Straße 1"), "Strae1.png", Some("Straße 1.png")),
+            (Some(".."), "0123456789abcdef.png", None),
+        ] {
+            let h = super::content_disposition(name, id);
+            assert!(h.is_ascii() && !h.contains('\n'), "{h}");
+            let (p, s) = parts(&h);
+            assert_eq!(p, plain, "{name:?}: {h}");
+            assert_eq!(s.as_deref(), star, "{name:?}: {h}");
         }
     }
 

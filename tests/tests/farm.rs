@@ -449,3 +449,35 @@ fn a_job_can_be_waited_for() {
         "answered at the end, not the limit"
     );
 }
+
+/// The download is named after the job: a plain ASCII `filename` always, and the whole name
+/// in `filename*` when it holds more than that; an empty `name=` names nothing.
+#[test]
+fn downloads_are_named_after_their_job() {
+    let dir = TempDir::new("names");
+    let svc = Service::start(&dir, &["--local-workers", "1"]);
+    let scene = "[GLOBALS]\nwidth = 16\nheight = 16\n[/GLOBALS]\n";
+    let named = svc.submit(scene, "?name=dir%2FStra%C3%9Fe%20%231.ray");
+    assert_eq!(named["name"], "dir/Straße #1.ray");
+    let unnamed = svc.submit(scene, "?name=");
+    assert_eq!(unnamed["name"], Value::Null, "{unnamed}");
+    let disposition = |job: &Value| {
+        let id = job["id"].as_str().expect("job id");
+        assert_eq!(svc.wait_finished(id, JOB_TIME)["state"], "done");
+        let r = svc.get(&format!("/jobs/{id}/image.png"));
+        assert_eq!(r.status(), 200);
+        r.headers()["content-disposition"]
+            .to_str()
+            .expect("ASCII header")
+            .to_string()
+    };
+    assert_eq!(
+        disposition(&named),
+        "inline; filename=\"Strae1.png\"; filename*=UTF-8''Stra%C3%9Fe%20#1.png"
+    );
+    let id = unnamed["id"].as_str().expect("job id");
+    assert_eq!(
+        disposition(&unnamed),
+        format!("inline; filename=\"{id}.png\"")
+    );
+}
