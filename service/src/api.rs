@@ -353,6 +353,11 @@ async fn read_multipart(
             .await
             .map_err(|e| ApiError::new(e.status(), e.body_text()))?;
         if field_name == "scene" {
+            if scene.is_some() {
+                return Err(ApiError::bad_request(
+                    "the `scene` part was sent twice: send one scene per job",
+                ));
+            }
             scene = Some(bytes.to_vec());
             file_name = fname;
             continue;

@@ -227,6 +227,18 @@ fn bad_requests_get_json_errors_and_store_nothing() {
         .send()
         .expect("answer");
     assert_eq!(r.status(), 400);
+    // Two scenes in one upload: which one was meant is not for the service to guess.
+    let two = reqwest::blocking::multipart::Form::new()
+        .text("scene", read("thesis.ray"))
+        .text("scene", read("checker.ray"));
+    let r = http
+        .post(format!("{}/jobs", svc.url))
+        .multipart(two)
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 400);
+    let e: Value = r.json().expect("json");
+    assert!(e["error"].as_str().unwrap_or("").contains("twice"), "{e}");
     // A job name too long for a list or a file name, or with a line break in it.
     for name in ["n".repeat(256), "two%0Alines".to_string()] {
         let r = http
