@@ -128,12 +128,15 @@ pub async fn get_job(
             .await?
             .ok_or_else(|| ApiError::not_found(format_args!("job `{id}`")))?;
         let now = tokio::time::Instant::now();
-        if !matches!(row.state.as_str(), "queued" | "running") || now >= deadline {
+        let stopping = *state.stopping.borrow();
+        if !matches!(row.state.as_str(), "queued" | "running") || now >= deadline || stopping {
             return Ok(ok_json(JobView::from(row)));
         }
         tokio::select! {
             _ = &mut ended => {}
             _ = tokio::time::sleep_until(deadline.min(now + JOB_WAIT_RECHECK)) => {}
+            // The job as it is: the client asks again once the service is back.
+            _ = state.stopped() => {}
         }
     }
 }

@@ -64,9 +64,20 @@ pub struct AppState {
     pub ended: Arc<tokio::sync::Notify>,
     /// The PNGs being encoded while their jobs render.
     pub progress: Arc<assemble::Progress>,
+    /// Turns `true` when the service begins to stop: requests that wait (a claim waiting
+    /// for work, `GET /jobs/{id}?wait=`) answer at once, since a graceful stop waits for
+    /// every open request.
+    pub stopping: watch::Receiver<bool>,
 }
 
 impl AppState {
+    /// Completes when the service begins to stop (at once if it has).
+    pub async fn stopped(&self) {
+        let mut stopping = self.stopping.clone();
+        // An error means the sender is gone, which only happens as the service ends.
+        let _ = stopping.wait_for(|s| *s).await;
+    }
+
     pub fn keep_away(&self) -> KeepAway {
         KeepAway {
             after: self.cfg.keep_away_after,
@@ -249,6 +260,7 @@ pub async fn serve(
             cfg.lease_ms
         );
     }
+    let (stop_tx, stop_rx) = watch::channel(false);
     let state = AppState {
         cfg: Arc::new(cfg),
         queue: queue.clone(),
@@ -256,13 +268,13 @@ pub async fn serve(
         work: Arc::default(),
         ended: Arc::default(),
         progress: Arc::default(),
+        stopping: stop_rx.clone(),
     };
     for job in queue.unassembled().await? {
         info!(job = %job, "all tiles were in before the restart: assembling");
         state.spawn_assembly(job);
     }
 
-    let (stop_tx, stop_rx) = watch::channel(false);
     tokio::spawn(async move {
         shutdown.await;
         info!("shutting down: local workers finish their tiles");

@@ -65,6 +65,10 @@ pub async fn claim(
             _ = tokio::time::sleep_until(deadline) => {
                 return Ok(StatusCode::NO_CONTENT.into_response());
             }
+            // No work from a service that is stopping; the worker asks again later.
+            _ = state.stopped() => {
+                return Ok(StatusCode::NO_CONTENT.into_response());
+            }
         }
     }
 }

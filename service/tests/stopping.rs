@@ -1,0 +1,102 @@
+//! A stopping service answers the requests that wait: a graceful stop waits for every open
+//! request, and a client's `GET /jobs/{id}?wait=60` or a worker's long claim must not hold it
+//! for their whole wait (longer than `docker stop` gives before its kill).
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::extract::{Json, Path, Query, State};
+use axum::http::StatusCode;
+use axum::response::IntoResponse;
+use tessera_service::api::{JobParams, get_job};
+use tessera_service::queue::{NewJob, Queue};
+use tessera_service::worker_api::{ClaimParams, claim};
+use tessera_service::{AppState, Config};
+use tessera_tracer::tiles;
+use tessera_worker::protocol::ClaimRequest;
+use tokio::sync::watch;
+
+async fn state(stopping: watch::Receiver<bool>) -> AppState {
+    AppState {
+        cfg: Arc::new(Config::defaults()),
+        queue: Queue::open("sqlite::memory:")
+            .await
+            .expect("in-memory queue"),
+        roster: Arc::default(),
+        work: Arc::default(),
+        ended: Arc::default(),
+        progress: Arc::default(),
+        stopping,
+    }
+}
+
+/// Far less than either wait below: the answer comes from the stop, not from a timeout.
+const PROMPTLY: Duration = Duration::from_secs(5);
+
+#[tokio::test]
+async fn a_waiting_job_request_answers_when_the_service_stops() {
+    let (stop, stopping) = watch::channel(false);
+    let state = state(stopping).await;
+    let rects = tiles(64, 64, 32);
+    let job = NewJob {
+        id: "waited".into(),
+        scene: "[GLOBALS]\n[/GLOBALS]\n".into(),
+        name: None,
+        width: 64,
+        height: 64,
+        tile: 32,
+        sampler: None,
+        samples: None,
+        threshold: None,
+        created_at: 0,
+    };
+    state
+        .queue
+        .insert_job(&job, &rects, &[])
+        .await
+        .expect("job");
+    let mut wait = tokio::spawn(get_job(
+        State(state.clone()),
+        Path("waited".to_string()),
+        Query(JobParams { wait: Some(60.0) }),
+    ));
+    // Nothing renders the job, so the request is still waiting.
+    assert!(
+        tokio::time::timeout(Duration::from_millis(100), &mut wait)
+            .await
+            .is_err()
+    );
+    stop.send(true).expect("a receiver");
+    let answer = tokio::time::timeout(PROMPTLY, wait)
+        .await
+        .expect("answered once the service stops")
+        .expect("no panic")
+        .expect("the job");
+    assert_eq!(answer.0["state"], "queued", "the job as it is");
+}
+
+#[tokio::test]
+async fn a_waiting_claim_answers_no_work_when_the_service_stops() {
+    let (stop, stopping) = watch::channel(false);
+    let state = state(stopping).await;
+    let mut waiting = tokio::spawn(claim(
+        State(state.clone()),
+        Query(ClaimParams {
+            wait_ms: Some(10_000),
+        }),
+        Json(ClaimRequest { worker: "w".into() }),
+    ));
+    // No job at all: the claim waits for work.
+    assert!(
+        tokio::time::timeout(Duration::from_millis(100), &mut waiting)
+            .await
+            .is_err()
+    );
+    stop.send(true).expect("a receiver");
+    let answer = tokio::time::timeout(PROMPTLY, waiting)
+        .await
+        .expect("answered once the service stops")
+        .expect("no panic")
+        .expect("an answer");
+    assert_eq!(answer.into_response().status(), StatusCode::NO_CONTENT);
+}
