@@ -286,8 +286,7 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
             .map_err(|e| ApiError::new(e.status(), e.body_text()))?;
         (body.to_vec(), None, Vec::new())
     };
-    let source = String::from_utf8(scene_bytes)
-        .map_err(|e| ApiError::bad_request(format!("the scene is not UTF-8 text: {e}")))?;
+    let source = tessera_tracer::scene_text(scene_bytes).map_err(|e| scene_error(&e))?;
     if source.trim().is_empty() {
         return Err(ApiError::bad_request(
             "empty body: send the scene file (curl --data-binary @scene.ray)",

@@ -223,10 +223,17 @@ fn bad_requests_get_json_errors_and_store_nothing() {
     assert_eq!(r.status(), 400);
     let r = http
         .post(format!("{}/jobs", svc.url))
-        .body(vec![0xff, 0xfe, 0x00])
+        .body(b"[GLOBALS]\nwidth = 8\xff\n".to_vec())
         .send()
         .expect("answer");
     assert_eq!(r.status(), 400);
+    let e: Value = r.json().expect("json");
+    assert_eq!(
+        (e["line"].as_u64(), e["column"].as_u64()),
+        (Some(2), Some(10)),
+        "{e}"
+    );
+    assert!(e["error"].as_str().unwrap_or("").contains("UTF-8"), "{e}");
     // Two scenes in one upload: which one was meant is not for the service to guess.
     let two = reqwest::blocking::multipart::Form::new()
         .text("scene", read("thesis.ray"))

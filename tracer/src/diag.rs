@@ -83,6 +83,32 @@ impl SceneError {
     }
 }
 
+/// A scene file's bytes as text. Scenes are UTF-8 (ASCII being the usual case); anything
+/// else is refused at the first byte that is not, with its line and column, instead of
+/// being read with replacement characters that would surface as confusing errors later.
+pub fn scene_text(bytes: Vec<u8>) -> Result<String, SceneError> {
+    String::from_utf8(bytes).map_err(|e| {
+        let bytes = e.as_bytes();
+        // `valid_up_to` is at most the length, and everything before it is valid UTF-8, so
+        // its lines and characters can be counted.
+        let (before, after) = bytes.split_at(e.utf8_error().valid_up_to().min(bytes.len()));
+        let before = std::str::from_utf8(before).unwrap_or_default();
+        let line = before.matches('\n').count() + 1;
+        let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+        let pos = Pos::new(
+            u32::try_from(line).unwrap_or(u32::MAX),
+            u32::try_from(column).unwrap_or(u32::MAX),
+        );
+        SceneError::single(
+            pos,
+            format!(
+                "not UTF-8 text (byte 0x{:02x}): a scene is a plain text file",
+                after.first().copied().unwrap_or_default()
+            ),
+        )
+    })
+}
+
 impl fmt::Display for SceneError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         for (i, d) in self.diagnostics.iter().enumerate() {
@@ -191,5 +217,23 @@ mod tests {
             "s.ray:1:9: a\ns.ray:3:1: b"
         );
         assert_eq!(e.first().message, "a");
+    }
+
+    /// The first byte that is not UTF-8, at its line and column in characters (positions
+    /// worked out by hand: `ç` is one character of two bytes).
+    #[test]
+    fn text_that_is_not_utf8_is_refused_where_it_stops_being_utf8() {
+        let at = |bytes: &[u8]| {
+            let e = super::scene_text(bytes.to_vec()).expect_err("not UTF-8");
+            (e.first().pos, e.first().message.clone())
+        };
+        let (pos, msg) = at(b"[GLOBALS]\nwidth = 8\n\xff = 1\n");
+        assert_eq!(pos, Pos::new(3, 1));
+        assert!(msg.contains("0xff"), "{msg}");
+        assert_eq!(at(b"ab\n\xc3\xa7d\xfe").0, Pos::new(2, 3));
+        // A sequence cut short by the end of the file.
+        assert_eq!(at(b"abc\xe2\x82").0, Pos::new(1, 4));
+        let ok = "width = 8 # caf\u{e9}\n";
+        assert_eq!(super::scene_text(ok.as_bytes().to_vec()).as_deref(), Ok(ok));
     }
 }

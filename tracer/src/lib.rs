@@ -45,7 +45,7 @@ pub mod tile;
 pub mod transform;
 pub mod world;
 
-pub use diag::{Diagnostic, Pos, SceneError};
+pub use diag::{Diagnostic, Pos, SceneError, scene_text};
 pub use png_out::{PngError, PngWriter, SharedBuffer, encode_png};
 pub use render::RayStats;
 pub use sampler::Sampler;

@@ -86,6 +86,27 @@ fn scene_errors_are_printed_as_file_line_col_and_fail() {
 }
 
 #[test]
+fn a_scene_that_is_not_text_is_refused_at_its_first_bad_byte() {
+    let dir = temp_dir("binary");
+    let scene = dir.join("latin1.ray");
+    // "# caf" then 0xe9 (é in Latin-1, not UTF-8) on line 2, after 5 characters.
+    std::fs::write(&scene, b"[GLOBALS]\n# caf\xe9\n[/GLOBALS]\n").expect("write");
+    let out = bin()
+        .arg(&scene)
+        .arg("-o")
+        .arg(dir.join("x.png"))
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let name = scene.display().to_string();
+    assert!(
+        stderr.starts_with(&format!("{name}:2:6: not UTF-8 text (byte 0xe9)")),
+        "{stderr}"
+    );
+}
+
+#[test]
 fn missing_files_and_bad_flags_fail_with_a_message() {
     let out = bin().arg("/nonexistent/scene.ray").output().expect("runs");
     assert!(!out.status.success());

@@ -13,7 +13,7 @@ use crate::protocol::{Accepted, Claim, ClaimRequest, FailRequest, JobSpec, Renew
 /// Why a request to the service did not give a usable answer.
 #[derive(Debug, thiserror::Error)]
 pub enum ClientError {
-    #[error("bad service URL `{0}`")]
+    #[error("bad service URL `{0}`: expected http://HOST:PORT (or https://…)")]
     BadUrl(String),
     #[error("cannot reach the service: {0}")]
     Unreachable(#[source] reqwest::Error),

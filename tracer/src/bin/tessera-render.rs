@@ -9,7 +9,9 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
-use tessera_tracer::{DirAssets, Limits, PngWriter, Scene, SceneError, TextureLimits, parse};
+use tessera_tracer::{
+    DirAssets, Limits, PngWriter, Scene, SceneError, TextureLimits, parse, scene_text,
+};
 
 /// Render a .ray scene to a PNG.
 #[derive(Debug, Parser)]
@@ -59,8 +61,9 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args) -> Result<()> {
-    let source = std::fs::read_to_string(&args.scene)
+    let bytes = std::fs::read(&args.scene)
         .with_context(|| format!("cannot read {}", args.scene.display()))?;
+    let source = scene_text(bytes)?;
     let limits = Limits::default();
     let mut desc = parse(&source, &limits)?;
     desc.sampler = desc
