@@ -34,7 +34,9 @@ VOLUME /data
 EXPOSE 8080
 # Listening on all of the container's interfaces is beyond loopback, so the service refuses
 # to start until `docker run` says who may submit: -e TESSERA_SUBMIT_TOKEN=... or, said out
-# loud, -e TESSERA_OPEN_SUBMIT=true (README.md, "Docker").
+# loud, -e TESSERA_OPEN_SUBMIT=true (README.md, "Docker"). Its local workers give held tiles
+# back before `docker stop`'s kill, as the worker image's do (TESSERA_GRACE_SECS).
 ENV TESSERA_LISTEN=0.0.0.0:8080 \
-    TESSERA_DATABASE=sqlite:///data/tessera.db
+    TESSERA_DATABASE=sqlite:///data/tessera.db \
+    TESSERA_GRACE_SECS=8
 ENTRYPOINT ["tessera-service"]

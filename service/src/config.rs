@@ -63,6 +63,10 @@ pub struct Config {
     /// picks one per job from its size and samples per pixel.
     #[arg(long, env = "TESSERA_TILE")]
     pub tile: Option<u32>,
+    /// Seconds the local workers keep rendering the tiles they hold after SIGINT/SIGTERM
+    /// before giving them back (as `tessera-worker --grace-secs`).
+    #[arg(long, env = "TESSERA_GRACE_SECS", default_value_t = 30)]
+    pub grace_secs: u64,
     /// Lease length in milliseconds; workers renew at a third of it.
     #[arg(long, env = "TESSERA_LEASE_MS", default_value_t = 30_000)]
     pub lease_ms: u64,

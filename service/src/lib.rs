@@ -329,6 +329,7 @@ fn spawn_local_workers(
             wc.token = cfg.token.clone();
             wc.name = format!("{base_name}-local{i}");
             wc.idle_max = Duration::from_millis(500);
+            wc.grace = Duration::from_secs(cfg.grace_secs);
             let mut stop = stop.clone();
             let scenes = scenes.clone();
             tokio::spawn(async move {

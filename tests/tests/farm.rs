@@ -396,6 +396,44 @@ fn a_stopped_worker_gives_back_the_tile_it_claimed_ahead() {
     assert_eq!(claimed.len() as u64, total - done);
 }
 
+/// A stopping service's local workers give their tiles back after `--grace-secs` rather than
+/// finishing them (the service image sets 8 s, before `docker stop`'s kill at 10 s), and the
+/// tile is claimable at once after a restart, not stranded under its lease.
+#[test]
+fn a_stopping_services_local_workers_give_back_their_tiles_after_the_grace() {
+    let dir = TempDir::new("grace");
+    let lease = ["--lease-ms", "600000"];
+    let mut svc = Service::start(
+        &dir,
+        &[&["--local-workers", "1", "--grace-secs", "0"][..], &lease].concat(),
+    );
+    // One tile of 640×480 pixels at 32×32 jitter: about 300 million rays, seconds of work
+    // at the least (12 s on the development machine).
+    let job = svc.submit(&read("thesis.ray"), "?tile=1024&sampler=jitter&samples=32");
+    let id = job["id"].as_str().expect("id").to_string();
+    common::wait_until("the local worker claims the tile", JOB_TIME, || {
+        svc.get_json("/workers")
+            .as_array()
+            .is_some_and(|ws| ws.iter().any(|w| w["claims"].as_u64() > Some(0)))
+    });
+    let start = std::time::Instant::now();
+    assert!(svc.terminate().success(), "the service exits cleanly");
+    // With the default grace (30 s) the worker would have rendered on, and either finished
+    // the tile (no give-back below) or given it back after 30 s.
+    assert!(
+        start.elapsed() < Duration::from_secs(20),
+        "stopped after {:?}",
+        start.elapsed()
+    );
+    assert!(svc.log().contains("giving the tile back"), "{}", svc.log());
+
+    let svc = Service::start(&dir, &[&["--local-workers", "0"][..], &lease].concat());
+    assert_eq!(svc.get_json(&format!("/jobs/{id}"))["tiles_done"], 0);
+    let r = svc.claim("probe");
+    assert_eq!(r.status(), 200, "the tile is claimable at once");
+    assert_eq!(r.json::<Value>().expect("claim")["job"], id.as_str());
+}
+
 /// Tile sizes: a job's `?tile=` wins over `--tile`, which wins over the service's own pick;
 /// whichever is used, the job's tiles cover its image exactly once.
 #[test]
