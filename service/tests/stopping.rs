@@ -30,8 +30,25 @@ async fn state(stopping: watch::Receiver<bool>) -> AppState {
     }
 }
 
-/// Far less than either wait below: the answer comes from the stop, not from a timeout.
-const PROMPTLY: Duration = Duration::from_secs(5);
+/// Checks that `waiting` (a handler's task) is still waiting, stops the service, and returns
+/// its answer, which must come far sooner than the handler's own wait would end: from the
+/// stop, not from a timeout.
+async fn answer_on_stop<T>(
+    stop: watch::Sender<bool>,
+    mut waiting: tokio::task::JoinHandle<T>,
+) -> T {
+    assert!(
+        tokio::time::timeout(Duration::from_millis(100), &mut waiting)
+            .await
+            .is_err(),
+        "still waiting"
+    );
+    stop.send(true).expect("a receiver");
+    tokio::time::timeout(Duration::from_secs(5), waiting)
+        .await
+        .expect("answered once the service stops")
+        .expect("no panic")
+}
 
 #[tokio::test]
 async fn a_waiting_job_request_answers_when_the_service_stops() {
@@ -55,23 +72,13 @@ async fn a_waiting_job_request_answers_when_the_service_stops() {
         .insert_job(&job, &rects, &[])
         .await
         .expect("job");
-    let mut wait = tokio::spawn(get_job(
+    // Nothing renders the job, so the request waits.
+    let wait = tokio::spawn(get_job(
         State(state.clone()),
         Path("waited".to_string()),
         Query(JobParams { wait: Some(60.0) }),
     ));
-    // Nothing renders the job, so the request is still waiting.
-    assert!(
-        tokio::time::timeout(Duration::from_millis(100), &mut wait)
-            .await
-            .is_err()
-    );
-    stop.send(true).expect("a receiver");
-    let answer = tokio::time::timeout(PROMPTLY, wait)
-        .await
-        .expect("answered once the service stops")
-        .expect("no panic")
-        .expect("the job");
+    let answer = answer_on_stop(stop, wait).await.expect("the job");
     assert_eq!(answer.0["state"], "queued", "the job as it is");
 }
 
@@ -79,24 +86,14 @@ async fn a_waiting_job_request_answers_when_the_service_stops() {
 async fn a_waiting_claim_answers_no_work_when_the_service_stops() {
     let (stop, stopping) = watch::channel(false);
     let state = state(stopping).await;
-    let mut waiting = tokio::spawn(claim(
+    // No job at all: the claim waits for work.
+    let waiting = tokio::spawn(claim(
         State(state.clone()),
         Query(ClaimParams {
             wait_ms: Some(10_000),
         }),
         Json(ClaimRequest { worker: "w".into() }),
     ));
-    // No job at all: the claim waits for work.
-    assert!(
-        tokio::time::timeout(Duration::from_millis(100), &mut waiting)
-            .await
-            .is_err()
-    );
-    stop.send(true).expect("a receiver");
-    let answer = tokio::time::timeout(PROMPTLY, waiting)
-        .await
-        .expect("answered once the service stops")
-        .expect("no panic")
-        .expect("an answer");
+    let answer = answer_on_stop(stop, waiting).await.expect("an answer");
     assert_eq!(answer.into_response().status(), StatusCode::NO_CONTENT);
 }

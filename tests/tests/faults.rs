@@ -235,13 +235,16 @@ fn limits_refuse_oversized_input_and_store_nothing() {
 
     // Too many tiles, asked for or picked by the service: refused with the smallest edge
     // that makes at most 10 (`⌈100/e⌉² ≤ 10` needs `⌈100/e⌉ ≤ 3`, so `e ≥ 34`).
-    let hundred = "[GLOBALS]\nwidth = 100\nheight = 100\n[/GLOBALS]\n";
-    for query in ["?tile=8", ""] {
-        let r = http
-            .post(format!("{}/jobs{query}", svc.url))
-            .body(format!("{hundred}{sphere}"))
+    let hundred = |query: &str| {
+        http.post(format!("{}/jobs{query}", svc.url))
+            .body(format!(
+                "[GLOBALS]\nwidth = 100\nheight = 100\n[/GLOBALS]\n{sphere}"
+            ))
             .send()
-            .expect("answer");
+            .expect("answer")
+    };
+    for query in ["?tile=8", ""] {
+        let r = hundred(query);
         assert_eq!(r.status(), 400, "{query}");
         let e: Value = r.json().expect("json");
         assert_eq!(e["max_tiles"], 10, "{e}");
@@ -251,11 +254,7 @@ fn limits_refuse_oversized_input_and_store_nothing() {
 
     assert_eq!(svc.get_json("/jobs"), json!([]), "nothing stored");
 
-    let r = http
-        .post(format!("{}/jobs?tile=34", svc.url))
-        .body(format!("{hundred}{sphere}"))
-        .send()
-        .expect("answer");
+    let r = hundred("?tile=34");
     assert_eq!(r.status(), 201, "the smallest edge that fits is taken");
     assert_eq!(r.json::<Value>().expect("json")["tiles_total"], 9);
 }

@@ -59,6 +59,18 @@ fn examples_render_to_the_same_png_as_the_library() {
     assert!(rendered >= 3, "only {rendered} examples");
 }
 
+/// Renders `scene` into `dir`, expecting a refusal: returns what was printed.
+fn refused(scene: &Path, dir: &Path) -> String {
+    let out = bin()
+        .arg(scene)
+        .arg("-o")
+        .arg(dir.join("x.png"))
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
 #[test]
 fn scene_errors_are_printed_as_file_line_col_and_fail() {
     let dir = temp_dir("errors");
@@ -68,14 +80,7 @@ fn scene_errors_are_printed_as_file_line_col_and_fail() {
         "[GLOBALS]\nwidht = 3\n[/GLOBALS]\n[OBJECT]\ntype = sphere\nradius = -1\n[/OBJECT]\n",
     )
     .expect("write");
-    let out = bin()
-        .arg(&scene)
-        .arg("-o")
-        .arg(dir.join("x.png"))
-        .output()
-        .expect("runs");
-    assert!(!out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stderr = refused(&scene, &dir);
     let lines: Vec<&str> = stderr.lines().collect();
     let name = scene.display().to_string();
     assert_eq!(lines.len(), 2, "{stderr}");
@@ -91,14 +96,7 @@ fn a_scene_that_is_not_text_is_refused_at_its_first_bad_byte() {
     let scene = dir.join("latin1.ray");
     // "# caf" then 0xe9 (é in Latin-1, not UTF-8) on line 2, after 5 characters.
     std::fs::write(&scene, b"[GLOBALS]\n# caf\xe9\n[/GLOBALS]\n").expect("write");
-    let out = bin()
-        .arg(&scene)
-        .arg("-o")
-        .arg(dir.join("x.png"))
-        .output()
-        .expect("runs");
-    assert!(!out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let stderr = refused(&scene, &dir);
     let name = scene.display().to_string();
     assert!(
         stderr.starts_with(&format!("{name}:2:6: not UTF-8 text (byte 0xe9)")),
