@@ -229,9 +229,7 @@ fn limits_refuse_oversized_input_and_store_nothing() {
         .multipart(form)
         .send()
         .expect("answer");
-    assert_eq!(r.status(), 400);
-    let e: Value = r.json().expect("json");
-    assert!(e["error"].as_str().unwrap_or("").contains("texels"), "{e}");
+    common::refused(r, "texels");
 
     // Too many tiles, asked for or picked by the service: refused with the smallest edge
     // that makes at most 10 (`⌈100/e⌉² ≤ 10` needs `⌈100/e⌉ ≤ 3`, so `e ≥ 34`).

@@ -269,6 +269,22 @@ impl Drop for Worker {
     }
 }
 
+/// Asserts that `r` is a `400` whose JSON `error` mentions `needle`; returns the body.
+pub fn refused(r: reqwest::blocking::Response, needle: &str) -> Value {
+    assert_eq!(r.status(), 400);
+    let e: Value = r.json().expect("a JSON error");
+    assert!(
+        e["error"].as_str().is_some_and(|m| m.contains(needle)),
+        "{needle:?} in {e}"
+    );
+    e
+}
+
+/// A scene error's `(line, column)`.
+pub fn line_col(e: &Value) -> (Option<u64>, Option<u64>) {
+    (e["line"].as_u64(), e["column"].as_u64())
+}
+
 pub fn client() -> reqwest::blocking::Client {
     reqwest::blocking::Client::builder()
         .timeout(Duration::from_secs(60))
