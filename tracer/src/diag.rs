@@ -3,7 +3,9 @@
 //! Every problem the parser or the scene builder finds becomes a [`Diagnostic`] that names a
 //! 1-based line and column (counted in characters, as editors show them) and says what was
 //! expected. A [`SceneError`] carries all the diagnostics found in one pass, so a user fixes
-//! several mistakes per round trip. This module formats them; it does not find them.
+//! several mistakes per round trip. This module formats them; it does not find them, with
+//! one exception that comes before any parsing: [`scene_text`], which refuses a file that is
+//! not UTF-8 at its first bad byte.
 
 use std::fmt;
 
