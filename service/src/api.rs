@@ -76,14 +76,35 @@ pub async fn workers(State(state): State<AppState>) -> Json<Value> {
     ok_json(list)
 }
 
-pub async fn list_jobs(State(state): State<AppState>) -> Result<Json<Value>, ApiError> {
-    let jobs: Vec<JobView> = state
-        .queue
-        .jobs(200)
-        .await?
-        .into_iter()
-        .map(JobView::from)
-        .collect();
+/// `GET /jobs` query parameters: a page of at most `limit` jobs (default and most
+/// [`MAX_JOBS_LISTED`]), those submitted before job `before` when given.
+#[derive(Debug, Default, Deserialize)]
+pub struct ListParams {
+    pub limit: Option<u32>,
+    pub before: Option<String>,
+}
+
+/// The most jobs one `GET /jobs` lists.
+pub const MAX_JOBS_LISTED: u32 = 200;
+
+pub async fn list_jobs(
+    State(state): State<AppState>,
+    Query(params): Query<ListParams>,
+) -> Result<Json<Value>, ApiError> {
+    let limit = params.limit.unwrap_or(MAX_JOBS_LISTED);
+    if !(1..=MAX_JOBS_LISTED).contains(&limit) {
+        return Err(ApiError::bad_request(format!(
+            "limit must be from 1 to {MAX_JOBS_LISTED}"
+        )));
+    }
+    let before = params.before.as_deref();
+    let rows = state.queue.jobs(limit, before).await?.ok_or_else(|| {
+        ApiError::not_found(format_args!(
+            "job `{}` to list before",
+            before.unwrap_or("")
+        ))
+    })?;
+    let jobs: Vec<JobView> = rows.into_iter().map(JobView::from).collect();
     Ok(ok_json(jobs))
 }
 

@@ -405,13 +405,31 @@ impl Queue {
         })
     }
 
-    /// Jobs, newest first.
-    pub async fn jobs(&self, limit: u32) -> Result<Vec<JobRow>> {
-        let sql = format!("SELECT {JOB_COLUMNS} FROM jobs ORDER BY seq DESC LIMIT ?1");
-        Ok(sqlx::query_as(sqlx::AssertSqlSafe(sql))
-            .bind(i64::from(limit))
-            .fetch_all(&self.pool)
-            .await?)
+    /// Jobs, newest first: at most `limit`, and with `before`, only those submitted before
+    /// that job (a page after the one that ended with it). `None` when `before` names no job.
+    pub async fn jobs(&self, limit: u32, before: Option<&str>) -> Result<Option<Vec<JobRow>>> {
+        let below = match before {
+            None => i64::MAX,
+            Some(id) => {
+                let seq: Option<i64> = sqlx::query_scalar("SELECT seq FROM jobs WHERE id = ?1")
+                    .bind(id)
+                    .fetch_optional(&self.pool)
+                    .await?;
+                match seq {
+                    Some(s) => s,
+                    None => return Ok(None),
+                }
+            }
+        };
+        let sql =
+            format!("SELECT {JOB_COLUMNS} FROM jobs WHERE seq < ?2 ORDER BY seq DESC LIMIT ?1");
+        Ok(Some(
+            sqlx::query_as(sqlx::AssertSqlSafe(sql))
+                .bind(i64::from(limit))
+                .bind(below)
+                .fetch_all(&self.pool)
+                .await?,
+        ))
     }
 
     pub async fn job(&self, id: &str) -> Result<Option<JobRow>> {

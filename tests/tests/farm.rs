@@ -525,3 +525,50 @@ fn downloads_are_named_after_their_job() {
         format!("inline; filename=\"{id}.png\"")
     );
 }
+
+/// `GET /jobs` lists the newest first, a page at a time: `limit`, then `before` the last one
+/// seen, until a page comes back short; every job once, in submission order reversed.
+#[test]
+fn jobs_are_listed_newest_first_a_page_at_a_time() {
+    let dir = TempDir::new("pages");
+    let svc = Service::start(&dir, &["--local-workers", "0"]);
+    let scene = "[GLOBALS]\nwidth = 8\nheight = 8\n[/GLOBALS]\n";
+    let submitted: Vec<String> = (0..5)
+        .map(|_| {
+            svc.submit(scene, "")["id"]
+                .as_str()
+                .expect("id")
+                .to_string()
+        })
+        .collect();
+    let ids = |page: &Value| -> Vec<String> {
+        page.as_array()
+            .expect("a list")
+            .iter()
+            .map(|j| j["id"].as_str().expect("id").to_string())
+            .collect()
+    };
+    let mut listed = Vec::new();
+    let mut query = "?limit=2".to_string();
+    loop {
+        let page = ids(&svc.get_json(&format!("/jobs{query}")));
+        assert!(page.len() <= 2, "{page:?}");
+        listed.extend(page.iter().cloned());
+        match page.last() {
+            Some(last) if page.len() == 2 => query = format!("?limit=2&before={last}"),
+            _ => break,
+        }
+    }
+    let newest_first: Vec<String> = submitted.iter().rev().cloned().collect();
+    assert_eq!(listed, newest_first);
+    assert_eq!(
+        ids(&svc.get_json("/jobs")),
+        newest_first,
+        "no parameters: all of them"
+    );
+
+    assert_eq!(svc.get("/jobs?before=nosuchjob").status(), 404);
+    for bad in ["?limit=0", "?limit=201", "?limit=x"] {
+        assert_eq!(svc.get(&format!("/jobs{bad}")).status(), 400, "{bad}");
+    }
+}
