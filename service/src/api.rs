@@ -231,6 +231,13 @@ pub async fn image(
     });
     let mut headers = HeaderMap::new();
     headers.insert(header::CONTENT_TYPE, HeaderValue::from_static("image/png"));
+    // A done job's image never changes (ids are never reused), so a browser keeps it: the
+    // web page, which redraws its list every second, does not fetch every thumbnail again.
+    // `private`: a deleted job's image must not live on in a shared cache.
+    headers.insert(
+        header::CACHE_CONTROL,
+        HeaderValue::from_static("private, max-age=31536000, immutable"),
+    );
     if let Some(n) = row.png_bytes {
         headers.insert(header::CONTENT_LENGTH, HeaderValue::from(n));
     }

@@ -510,6 +510,11 @@ fn downloads_are_named_after_their_job() {
         assert_eq!(svc.wait_finished(id, JOB_TIME)["state"], "done");
         let r = svc.get(&format!("/jobs/{id}/image.png"));
         assert_eq!(r.status(), 200);
+        let cache = r.headers()["cache-control"].to_str().expect("ASCII header");
+        assert!(
+            cache.contains("immutable") && cache.contains("private"),
+            "{cache}"
+        );
         r.headers()["content-disposition"]
             .to_str()
             .expect("ASCII header")
