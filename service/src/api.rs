@@ -14,7 +14,7 @@ use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{Html, IntoResponse, Response};
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
-use tessera_tracer::{MemoryAssets, Sampler, Scene, SceneError, parse, tiles};
+use tessera_tracer::{MemoryAssets, Sampler, Scene, SceneError, parse, tile_count, tiles};
 
 use crate::config::auto_tile;
 use crate::error::{ApiError, ok_json};
@@ -618,11 +618,6 @@ fn check_tile_count(width: u32, height: u32, tile: u32, max_tiles: u64) -> Resul
         Some(edge) => err.with("min_tile", edge),
         None => err,
     })
-}
-
-/// Tiles of edge `tile` that cover a `width × height` image.
-fn tile_count(width: u32, height: u32, tile: u32) -> u64 {
-    u64::from(width.div_ceil(tile)) * u64::from(height.div_ceil(tile))
 }
 
 #[cfg(test)]

@@ -29,8 +29,7 @@ pub fn auto_tile(width: u32, height: u32, rays_per_pixel: u32) -> u32 {
     while edge < hi && u64::from(edge) * u64::from(edge) * rays < TILE_RAYS {
         edge *= 2;
     }
-    let count = |e: u32| u64::from(width.div_ceil(e)) * u64::from(height.div_ceil(e));
-    while edge > lo && count(edge) < MIN_AUTO_TILES {
+    while edge > lo && tessera_tracer::tile_count(width, height, edge) < MIN_AUTO_TILES {
         edge /= 2;
     }
     edge

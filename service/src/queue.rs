@@ -415,10 +415,8 @@ impl Queue {
                     .bind(id)
                     .fetch_optional(&self.pool)
                     .await?;
-                match seq {
-                    Some(s) => s,
-                    None => return Ok(None),
-                }
+                let Some(seq) = seq else { return Ok(None) };
+                seq
             }
         };
         let sql =

@@ -51,5 +51,5 @@ pub use render::RayStats;
 pub use sampler::Sampler;
 pub use scene::{Limits, SceneDesc, parse};
 pub use texture::{AssetSource, DirAssets, MemoryAssets, Texture, TextureError, TextureLimits};
-pub use tile::{Rect, tiles};
+pub use tile::{Rect, tile_count, tiles};
 pub use world::{Acceleration, Scene};

@@ -59,9 +59,33 @@ pub fn tiles(width: u32, height: u32, tile: u32) -> Vec<Rect> {
     out
 }
 
+/// How many tiles [`tiles`] cuts a `width × height` image into, without making them.
+pub fn tile_count(width: u32, height: u32, tile: u32) -> u64 {
+    let tile = tile.max(1);
+    u64::from(width.div_ceil(tile)) * u64::from(height.div_ceil(tile))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn tile_count_is_the_number_of_tiles_made() {
+        for (w, h, t) in [
+            (10, 7, 3),
+            (64, 64, 64),
+            (1, 1, 16),
+            (100, 3, 7),
+            (0, 5, 2),
+            (9, 9, 0),
+        ] {
+            assert_eq!(
+                tile_count(w, h, t),
+                tiles(w, h, t).len() as u64,
+                "{w}×{h} by {t}"
+            );
+        }
+    }
 
     #[test]
     fn tiles_cover_the_image_exactly_once() {
