@@ -1,6 +1,6 @@
 //! The web page's script, run by Node (`tests/tests/page/page.js`) against a real service:
 //! the job list a page at a time, a submission through the form, a refused scene's position,
-//! cancel and delete. Skipped, with a note, where `node` is not installed (`.ci/run` installs
+//! cancel and delete, a scene file with its textures. Skipped, with a note, where `node` is not installed (`.ci/run` installs
 //! it).
 
 mod common;
@@ -46,6 +46,7 @@ fn the_page_lists_submits_and_deletes() {
         "bad_scene": bad,
         "bad_line": bad_line,
         "bad_column": "height = ".len() + 1,
+        "examples": examples(),
     });
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/page/page.js");
     let mut node = Command::new("node")
@@ -84,7 +85,8 @@ fn the_page_lists_submits_and_deletes() {
             "submitted",
             "refused",
             "cancelled and deleted",
-            "anchor gone"
+            "anchor gone",
+            "textures"
         ]
     );
 }

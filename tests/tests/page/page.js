@@ -11,6 +11,9 @@
 "use strict";
 const assert = require("node:assert/strict");
 const vm = require("node:vm");
+const fs = require("node:fs");
+const path = require("node:path");
+const { File } = require("node:buffer");
 
 const [base, checksJson] = process.argv.slice(2);
 const checks = JSON.parse(checksJson);
@@ -222,6 +225,30 @@ async function main() {
   assert.equal(elements.newer.hidden, true, "back on the newest page");
   assert.equal(firstCells()[0], all[0]);
   step("anchor gone", { anchor });
+
+  // 7. A scene file and its textures through the pickers: the file names the job, the text
+  // area shows the scene, and each texture goes under the name the scene gives it.
+  const read = (...parts) => fs.readFileSync(path.join(checks.examples, ...parts));
+  elements.scenefile.files = [new File([read("textures.ray")], "textures.ray")];
+  await elements.scenefile.listeners.change[0]();
+  assert.equal(elements.scene.value, read("textures.ray").toString("utf8"));
+  const textures = ["globe.png", "tile.ppm"];
+  elements.assets.files = textures.map((n) => new File([read("textures", n)], n));
+  elements.tile.value = "";
+  await elements.submit.listeners.submit[0]({ preventDefault() {} });
+  await settle();
+  const withTextures = elements.msg.textContent.match(/^Job (\S+) queued: \d+ tiles\.$/);
+  assert.ok(withTextures, `submission message: ${elements.msg.textContent}`);
+  const textured = withTextures[1];
+  assert.equal(firstCells()[0], `textures.ray (${textured})`);
+  const spec = await api("/worker/jobs/" + textured);
+  assert.deepEqual(spec.body.assets.sort(), textures.map((n) => "textures/" + n));
+  for (const n of textures) {
+    const r = await fetch(`${base}/worker/jobs/${textured}/assets/${encodeURIComponent("textures/" + n)}`);
+    assert.equal(r.status, 200, n);
+    assert.ok(Buffer.from(await r.arrayBuffer()).equals(read("textures", n)), `bytes of ${n}`);
+  }
+  step("textures", { id: textured });
 }
 
 main().catch((e) => {
