@@ -159,3 +159,25 @@ fn texture_names_resolve_next_to_the_scene_and_errors_point_at_them() {
         "{stderr}"
     );
 }
+
+/// A PNG that cannot be written whole is an error, not a success with a cut-short file:
+/// `/dev/full` takes nothing (`ENOSPC` on every write), like a full disk. A small image is
+/// the case that was missed: all of it sat in the output buffer until the end.
+#[test]
+fn a_full_disk_is_an_error() {
+    if !Path::new("/dev/full").exists() {
+        eprintln!("skipped: no /dev/full here");
+        return;
+    }
+    let out = bin()
+        .arg(examples().join("thesis.ray"))
+        .args(["-o", "/dev/full", "--quiet", "--threads", "1"])
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("cannot write /dev/full") && stderr.contains("No space left"),
+        "{stderr}"
+    );
+}

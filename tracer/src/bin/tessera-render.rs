@@ -1,9 +1,11 @@
 //! `tessera-render`: the stand-alone tracer. Renders a `.ray` scene to a PNG on this machine,
 //! on all cores (or `--threads N`), with no service involved.
 
-use std::io::IsTerminal;
+use std::fs::File;
+use std::io::{BufWriter, IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
@@ -12,6 +14,31 @@ use indicatif::{ProgressBar, ProgressStyle};
 use tessera_tracer::{
     DirAssets, Limits, PngWriter, Scene, SceneError, TextureLimits, parse, scene_text,
 };
+
+/// The output file, shared with the PNG encoder. The encoder owns its writer and gives no
+/// way back to it, and a `BufWriter` dropped with bytes in it flushes them and ignores the
+/// error: a full disk would leave a cut-short PNG and a render that says it succeeded. With a
+/// handle kept here, the last bytes are flushed where a failure is an error.
+#[derive(Clone)]
+struct OutFile(Arc<Mutex<BufWriter<File>>>);
+
+impl OutFile {
+    fn lock(&self) -> MutexGuard<'_, BufWriter<File>> {
+        // Held for one write or flush at a time, neither of which panics; were the lock
+        // poisoned all the same, the writer behind it is still whole.
+        self.0.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+impl Write for OutFile {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.lock().write(buf)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.lock().flush()
+    }
+}
 
 /// Render a .ray scene to a PNG.
 #[derive(Debug, Parser)]
@@ -103,9 +130,12 @@ fn run(args: &Args) -> Result<()> {
 
     let file = std::fs::File::create(&args.output)
         .with_context(|| format!("cannot create {}", args.output.display()))?;
-    let mut png = PngWriter::new(std::io::BufWriter::new(file), scene.width, scene.height)?;
-    png.write_rows(&rgb)?;
-    png.finish()
+    let out = OutFile(Arc::new(Mutex::new(BufWriter::new(file))));
+    let mut png = PngWriter::new(out.clone(), scene.width, scene.height)?;
+    png.write_rows(&rgb)
+        .and_then(|()| png.finish())
+        .map_err(anyhow::Error::from)
+        .and_then(|()| Ok(out.lock().flush()?))
         .with_context(|| format!("cannot write {}", args.output.display()))?;
 
     if !args.quiet {
