@@ -583,3 +583,71 @@ fn hostile_input_is_refused_quickly_and_without_panic() {
     let junk = "\u{0}\u{feff}[\u{1F600}]\n=\n[/]\n<<<>>>\n";
     assert!(parse(junk, &Limits::default()).is_err());
 }
+
+/// `[CSG]` nested `depth` deep inside `[rayfile]`: each level a union of a sphere and the next
+/// level, the deepest a union of two spheres.
+fn nested_csg(depth: usize) -> String {
+    let sphere = "[OBJECT]\ntype = sphere\n[/OBJECT]\n";
+    let mut s = String::from("[rayfile]\n");
+    for _ in 0..depth {
+        s.push_str("[CSG]\nop = union\n");
+        s.push_str(sphere);
+    }
+    s.push_str(sphere);
+    s.push_str(&"[/CSG]\n".repeat(depth));
+    s.push_str("[/rayfile]\n");
+    s
+}
+
+/// The deepest nesting the limit allows parses, inside `[rayfile]` and with an `[OBJECT]` at
+/// the bottom; one level more is refused at that level.
+#[test]
+fn csg_nests_to_its_limit_and_no_further() {
+    let limit = Limits::default().max_csg_depth;
+    let d = ok(&nested_csg(limit));
+    fn depth(n: &Node) -> usize {
+        match n {
+            Node::Object(_) => 0,
+            Node::Csg(c) => 1 + c.children.iter().map(depth).max().unwrap_or(0),
+        }
+    }
+    assert_eq!(d.objects.len(), 1);
+    assert_eq!(depth(&d.objects[0]), limit);
+    let errs = errors(&nested_csg(limit + 1));
+    // The level past the limit opens on the line after the `[rayfile]` line and the limit's
+    // levels, five lines each; that is the one error.
+    let line = 2 + 5 * limit as u32;
+    assert_eq!(
+        errs,
+        [(
+            line,
+            1,
+            format!("[CSG] nested too deeply: the limit is {limit} levels")
+        )]
+    );
+}
+
+/// Tags nested far past the limit are refused a few levels past what any valid scene
+/// needs, and the reading stops there: parsing 100,000 open `[CSG]` tags (600 KB) takes a
+/// bounded stack. Without the stop the tree was as deep as the file and dropping it alone
+/// overflowed the main thread's 8 MB stack; here the parse runs on a thread of 256 KB.
+#[test]
+fn runaway_nesting_is_refused_on_a_small_stack() {
+    let limit = Limits::default().max_csg_depth;
+    let src = "[CSG]\n".repeat(100_000);
+    let errs = std::thread::Builder::new()
+        .stack_size(256 * 1024)
+        .spawn(move || errors(&src))
+        .expect("thread starts")
+        .join()
+        .expect("the parse returns");
+    // The CSG check's limit plus room for `[rayfile]`, an `[OBJECT]` and a few levels too
+    // many (72 blocks, one a line); the next tag is refused and nothing after it is read.
+    let stop = (limit + 9) as u32;
+    assert!(
+        errs.iter()
+            .any(|e| (e.0, e.1) == (stop, 1) && e.2.contains("the rest of the file is not read")),
+        "{errs:?}"
+    );
+    assert!(errs.iter().all(|e| e.0 <= stop), "{errs:?}");
+}

@@ -69,7 +69,9 @@ const SAMPLERS: &[&str] = &["center", "thesis", "grid", "jitter", "adaptive"];
 /// position.
 pub fn parse(source: &str, limits: &Limits) -> Result<SceneDesc, SceneError> {
     let (items, mut errors) = lex(source);
-    let root = build_tree(items, &mut errors);
+    // `[rayfile]`, the CSG levels and the `[OBJECT]` inside the deepest, and room for a few
+    // levels more, which the CSG check then reports as such.
+    let root = build_tree(items, &mut errors, limits.max_csg_depth + 8);
     let mut p = Parser {
         errors,
         limits,
@@ -123,12 +125,31 @@ impl Block {
 /// Nests items into blocks by their tags, reporting unknown, misplaced, unmatched and
 /// unclosed tags. The returned root holds the top-level blocks (a `[rayfile]` wrapper is
 /// unwrapped) and any entries written outside every block.
-fn build_tree(items: Vec<Item>, errors: &mut Vec<Diagnostic>) -> Block {
+///
+/// At most `max_depth` blocks are open at once: a tag that would open one more is an error
+/// and ends the reading there. Everything that walks the tree (the checks, and dropping it)
+/// recurses once per level, so an unbounded nesting (100,000 `[CSG]` tags: 600 KB) would
+/// overflow the stack and abort the process, the service's included.
+fn build_tree(items: Vec<Item>, errors: &mut Vec<Diagnostic>, max_depth: usize) -> Block {
     let mut stack: Vec<Block> = vec![Block::new(String::new(), Pos::new(1, 1))];
     let mut seen_rayfile = false;
     let mut seen_anything = false;
+    let mut stopped = false;
     for item in items {
         match item {
+            Item::Tag {
+                close: false, pos, ..
+            } if stack.len() > max_depth => {
+                errors.push(Diagnostic::new(
+                    pos,
+                    format!(
+                        "blocks nested more than {max_depth} deep; the rest of the file is \
+                         not read"
+                    ),
+                ));
+                stopped = true;
+                break;
+            }
             Item::Tag {
                 name,
                 close: false,
@@ -226,8 +247,13 @@ fn build_tree(items: Vec<Item>, errors: &mut Vec<Diagnostic>) -> Block {
         }
     }
     while stack.len() > 1 {
-        let Some(open) = stack.pop() else { break };
-        errors.push(unclosed(&open, None));
+        let Some(mut open) = stack.pop() else { break };
+        if stopped {
+            // Not read to its end: its closing tag may well be in the part not read.
+            open.broken = true;
+        } else {
+            errors.push(unclosed(&open, None));
+        }
         attach(&mut stack, open);
     }
     stack
