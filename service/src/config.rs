@@ -45,9 +45,11 @@ pub struct Config {
     /// The queue's database.
     #[arg(long, env = "TESSERA_DATABASE", default_value = "sqlite://tessera.db")]
     pub database: String,
-    /// Workers run inside this process, over the same HTTP protocol (default: one per core).
-    #[arg(long, env = "TESSERA_LOCAL_WORKERS")]
-    pub local_workers: Option<usize>,
+    /// Workers run inside this process, over the same HTTP protocol, one thread each: 0 to
+    /// 1024 (default: one per core).
+    #[arg(long, env = "TESSERA_LOCAL_WORKERS",
+          value_parser = clap::value_parser!(u16).range(0..=i64::from(tessera_tracer::MAX_THREADS)))]
+    pub local_workers: Option<u16>,
     /// Bearer token the worker routes require (none: open).
     #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true)]
     pub token: Option<String>,

@@ -308,9 +308,10 @@ fn spawn_local_workers(
     addr: SocketAddr,
     stop: &watch::Receiver<bool>,
 ) -> Vec<tokio::task::JoinHandle<()>> {
-    let n = cfg
-        .local_workers
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let n = cfg.local_workers.map_or_else(
+        || std::thread::available_parallelism().map_or(1, |n| n.get()),
+        usize::from,
+    );
     let host = if addr.ip().is_unspecified() {
         match addr {
             SocketAddr::V4(_) => format!("127.0.0.1:{}", addr.port()),

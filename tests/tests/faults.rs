@@ -5,7 +5,7 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{SERVICE, Service, TempDir, Worker, client, examples, local_png, wait_until};
+use common::{SERVICE, Service, TempDir, WORKER, Worker, client, examples, local_png, wait_until};
 use serde_json::{Value, json};
 use tessera_tracer::Rect;
 use tessera_worker::protocol::encode_tile;
@@ -350,6 +350,35 @@ fn an_open_service_beyond_loopback_must_be_asked_for() {
         .expect("runs");
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--submit-token"));
+}
+
+/// A thread count past `MAX_THREADS` is refused before anything starts (a mistyped
+/// `--threads 100000` exhausted the process's threads).
+#[test]
+fn thread_counts_are_bounded() {
+    let max = tessera_tracer::MAX_THREADS;
+    let dir = TempDir::new("threads");
+    let db = format!("sqlite://{}", dir.path().join("t.db").display());
+    let refused = |program: &str, args: &[&str], flag: &str| {
+        let out = std::process::Command::new(program)
+            .args(args)
+            .output()
+            .expect("runs");
+        assert!(!out.status.success());
+        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(
+            stderr.contains(flag) && stderr.contains(&format!("..={max}")),
+            "{stderr}"
+        );
+    };
+    let over = (max + 1).to_string();
+    refused(
+        SERVICE,
+        &["--local-workers", &over, "--database", &db],
+        "--local-workers",
+    );
+    refused(WORKER, &["--threads", &over], "--threads");
+    refused(WORKER, &["--threads", "0"], "--threads");
 }
 
 #[test]

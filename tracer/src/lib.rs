@@ -53,3 +53,9 @@ pub use scene::{Limits, SceneDesc, parse};
 pub use texture::{AssetSource, DirAssets, MemoryAssets, Texture, TextureError, TextureLimits};
 pub use tile::{Rect, tile_count, tiles};
 pub use world::{Acceleration, Scene};
+
+/// Most threads a command line may ask one process to render with (`tessera-render
+/// --threads`, `tessera-worker --threads`, `tessera-service --local-workers`): far more than
+/// a machine has cores, and few enough that a mistyped count neither exhausts the process's
+/// threads nor leaves thousands of idle threads spinning over a small image.
+pub const MAX_THREADS: u16 = 1024;

@@ -116,6 +116,20 @@ fn missing_files_and_bad_flags_fail_with_a_message() {
         .expect("runs");
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--threads"));
+    // Past the bound: refused before a thread starts (100,000 threads ran past any timeout).
+    let over = (tessera_tracer::MAX_THREADS + 1).to_string();
+    let out = bin()
+        .arg(examples().join("thesis.ray"))
+        .args(["--threads", &over])
+        .env_remove("TESSERA_THREADS")
+        .output()
+        .expect("runs");
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("--threads") && stderr.contains("1..=1024"),
+        "{stderr}"
+    );
 }
 
 #[test]

@@ -6,6 +6,7 @@ use std::time::Duration;
 use std::process::ExitCode;
 
 use clap::Parser;
+use tessera_tracer::MAX_THREADS;
 
 use crate::{WorkerConfig, default_name, run};
 
@@ -16,9 +17,10 @@ struct Args {
     /// The service's base URL.
     #[arg(long, env = "TESSERA_SERVER", default_value = "http://127.0.0.1:8080")]
     server: String,
-    /// Tiles rendered at once (default: one per core).
-    #[arg(long, env = "TESSERA_THREADS")]
-    threads: Option<usize>,
+    /// Tiles rendered at once, 1 to 1024 (default: one per core).
+    #[arg(long, env = "TESSERA_THREADS",
+          value_parser = clap::value_parser!(u16).range(1..=i64::from(MAX_THREADS)))]
+    threads: Option<u16>,
     /// Bearer token for the worker routes, when the service requires one.
     #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true)]
     token: Option<String>,
@@ -47,7 +49,7 @@ pub fn main() -> ExitCode {
         .init();
     let mut cfg = WorkerConfig::new(args.server);
     if let Some(t) = args.threads {
-        cfg.threads = t;
+        cfg.threads = usize::from(t);
     }
     cfg.token = args.token.filter(|t| !t.is_empty());
     cfg.name = args.name.unwrap_or_else(default_name);

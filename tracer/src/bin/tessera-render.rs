@@ -12,7 +12,7 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use tessera_tracer::{
-    DirAssets, Limits, PngWriter, Scene, SceneError, TextureLimits, parse, scene_text,
+    DirAssets, Limits, MAX_THREADS, PngWriter, Scene, SceneError, TextureLimits, parse, scene_text,
 };
 
 /// The output file, shared with the PNG encoder. The encoder owns its writer and gives no
@@ -51,9 +51,10 @@ struct Args {
     #[arg(short, long, default_value = "out.png")]
     output: PathBuf,
 
-    /// Worker threads (default: one per core).
-    #[arg(long, env = "TESSERA_THREADS")]
-    threads: Option<usize>,
+    /// Worker threads, 1 to 1024 (default: one per core).
+    #[arg(long, env = "TESSERA_THREADS",
+          value_parser = clap::value_parser!(u16).range(1..=i64::from(MAX_THREADS)))]
+    threads: Option<u16>,
 
     /// Override the scene's sampler: center, thesis, grid, jitter or adaptive.
     #[arg(long, value_parser = ["center", "thesis", "grid", "jitter", "adaptive"])]
@@ -107,8 +108,7 @@ fn run(args: &Args) -> Result<()> {
 
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(n) = args.threads {
-        anyhow::ensure!(n > 0, "--threads must be at least 1");
-        pool = pool.num_threads(n);
+        pool = pool.num_threads(usize::from(n));
     }
     let pool = pool.build().context("cannot start the thread pool")?;
 
