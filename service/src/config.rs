@@ -104,9 +104,14 @@ pub struct Config {
     /// Most texture files per scene.
     #[arg(long, env = "TESSERA_MAX_TEXTURES", default_value_t = 32)]
     pub max_textures: usize,
-    /// Largest texture, width × height texels (decoding stops before allocating more).
+    /// Largest texture, width × height texels (checked from the image's header, before
+    /// decoding).
     #[arg(long, env = "TESSERA_MAX_TEXTURE_PIXELS", default_value_t = 16 << 20)]
     pub max_texture_pixels: u64,
+    /// Most texels of all of a job's textures together (each texel is held while the scene
+    /// is checked and rendered: 3 bytes).
+    #[arg(long, env = "TESSERA_MAX_SCENE_TEXTURE_PIXELS", default_value_t = 32 << 20)]
+    pub max_scene_texture_pixels: u64,
 }
 
 impl Config {
@@ -129,6 +134,7 @@ impl Config {
     pub fn texture_limits(&self) -> TextureLimits {
         TextureLimits {
             max_pixels: self.max_texture_pixels,
+            max_total_pixels: self.max_scene_texture_pixels,
             ..TextureLimits::default()
         }
     }

@@ -158,6 +158,8 @@ fn limits_refuse_oversized_input_and_store_nothing() {
             "2",
             "--max-texture-pixels",
             "4096",
+            "--max-scene-texture-pixels",
+            "6000",
             "--max-tiles",
             "10",
         ],
@@ -195,41 +197,61 @@ fn limits_refuse_oversized_input_and_store_nothing() {
     );
     assert_eq!(post(nested.into_bytes()).status(), 400);
 
-    // A decompression bomb: a small PNG that claims 8192 × 8192 texels.
-    let sink = tessera_tracer::SharedBuffer::new();
-    {
-        let mut enc = png::Encoder::new(sink.clone(), 8192, 8192);
+    // A black PNG of `w × h` texels.
+    let black_png = |w: u32, h: u32| {
+        let sink = tessera_tracer::SharedBuffer::new();
+        let mut enc = png::Encoder::new(sink.clone(), w, h);
         enc.set_color(png::ColorType::Rgb);
         enc.set_compression(png::Compression::High);
-        let mut w = enc
+        let mut out = enc
             .write_header()
             .expect("header")
             .into_stream_writer()
             .expect("stream");
-        let row = vec![0u8; 8192 * 3];
-        for _ in 0..8192 {
-            std::io::Write::write_all(&mut w, &row).expect("row");
+        let row = vec![0u8; w as usize * 3];
+        for _ in 0..h {
+            std::io::Write::write_all(&mut out, &row).expect("row");
         }
-        w.finish().expect("finish");
-    }
-    let bomb = sink.take();
+        out.finish().expect("finish");
+        sink.take()
+    };
+    let with_textures = |textures: Vec<(&str, Vec<u8>)>| {
+        let mut scene = String::from("[GLOBALS]\nwidth = 8\nheight = 8\n[/GLOBALS]\n");
+        let mut form = reqwest::blocking::multipart::Form::new();
+        for (name, bytes) in textures {
+            scene.push_str(&format!(
+                "[OBJECT]\ntype = sphere\nradius = 1\ntexture = {name}\n[/OBJECT]\n"
+            ));
+            form = form.part(
+                name.to_string(),
+                reqwest::blocking::multipart::Part::bytes(bytes).file_name(name.to_string()),
+            );
+        }
+        http.post(format!("{}/jobs", svc.url))
+            .multipart(form.text("scene", scene))
+            .send()
+            .expect("answer")
+    };
+    // A decompression bomb: a small PNG that claims 8192 × 8192 texels, refused with the
+    // size its header gives (it is not decoded).
+    let bomb = black_png(8192, 8192);
     assert!(
         bomb.len() < 1_000_000,
         "the bomb is small: {} bytes",
         bomb.len()
     );
-    let form = reqwest::blocking::multipart::Form::new()
-        .text(
-            "scene",
-            "[GLOBALS]\nwidth = 8\nheight = 8\n[/GLOBALS]\n[OBJECT]\ntype = sphere\nradius = 1\ntexture = bomb.png\n[/OBJECT]\n",
-        )
-        .part("bomb.png", reqwest::blocking::multipart::Part::bytes(bomb).file_name("bomb.png"));
-    let r = http
-        .post(format!("{}/jobs", svc.url))
-        .multipart(form)
-        .send()
-        .expect("answer");
-    common::refused(r, "texels");
+    common::refused(with_textures(vec![("bomb.png", bomb)]), "8192×8192 texels");
+    // Two textures each within the limit (64 × 64 = 4096 texels), together over the scene's
+    // 6000: the second is refused, at its name (line 13 of the scene the closure writes:
+    // four lines of globals, then five per object, the name fourth).
+    let e = common::refused(
+        with_textures(vec![
+            ("a.png", black_png(64, 64)),
+            ("b.png", black_png(64, 64)),
+        ]),
+        "the limit is 6000 in all",
+    );
+    assert_eq!(common::line_col(&e), (Some(13), Some(11)), "{e}");
 
     // Too many tiles, asked for or picked by the service: refused with the smallest edge
     // that makes at most 10 (`⌈100/e⌉² ≤ 10` needs `⌈100/e⌉ ≤ 3`, so `e ≥ 34`).

@@ -7,7 +7,7 @@
 //! that. Where texture bytes come from is [`AssetSource`]'s business, not this module's.
 
 use std::collections::HashMap;
-use std::io::Cursor;
+use std::io::{Cursor, Read};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -18,13 +18,18 @@ use crate::shape::{SurfaceUv, Wrap};
 use crate::srgb;
 
 /// Caps on texture decoding, so a small file cannot expand into a huge allocation
-/// (a "decompression bomb").
+/// (a "decompression bomb"), and many files cannot add up to one. Each is checked from the
+/// image's header, before anything is decoded.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TextureLimits {
     /// Largest width or height in texels.
     pub max_dimension: u32,
     /// Largest width × height.
     pub max_pixels: u64,
+    /// Largest sum of width × height over all of a scene's textures. Every texel is kept (3
+    /// bytes), so this bounds a scene's texture memory whatever the number of files: without
+    /// it, 30 files of 196 KB each (8192² black PNGs) took 6 GB.
+    pub max_total_pixels: u64,
 }
 
 impl Default for TextureLimits {
@@ -32,9 +37,15 @@ impl Default for TextureLimits {
         TextureLimits {
             max_dimension: 16_384,
             max_pixels: 64 * 1024 * 1024,
+            max_total_pixels: 128 * 1024 * 1024,
         }
     }
 }
+
+/// Largest texture file [`DirAssets`] reads (it reads regular files only: a name can name
+/// `/dev/zero`, which has no end). 1 GiB is more than the largest texture the limits allow takes in any format (an
+/// ASCII PPM of 2²⁶ 16-bit texels is about 1.2 GB only with padding no writer adds).
+pub const MAX_TEXTURE_FILE_BYTES: u64 = 1 << 30;
 
 /// Why a texture could not be used.
 #[derive(Debug, thiserror::Error)]
@@ -50,6 +61,18 @@ pub enum TextureError {
         height: u32,
         limit: String,
     },
+    #[error(
+        "texture `{name}` ({texels} texels) brings the scene's textures to {total} texels; \
+         the limit is {limit} in all"
+    )]
+    TooMuch {
+        name: String,
+        texels: u64,
+        total: u64,
+        limit: u64,
+    },
+    #[error("texture `{name}` needs more memory to decode than its limit allows ({limit})")]
+    DecodeLimit { name: String, limit: String },
     #[error("texture `{name}` cannot be decoded: {reason}")]
     Decode { name: String, reason: String },
 }
@@ -108,10 +131,33 @@ impl DirAssets {
 impl AssetSource for DirAssets {
     fn load(&self, name: &str) -> Result<Vec<u8>, TextureError> {
         let path = self.root.join(Path::new(name));
-        std::fs::read(&path).map_err(|e| TextureError::Missing {
+        let missing = |reason: String| TextureError::Missing {
             name: name.to_string(),
-            reason: format!("{}: {e}", path.display()),
-        })
+            reason: format!("{}: {reason}", path.display()),
+        };
+        let file = std::fs::File::open(&path).map_err(|e| missing(e.to_string()))?;
+        let meta = file.metadata().map_err(|e| missing(e.to_string()))?;
+        if !meta.is_file() {
+            // A device or a pipe: `/dev/zero` would be read until memory ran out.
+            return Err(missing("not a regular file".to_string()));
+        }
+        if meta.len() > MAX_TEXTURE_FILE_BYTES {
+            return Err(missing(format!(
+                "{} bytes; a texture file may have at most {MAX_TEXTURE_FILE_BYTES}",
+                meta.len()
+            )));
+        }
+        // Bounded again while reading, for a file that grows meanwhile.
+        let mut bytes = Vec::new();
+        file.take(MAX_TEXTURE_FILE_BYTES + 1)
+            .read_to_end(&mut bytes)
+            .map_err(|e| missing(e.to_string()))?;
+        if bytes.len() as u64 > MAX_TEXTURE_FILE_BYTES {
+            return Err(missing(format!(
+                "more than {MAX_TEXTURE_FILE_BYTES} bytes, the most a texture file may have"
+            )));
+        }
+        Ok(bytes)
     }
 }
 
@@ -128,53 +174,91 @@ fn decode_lut() -> &'static [f32; 256] {
     LUT.get_or_init(srgb::decode_table)
 }
 
+/// A reader for PNG or PPM bytes, its format known; anything else is refused.
+fn reader<'a>(
+    name: &str,
+    bytes: &'a [u8],
+) -> Result<image::ImageReader<Cursor<&'a [u8]>>, TextureError> {
+    let reader = image::ImageReader::new(Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| decode_error(name, e))?;
+    match reader.format() {
+        Some(image::ImageFormat::Png | image::ImageFormat::Pnm) => Ok(reader),
+        _ => Err(TextureError::UnknownFormat {
+            name: name.to_string(),
+        }),
+    }
+}
+
+fn decode_error(name: &str, e: impl std::fmt::Display) -> TextureError {
+    TextureError::Decode {
+        name: name.to_string(),
+        reason: e.to_string(),
+    }
+}
+
 impl Texture {
-    /// Decodes PNG or PPM bytes, refusing images beyond `limits` before allocating them.
+    /// The image's width and height, read from its header alone (nothing is decoded), and
+    /// checked against `limits`: a bad or oversized image is refused here, whatever its
+    /// pixel data, before anything is allocated for them.
+    pub fn dimensions(
+        name: &str,
+        bytes: &[u8],
+        limits: &TextureLimits,
+    ) -> Result<(u32, u32), TextureError> {
+        let (w, h) = reader(name, bytes)?
+            .into_dimensions()
+            .map_err(|e| decode_error(name, e))?;
+        if w == 0 || h == 0 {
+            return Err(decode_error(name, format_args!("the image is {w}×{h}")));
+        }
+        if w.max(h) > limits.max_dimension || u64::from(w) * u64::from(h) > limits.max_pixels {
+            return Err(TextureError::TooLarge {
+                name: name.to_string(),
+                width: w,
+                height: h,
+                limit: format!(
+                    "{} texels a side and {} in all",
+                    limits.max_dimension, limits.max_pixels
+                ),
+            });
+        }
+        Ok((w, h))
+    }
+
+    /// Decodes PNG or PPM bytes, refusing images beyond `limits` (from the header, see
+    /// [`Self::dimensions`]) before allocating them.
     pub fn decode(
         name: &str,
         bytes: &[u8],
         limits: &TextureLimits,
     ) -> Result<Texture, TextureError> {
-        let mut reader = image::ImageReader::new(Cursor::new(bytes))
-            .with_guessed_format()
-            .map_err(|e| TextureError::Decode {
-                name: name.to_string(),
-                reason: e.to_string(),
-            })?;
-        match reader.format() {
-            Some(image::ImageFormat::Png | image::ImageFormat::Pnm) => {}
-            _ => {
-                return Err(TextureError::UnknownFormat {
-                    name: name.to_string(),
-                });
-            }
-        }
+        let (w, h) = Self::dimensions(name, bytes, limits)?;
+        let mut reader = reader(name, bytes)?;
         let mut decoder_limits = image::Limits::default();
         decoder_limits.max_image_width = Some(limits.max_dimension);
         decoder_limits.max_image_height = Some(limits.max_dimension);
-        // Room for the decoded image at 16-bit RGBA plus the decoder's own buffers.
-        decoder_limits.max_alloc =
-            Some(limits.max_pixels.saturating_mul(8).saturating_add(1 << 20));
+        // Room for the decoded image at 16-bit RGBA plus the decoder's own buffers: the
+        // header has been checked, so this only stops a decoder that wants far more.
+        let max_alloc = u64::from(w) * u64::from(h) * 8 + (1 << 20);
+        decoder_limits.max_alloc = Some(max_alloc);
         reader.limits(decoder_limits);
-        let too_large = |w: u32, h: u32| TextureError::TooLarge {
-            name: name.to_string(),
-            width: w,
-            height: h,
-            limit: format!(
-                "{} texels a side and {} in all",
-                limits.max_dimension, limits.max_pixels
-            ),
-        };
         let img = reader.decode().map_err(|e| match e {
-            image::ImageError::Limits(_) => too_large(0, 0),
-            other => TextureError::Decode {
+            image::ImageError::Limits(_) => TextureError::DecodeLimit {
                 name: name.to_string(),
-                reason: other.to_string(),
+                limit: format!("{max_alloc} bytes"),
             },
+            other => decode_error(name, other),
         })?;
-        let (w, h) = (img.width(), img.height());
-        if w == 0 || h == 0 || u64::from(w) * u64::from(h) > limits.max_pixels {
-            return Err(too_large(w, h));
+        if (img.width(), img.height()) != (w, h) {
+            return Err(decode_error(
+                name,
+                format_args!(
+                    "the header says {w}×{h}, the image is {}×{}",
+                    img.width(),
+                    img.height()
+                ),
+            ));
         }
         let rgb = img.into_rgb8();
         let texels = rgb.pixels().map(|p| p.0).collect();
@@ -292,23 +376,32 @@ mod tests {
     fn refuses_unknown_formats_and_oversized_images() {
         let l = TextureLimits {
             max_dimension: 4,
-            max_pixels: 16,
+            max_pixels: 12,
+            max_total_pixels: 100,
         };
         assert!(matches!(
             Texture::decode("x.gif", b"GIF89a....", &l),
             Err(TextureError::UnknownFormat { .. })
         ));
-        // A header that claims 100000×100000 with no data behind it.
-        let bomb = b"P6\n100000 100000\n255\n";
-        assert!(matches!(
-            Texture::decode("bomb.ppm", bomb, &l),
-            Err(TextureError::TooLarge { .. } | TextureError::Decode { .. })
-        ));
-        let big = b"P3\n5 1\n255\n0 0 0 0 0 0 0 0 0 0 0 0 0 0 0\n";
-        assert!(matches!(
-            Texture::decode("big.ppm", big, &l),
-            Err(TextureError::TooLarge { .. })
-        ));
+        // Headers that claim more than the limits, with no data behind them: refused as too
+        // large, with the header's size, before any data is read (it would fail to decode).
+        let too_large = |bytes: &[u8]| match Texture::decode("t.ppm", bytes, &l) {
+            Err(TextureError::TooLarge { width, height, .. }) => (width, height),
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(too_large(b"P6\n100000 100000\n255\n"), (100_000, 100_000));
+        // Over the side limit; over the texel limit with both sides within theirs.
+        assert_eq!(too_large(b"P6\n5 1\n255\n"), (5, 1));
+        assert_eq!(too_large(b"P6\n4 4\n255\n"), (4, 4));
+        let at_limit = b"P3\n4 3\n255\n0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0\n";
+        assert_eq!(
+            Texture::dimensions("t.ppm", at_limit, &l).expect("within"),
+            (4, 3)
+        );
+        assert!(Texture::decode("t.ppm", at_limit, &l).is_ok());
+        // The message says the size.
+        let e = Texture::decode("t.ppm", b"P6\n100000 7\n255\n", &l).expect_err("too wide");
+        assert!(e.to_string().contains("100000×7 texels"), "{e}");
     }
 
     #[test]

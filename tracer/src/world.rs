@@ -23,7 +23,7 @@ use crate::sampler::Sampler;
 use crate::scene::{self, Light, Limits, MaterialDesc, Node, SceneDesc};
 use crate::shadow::ClearLights;
 use crate::shape::{LocalHit, Shape};
-use crate::texture::{AssetSource, Texture, TextureLimits};
+use crate::texture::{AssetSource, Texture, TextureError, TextureLimits};
 use crate::transform::Transform;
 
 /// Surface properties with textures loaded.
@@ -471,10 +471,24 @@ impl Scene {
     ) -> Result<(Vec<Object>, Vec<Prim>), SceneError> {
         let mut textures: HashMap<&str, Arc<Texture>> = HashMap::new();
         let mut errors = Vec::new();
+        // Texels of the textures decoded so far, against `max_total_pixels`: each is sized
+        // from its header before it is decoded, so the budget holds while loading too.
+        let mut total: u64 = 0;
         for (name, pos) in desc.texture_names() {
-            let loaded = assets
-                .load(name)
-                .and_then(|bytes| Texture::decode(name, &bytes, texture_limits));
+            let loaded = assets.load(name).and_then(|bytes| {
+                let (w, h) = Texture::dimensions(name, &bytes, texture_limits)?;
+                let texels = u64::from(w) * u64::from(h);
+                if total + texels > texture_limits.max_total_pixels {
+                    return Err(TextureError::TooMuch {
+                        name: name.to_string(),
+                        texels,
+                        total: total + texels,
+                        limit: texture_limits.max_total_pixels,
+                    });
+                }
+                total += texels;
+                Texture::decode(name, &bytes, texture_limits)
+            });
             match loaded {
                 Ok(t) => {
                     textures.insert(name, Arc::new(t));

@@ -195,3 +195,26 @@ fn a_full_disk_is_an_error() {
         "{stderr}"
     );
 }
+
+/// A texture name that names a device is refused at once (`/dev/zero` was read until memory
+/// ran out), at the name's position.
+#[test]
+fn a_texture_that_is_not_a_file_is_refused() {
+    if !Path::new("/dev/zero").exists() {
+        eprintln!("skipped: no /dev/zero here");
+        return;
+    }
+    let dir = temp_dir("device");
+    let scene = dir.join("s.ray");
+    std::fs::write(
+        &scene,
+        "[OBJECT]\ntype = sphere\ntexture = /dev/zero\n[/OBJECT]\n",
+    )
+    .expect("write");
+    let stderr = refused(&scene, &dir);
+    assert!(
+        stderr.contains(&format!("{}:3:11: ", scene.display()))
+            && stderr.contains("/dev/zero: not a regular file"),
+        "{stderr}"
+    );
+}

@@ -163,6 +163,47 @@ fn texture_errors_name_the_file_and_position() {
     assert!(d.message.contains("nowhere.png"), "{}", d.message);
 }
 
+/// A scene's textures together stay within `max_total_pixels`: the texture that would pass
+/// it is refused at its name, sized from its header; at the limit exactly all load. A texture
+/// used twice counts once.
+#[test]
+fn textures_together_stay_within_their_budget() {
+    // Three 4×4 textures, `a` used twice: 48 texels in all.
+    let mut assets = MemoryAssets::new();
+    for name in ["a.ppm", "b.ppm", "c.ppm"] {
+        let mut ppm = b"P6\n4 4\n255\n".to_vec();
+        ppm.extend_from_slice(&[128; 48]);
+        assets.insert(name, ppm);
+    }
+    let src = "[OBJECT]\ntype = sphere\ntexture = a.ppm\n[/OBJECT]\n\
+               [OBJECT]\ntype = sphere\ntexture = b.ppm\n[/OBJECT]\n\
+               [OBJECT]\ntype = sphere\ntexture = a.ppm\n[/OBJECT]\n\
+               [OBJECT]\ntype = sphere\ntexture = c.ppm\n[/OBJECT]\n";
+    let build = |total: u64| {
+        let limits = tessera_tracer::TextureLimits {
+            max_total_pixels: total,
+            ..tessera_tracer::TextureLimits::default()
+        };
+        tessera_tracer::Scene::from_source(
+            src,
+            &tessera_tracer::Limits::default(),
+            &assets,
+            &limits,
+        )
+    };
+    assert!(build(48).is_ok());
+    let err = build(47).expect_err("one texel over");
+    assert_eq!(err.diagnostics().len(), 1, "{err}");
+    let d = err.first();
+    // `c.ppm`, named on line 15, column 11.
+    assert_eq!((d.pos.line, d.pos.column), (15, 11), "{}", d.message);
+    assert!(
+        d.message.contains("`c.ppm` (16 texels)") && d.message.contains("to 48 texels"),
+        "{}",
+        d.message
+    );
+}
+
 fn reference_scene() -> (String, Reference) {
     let src = "\
 [GLOBALS]
