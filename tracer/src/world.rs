@@ -933,11 +933,14 @@ mod tests {
         let b = s.prims[0].bounds(&s.objects).expect("bounded");
         assert_eq!((b.min.x, b.max.x), (8.0, 14.0));
         // Overflowing only once composed: refused at the object, not a panic or NaN.
-        let e = build(
-            "[CSG]\nop = union\nscale = 1e200\n\
-             [OBJECT]\ntype = cube\nscale = 1e200\n[/OBJECT]\n\
+        // Eleven steps of 1e15 (the largest number a scene may write) are 1e165 on each
+        // side, 1e330 composed.
+        let big = "scale = 1e15\n".repeat(11);
+        let e = build(&format!(
+            "[CSG]\nop = union\n{big}\
+             [OBJECT]\ntype = cube\n{big}[/OBJECT]\n\
              [OBJECT]\ntype = cube\n[/OBJECT]\n[/CSG]\n",
-        )
+        ))
         .expect_err("overflowing composite");
         assert!(e.to_string().contains("singular or non-finite"), "{e}");
     }
@@ -951,12 +954,13 @@ mod tests {
         let mut assets = MemoryAssets::new();
         assets.insert("bad.ppm", b"P6\n2 2\n255\nxx".to_vec());
         let limits = TextureLimits::default();
-        let bad = desc(
-            "[CSG]\nop = union\nscale = 1e200\n[OBJECT]\ntype = cube\nscale = 1e200\n[/OBJECT]\n\
+        let big = "scale = 1e15\n".repeat(11);
+        let bad = desc(&format!(
+            "[CSG]\nop = union\n{big}[OBJECT]\ntype = cube\n{big}[/OBJECT]\n\
              [OBJECT]\ntype = cube\n[/OBJECT]\n[/CSG]\n\
              [OBJECT]\ntype = sphere\ntexture = missing.ppm\n[/OBJECT]\n\
              [OBJECT]\ntype = sphere\ntexture = bad.ppm\n[/OBJECT]\n",
-        );
+        ));
         let from_build = Scene::build(&bad, &assets, &limits).expect_err("three errors");
         let from_check = Scene::check(&bad, &assets, &limits).expect_err("three errors");
         assert_eq!(from_check.to_string(), from_build.to_string());

@@ -458,12 +458,51 @@ fn degenerate_cameras_and_transforms_are_errors() {
         6,
         &["parallel"],
     );
+    // 1e15 (the largest number) to the 20th is 1e300, to the 21st past the largest f64:
+    // refused at the 21st step, line 23.
     one_error(
-        "[OBJECT]\ntype = sphere\nscale = 1e200\nscale = 1e200\n[/OBJECT]\n",
-        4,
+        &format!(
+            "[OBJECT]\ntype = sphere\n{}[/OBJECT]\n",
+            "scale = 1e15\n".repeat(21)
+        ),
+        23,
         1,
         &["singular or non-finite"],
     );
+}
+
+/// Numbers are at most 1e15 in magnitude, wherever they are written; past that, the error
+/// is at the number. Each of these was accepted and broke something: a light at 1e154 lit
+/// nothing (its distance squared overflowed), colours of 1e308 made NaN pixels that came out
+/// white, an eye at 1e160 was said to look along `up`.
+#[test]
+fn numbers_past_the_largest_are_refused_where_they_are_written() {
+    let limit = tessera_tracer::scene::MAX_NUMBER;
+    assert_eq!(limit, 1e15);
+    ok("[LIGHT]\nposition = <1e15, -1e15, 1e15>\n[/LIGHT]\n");
+    let cases = [
+        (
+            "[LIGHT]\nposition = <1e154, 1e154, 1e154>\n[/LIGHT]\n",
+            2,
+            13,
+        ),
+        ("[GLOBALS]\nambient = 1e308\n[/GLOBALS]\n", 2, 11),
+        ("[CAMERA]\neye = <0, 0, 1e160>\n[/CAMERA]\n", 2, 14),
+        (
+            "[OBJECT]\ntype = sphere\nradius = 1.5e15\n[/OBJECT]\n",
+            3,
+            10,
+        ),
+        ("[OBJECT]\ntype = sphere\nscale = -2e15\n[/OBJECT]\n", 3, 9),
+        (
+            "[OBJECT]\ntype = sphere\ncolor1 = <1, 0, 1e16>\n[/OBJECT]\n",
+            3,
+            17,
+        ),
+    ];
+    for (src, line, column) in cases {
+        one_error(src, line, column, &["magnitude at most 1e15"]);
+    }
 }
 
 #[test]

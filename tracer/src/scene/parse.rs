@@ -973,10 +973,7 @@ impl<'a> Value<'a> {
     }
 
     fn number(&self) -> Result<f64, Diagnostic> {
-        match parse_f64(self.text) {
-            Some(x) => Ok(x),
-            None => self.fail("a number like 1.5 or -2e3"),
-        }
+        parse_f64(self.text).or_else(|e| self.fail(e.expected()))
     }
 
     fn number_in(&self, lo: f64, hi: f64) -> Result<f64, Diagnostic> {
@@ -1088,12 +1085,16 @@ impl<'a> Value<'a> {
         for (i, part) in parts.iter().enumerate() {
             let lead = part.chars().take_while(|c| c.is_whitespace()).count();
             match parse_f64(part.trim()) {
-                Some(x) => v[i] = x,
-                None => {
+                Ok(x) => v[i] = x,
+                Err(e) => {
+                    let expected = match e {
+                        BadNumber::NotANumber => "a number",
+                        BadNumber::TooLarge => e.expected(),
+                    };
                     return Err(self.at(
                         offset + lead,
                         format!(
-                            "`{}`: component {} of the vector: expected a number, found `{}`",
+                            "`{}`: component {} of the vector: expected {expected}, found `{}`",
                             self.key,
                             i + 1,
                             shorten(part.trim())
@@ -1112,10 +1113,11 @@ impl<'a> Value<'a> {
             self.vector()?
         } else {
             match parse_f64(self.text) {
-                Some(x) => Color::splat(x),
-                None => {
+                Ok(x) => Color::splat(x),
+                Err(BadNumber::NotANumber) => {
                     return self.fail("a colour: a number or a vector like <1, 0.5, 0>");
                 }
+                Err(e) => return self.fail(e.expected()),
             }
         };
         if c.min_element() < 0.0 {
@@ -1131,8 +1133,11 @@ impl<'a> Value<'a> {
                     self.vector()?
                 } else {
                     match parse_f64(self.text) {
-                        Some(x) => DVec3::splat(x),
-                        None => return self.fail("a number or a vector like <1, 2, 1>"),
+                        Ok(x) => DVec3::splat(x),
+                        Err(BadNumber::NotANumber) => {
+                            return self.fail("a number or a vector like <1, 2, 1>");
+                        }
+                        Err(e) => return self.fail(e.expected()),
                     }
                 };
                 if s.x == 0.0 || s.y == 0.0 || s.z == 0.0 {
@@ -1146,16 +1151,49 @@ impl<'a> Value<'a> {
     }
 }
 
-/// A finite decimal number. Rust's parser also takes `inf`, `NaN` and `infinity`; the
-/// format does not.
-fn parse_f64(s: &str) -> Option<f64> {
+/// Largest magnitude of a number in a scene. Far beyond any scene's scale (a kilometre in
+/// micrometres is 1e9), and small enough that what the tracer computes from a few numbers
+/// stays finite: a distance squared, a colour times a light's colour times a texel, summed
+/// over every light. A light at 1e154 squared its distance to infinity and lit nothing;
+/// colours of 1e308 summed to infinity, and `0·∞ = NaN` came out as a white pixel; an eye at
+/// 1e160 was reported as "`up` parallel to the view".
+pub const MAX_NUMBER: f64 = 1e15;
+
+/// Why a value is not a scene number.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum BadNumber {
+    NotANumber,
+    TooLarge,
+}
+
+impl BadNumber {
+    /// What was expected, for a message.
+    fn expected(self) -> &'static str {
+        match self {
+            BadNumber::NotANumber => "a number like 1.5 or -2e3",
+            BadNumber::TooLarge => "a number of magnitude at most 1e15",
+        }
+    }
+}
+
+/// A finite decimal number of magnitude at most [`MAX_NUMBER`]. Rust's parser also takes
+/// `inf`, `NaN` and `infinity`; the format does not.
+fn parse_f64(s: &str) -> Result<f64, BadNumber> {
     if !s
         .chars()
         .all(|c| c.is_ascii_digit() || matches!(c, '+' | '-' | '.' | 'e' | 'E'))
     {
-        return None;
+        return Err(BadNumber::NotANumber);
     }
-    s.parse::<f64>().ok().filter(|x| x.is_finite())
+    let x = s
+        .parse::<f64>()
+        .ok()
+        .filter(|x| x.is_finite())
+        .ok_or(BadNumber::NotANumber)?;
+    if x.abs() > MAX_NUMBER {
+        return Err(BadNumber::TooLarge);
+    }
+    Ok(x)
 }
 
 /// At most 40 characters of user text for an error message.
