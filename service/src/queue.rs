@@ -659,7 +659,8 @@ impl Queue {
         let r = sqlx::query(
             "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL,
                               failures = failures + 1, last_error = ?4
-             WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'",
+             WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'
+               AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
         )
         .bind(job)
         .bind(i64::from(idx))
@@ -689,7 +690,8 @@ impl Queue {
     pub async fn release(&self, job: &str, idx: u32, lease: &str) -> Result<bool> {
         let r = sqlx::query(
             "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL
-             WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'",
+             WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'
+               AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
         )
         .bind(job)
         .bind(i64::from(idx))

@@ -563,3 +563,30 @@ async fn bands_are_encoded_in_order_as_they_complete_and_give_the_whole_images_p
     assert_eq!(q.job("k").await.expect("read").expect("job").state, "done");
     assert_eq!(png_of(&q, "k").await, whole);
 }
+
+/// A cancelled job's leases are stale for every route: a failure report neither counts
+/// against the tile or the worker nor requeues the tile, and a give-back is refused too.
+#[tokio::test]
+async fn a_cancelled_jobs_leases_are_stale() {
+    let db = Db::new("cancelled-leases");
+    let q = Queue::open(&db.url()).await.expect("open");
+    job(&q, "j", 16, 8, 8).await;
+    let a = q.claim("w", 0, 60_000, 3).await.expect("claim").expect("a");
+    let b = q.claim("w", 0, 60_000, 3).await.expect("claim").expect("b");
+    assert_eq!(
+        q.cancel("j", 5).await.expect("cancel").as_deref(),
+        Some("running")
+    );
+    assert!(
+        !q.fail_tile("j", a.idx, &a.lease, "w", "boom", 10, 3, KEEP)
+            .await
+            .expect("fail")
+    );
+    assert!(!q.release("j", b.idx, &b.lease).await.expect("release"));
+    assert_eq!(
+        q.job("j").await.expect("read").expect("job").state,
+        "cancelled"
+    );
+    // Nothing requeued: no tile of it is handed out again.
+    assert!(q.claim("v", 20, 60_000, 3).await.expect("claim").is_none());
+}
