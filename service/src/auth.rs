@@ -25,9 +25,20 @@ pub fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     diff == 0
 }
 
+/// The token of an `Authorization: Bearer <token>` header. The scheme's name is matched
+/// without regard to case (RFC 9110 §11.1: `bearer` and `BEARER` are `Bearer`), and any
+/// run of spaces may separate it from the token.
 fn presented(req: &Request) -> Option<&[u8]> {
     let value = req.headers().get(header::AUTHORIZATION)?.as_bytes();
-    value.strip_prefix(b"Bearer ")
+    bearer_token(value)
+}
+
+fn bearer_token(value: &[u8]) -> Option<&[u8]> {
+    let (scheme, rest) = value.split_at_checked(6)?;
+    if !scheme.eq_ignore_ascii_case(b"Bearer") || !rest.starts_with(b" ") {
+        return None;
+    }
+    Some(rest.trim_ascii_start())
 }
 
 fn check(expected: Option<&str>, req: &Request, what: &str) -> Result<(), Box<Response>> {
@@ -78,7 +89,17 @@ pub async fn require_submit_token(
 
 #[cfg(test)]
 mod tests {
-    use super::constant_time_eq;
+    use super::{bearer_token, constant_time_eq};
+
+    #[test]
+    fn the_scheme_is_matched_without_regard_to_case() {
+        for v in ["Bearer s3", "bearer s3", "BEARER s3", "Bearer   s3"] {
+            assert_eq!(bearer_token(v.as_bytes()), Some(&b"s3"[..]), "{v}");
+        }
+        for v in ["Basic s3", "Bearers3", "Bearer", "Beare s3", ""] {
+            assert_eq!(bearer_token(v.as_bytes()), None, "{v}");
+        }
+    }
 
     #[test]
     fn equal_only_when_every_byte_is() {
