@@ -36,11 +36,23 @@ pub struct Diagnostic {
 }
 
 impl Diagnostic {
+    /// A message at `pos`. Messages quote the scene's own text, which may hold control
+    /// characters (a NUL, an escape sequence that would restyle a terminal): those are
+    /// written as escapes (`\0`, `\u{1b}`), so a message is always one line of plain text.
     pub fn new(pos: Pos, message: impl Into<String>) -> Self {
-        Diagnostic {
-            pos,
-            message: message.into(),
+        let mut message = message.into();
+        if message.contains(char::is_control) {
+            let mut plain = String::with_capacity(message.len() + 8);
+            for c in message.chars() {
+                if c.is_control() {
+                    plain.extend(c.escape_debug());
+                } else {
+                    plain.push(c);
+                }
+            }
+            message = plain;
         }
+        Diagnostic { pos, message }
     }
 }
 

@@ -690,3 +690,31 @@ fn runaway_nesting_is_refused_on_a_small_stack() {
     );
     assert!(errs.iter().all(|e| e.0 <= stop), "{errs:?}");
 }
+
+/// A UTF-8 byte-order mark before the first tag is not an error (it was four), and the first
+/// line's columns count from after it.
+#[test]
+fn a_byte_order_mark_is_skipped() {
+    let plain = "[GLOBALS]\nwidth = 8\nheight = 4\n[/GLOBALS]\n";
+    let d = ok(&format!("\u{feff}{plain}"));
+    assert_eq!(d, ok(plain));
+    one_error(
+        "\u{feff}[GLOBALS]\nwidth = x\n[/GLOBALS]\n",
+        2,
+        9,
+        &["`width`"],
+    );
+    one_error("\u{feff}width = 8\n", 1, 1, &["outside every block"]);
+}
+
+/// Control characters quoted from the scene come out escaped: a message is one line of
+/// plain text, whatever the file held (a NUL, a terminal escape sequence, a carriage return).
+#[test]
+fn quoted_control_characters_are_escaped() {
+    let errs = errors("[GLOBALS]\nwidth = 8\u{0}\u{1b}[31m\r\n[/GLOBALS]\n");
+    assert_eq!(errs.len(), 1, "{errs:?}");
+    let (line, column, message) = &errs[0];
+    assert_eq!((*line, *column), (2, 9));
+    assert!(!message.contains(char::is_control), "{message:?}");
+    assert!(message.contains("`8\\0\\u{1b}[31m`"), "{message}");
+}

@@ -68,6 +68,9 @@ const SAMPLERS: &[&str] = &["center", "thesis", "grid", "jitter", "adaptive"];
 /// Parses and validates a `.ray` scene. All problems found are returned together, sorted by
 /// position.
 pub fn parse(source: &str, limits: &Limits) -> Result<SceneDesc, SceneError> {
+    // A byte-order mark (Windows editors write one) is not part of the text: columns on the
+    // first line count from after it, as an editor shows them.
+    let source = source.strip_prefix('\u{feff}').unwrap_or(source);
     let (items, mut errors) = lex(source);
     // `[rayfile]`, the CSG levels and the `[OBJECT]` inside the deepest, and room for a few
     // levels more, which the CSG check then reports as such.
