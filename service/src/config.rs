@@ -108,6 +108,12 @@ pub struct Config {
     /// decoding).
     #[arg(long, env = "TESSERA_MAX_TEXTURE_PIXELS", default_value_t = 16 << 20)]
     pub max_texture_pixels: u64,
+    /// Seconds a connection may stay silent (no byte either way) before it is closed: a
+    /// stalled client held its connection, and the body it had sent, for ever. Keep it
+    /// above 60, the longest wait a route offers (`GET /jobs/{id}?wait=`).
+    #[arg(long, env = "TESSERA_IDLE_TIMEOUT_SECS", default_value_t = 120,
+          value_parser = clap::value_parser!(u64).range(1..))]
+    pub idle_timeout_secs: u64,
     /// Most texels of all of a job's textures together (each texel is held while the scene
     /// is checked and rendered: 3 bytes).
     #[arg(long, env = "TESSERA_MAX_SCENE_TEXTURE_PIXELS", default_value_t = 32 << 20)]

@@ -12,6 +12,7 @@ pub mod auth;
 pub mod cli;
 pub mod config;
 pub mod error;
+pub mod idle;
 pub mod queue;
 pub mod worker_api;
 
@@ -296,7 +297,8 @@ pub async fn serve(
             let _ = w.await;
         }
     };
-    axum::serve(listener, router(state))
+    let idle = Duration::from_secs(state.cfg.idle_timeout_secs);
+    axum::serve(idle::IdleListener::new(listener, idle), router(state))
         .with_graceful_shutdown(graceful)
         .await?;
     info!("stopped");

@@ -513,3 +513,71 @@ fn a_result_can_carry_the_next_claim() {
     let a: Value = again.json().expect("json");
     assert_eq!((a["repeat"].clone(), a.get("next")), (json!(true), None));
 }
+
+/// A connection that falls silent is closed after `--idle-timeout-secs`, whether it stopped
+/// in its headers or in its body (before, both were held for ever, with the body read so
+/// far); one that keeps sending, however slowly, is not, and neither is a wait for a job.
+#[test]
+fn silent_connections_are_closed() {
+    use std::io::{Read, Write};
+    use std::net::TcpStream;
+
+    let dir = TempDir::new("idle");
+    let svc = Service::start(&dir, &["--local-workers", "0", "--idle-timeout-secs", "2"]);
+    let addr = svc.url.trim_start_matches("http://").to_string();
+    // Reads what the service sends until it closes; `None` if it is still open after 20 s.
+    let until_closed = |s: &mut TcpStream| -> Option<Vec<u8>> {
+        s.set_read_timeout(Some(Duration::from_secs(20)))
+            .expect("timeout");
+        let mut got = Vec::new();
+        let mut buf = [0u8; 4096];
+        loop {
+            match s.read(&mut buf) {
+                Ok(0) => return Some(got),
+                Ok(n) => got.extend_from_slice(&buf[..n]),
+                Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => return Some(got),
+                Err(_) => return None,
+            }
+        }
+    };
+
+    let mut headers = TcpStream::connect(&addr).expect("connect");
+    headers
+        .write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")
+        .expect("write");
+    let started = Instant::now();
+    assert!(until_closed(&mut headers).is_some(), "half the headers");
+    assert!(started.elapsed() >= Duration::from_secs(2));
+
+    let mut body = TcpStream::connect(&addr).expect("connect");
+    body.write_all(b"POST /jobs HTTP/1.1\r\nHost: x\r\nContent-Length: 100000\r\n\r\n[GLOBALS]\n")
+        .expect("write");
+    assert!(until_closed(&mut body).is_some(), "a tenth of the body");
+
+    // A scene sent in five pieces 0.5 s apart (2 s in all, as long as the timeout): each
+    // piece restarts the clock, and the job is accepted.
+    let scene = read("thesis.ray");
+    let mut slow = TcpStream::connect(&addr).expect("connect");
+    write!(
+        slow,
+        "POST /jobs HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Length: {}\r\n\r\n",
+        scene.len()
+    )
+    .expect("write");
+    for piece in scene.as_bytes().chunks(scene.len().div_ceil(5)) {
+        std::thread::sleep(Duration::from_millis(500));
+        slow.write_all(piece).expect("write");
+    }
+    let answer = String::from_utf8(until_closed(&mut slow).expect("answered")).expect("text");
+    assert!(answer.starts_with("HTTP/1.1 201"), "{answer}");
+
+    // A wait shorter than the timeout but longer than most of it, on a job no worker takes.
+    let id = svc.submit(&scene, "")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    let started = Instant::now();
+    let job = svc.get_json(&format!("/jobs/{id}?wait=1"));
+    assert_eq!(job["state"], "queued");
+    assert!(started.elapsed() >= Duration::from_secs(1));
+}
