@@ -68,12 +68,27 @@ pub struct SceneError {
     diagnostics: Vec<Diagnostic>,
 }
 
+/// Most diagnostics one error reports; past them, one more says how many were left out. A
+/// file of a million bad lines printed a million lines (and the service answered them all
+/// in one JSON body); the first hundred say what is wrong as well.
+pub const MAX_DIAGNOSTICS: usize = 100;
+
 impl SceneError {
-    /// Builds an error from a non-empty list; the list is sorted by position and deduplicated.
+    /// Builds an error from a non-empty list; the list is sorted by position, deduplicated,
+    /// and cut to the first [`MAX_DIAGNOSTICS`] plus a note of how many more there were.
     pub fn new(mut diagnostics: Vec<Diagnostic>) -> Self {
         diagnostics.sort_by_key(|d| d.pos);
         diagnostics.dedup();
         debug_assert!(!diagnostics.is_empty());
+        if diagnostics.len() > MAX_DIAGNOSTICS {
+            let more = diagnostics.len() - MAX_DIAGNOSTICS;
+            let at = diagnostics[MAX_DIAGNOSTICS].pos;
+            diagnostics.truncate(MAX_DIAGNOSTICS);
+            diagnostics.push(Diagnostic::new(
+                at,
+                format!("{more} more errors from here on are not shown"),
+            ));
+        }
         SceneError { diagnostics }
     }
 

@@ -562,6 +562,31 @@ fn limits_are_enforced() {
         "[LIGHT]\nposition = <0,0,0>\n[/LIGHT]\n[LIGHT]\nposition = <0,0,0>\n[/LIGHT]\n",
         "2 lights",
     );
+    // The error is at the light past the limit, a block or the global key alike.
+    for (src, at) in [
+        (
+            "[LIGHT]\nposition = <0,0,0>\n[/LIGHT]\n[LIGHT]\nposition = <0,0,0>\n[/LIGHT]\n",
+            (4, 1),
+        ),
+        (
+            "[LIGHT]\nposition = <0,0,0>\n[/LIGHT]\n[GLOBALS]\nlight = <1,1,1>\n[/GLOBALS]\n",
+            (5, 1),
+        ),
+    ] {
+        let errs = errors_with(src, &limits);
+        assert!(
+            errs.iter()
+                .any(|e| (e.0, e.1) == at && e.2.contains("2 lights")),
+            "{errs:?}"
+        );
+    }
+    // A radius that makes the sphere's matrix singular is the radius's fault.
+    let errs = errors("[OBJECT]\ntype = sphere\nradius = 1e-320\n[/OBJECT]\n");
+    assert!(
+        errs.iter()
+            .any(|e| (e.0, e.1) == (3, 1) && e.2.contains("singular")),
+        "{errs:?}"
+    );
     check(
         "[OBJECT]\ntype = plane\ntexture = a.png\n[/OBJECT]\n\
          [OBJECT]\ntype = plane\ntexture = b.png\n[/OBJECT]\n",
@@ -717,4 +742,20 @@ fn quoted_control_characters_are_escaped() {
     assert_eq!((*line, *column), (2, 9));
     assert!(!message.contains(char::is_control), "{message:?}");
     assert!(message.contains("`8\\0\\u{1b}[31m`"), "{message}");
+}
+
+/// A file of many bad lines reports the first hundred and says how many more there were,
+/// at the first of them.
+#[test]
+fn errors_are_capped_with_a_count_of_the_rest() {
+    let max = tessera_tracer::diag::MAX_DIAGNOSTICS;
+    // One unknown key a line, each a different one: one error a line.
+    let keys: String = (0..max + 25).map(|i| format!("k{i} = 1\n")).collect();
+    let errs = errors(&format!("[GLOBALS]\n{keys}[/GLOBALS]\n"));
+    assert_eq!(errs.len(), max + 1);
+    // Line 2 holds the first; the note is at the first not shown.
+    assert_eq!((errs[0].0, errs[0].1), (2, 1));
+    let last = &errs[max];
+    assert_eq!((last.0, last.1), ((max + 2) as u32, 1));
+    assert_eq!(last.2, "25 more errors from here on are not shown");
 }

@@ -80,6 +80,7 @@ pub fn parse(source: &str, limits: &Limits) -> Result<SceneDesc, SceneError> {
         limits,
         objects: 0,
         textures: Vec::new(),
+        light_pos: Vec::new(),
     };
     let desc = p.scene(&root);
     if p.errors.is_empty() {
@@ -294,6 +295,8 @@ struct Parser<'a> {
     limits: &'a Limits,
     objects: usize,
     textures: Vec<String>,
+    /// Where each light of the scene was written, in the order they are counted.
+    light_pos: Vec<Pos>,
 }
 
 /// Which block kinds a key belongs to, for "`fov` belongs in [CAMERA]" hints.
@@ -373,6 +376,7 @@ impl Parser<'_> {
                 "light" => {
                     if let Some(l) = self.light(b) {
                         desc.lights.push(l);
+                        self.light_pos.push(b.pos);
                     }
                 }
                 "object" | "csg" => {
@@ -384,8 +388,14 @@ impl Parser<'_> {
             }
         }
         if desc.lights.len() > self.limits.max_lights {
+            // At the first light past the limit.
+            let at = self
+                .light_pos
+                .get(self.limits.max_lights)
+                .copied()
+                .unwrap_or(Pos::new(1, 1));
             self.err(
-                Pos::new(1, 1),
+                at,
                 format!(
                     "the scene has {} lights; the limit is {}",
                     desc.lights.len(),
@@ -530,6 +540,7 @@ impl Parser<'_> {
                 }
                 "light" => {
                     if let Some(p) = self.check(v.vector()) {
+                        self.light_pos.push(e.key_pos);
                         desc.lights.push(Light {
                             position: p,
                             color: Color::ONE,
@@ -809,8 +820,13 @@ impl Parser<'_> {
                 return None;
             }
         };
+        // The shape's own size comes first; a singular one is the size key's fault.
+        let size_at = entries
+            .iter()
+            .find(|e| e.key == "radius")
+            .map_or(b.pos, |e| e.key_pos);
         let transform =
-            self.transform(std::iter::once((TransformOp::Scale(own_scale), b.pos)).chain(steps));
+            self.transform(std::iter::once((TransformOp::Scale(own_scale), size_at)).chain(steps));
         if self.errors.len() > errors_before {
             return None;
         }
