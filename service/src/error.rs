@@ -119,3 +119,22 @@ pub async fn json_errors(req: Request, next: Next) -> Response {
     }
     out
 }
+
+/// Refuses a request whose `Content-Length` is over `limit` with `413` before reading any
+/// of its body. The body limit alone stops a body only once `limit` bytes of it have
+/// arrived: a request declaring 200 MB had 64 MB read (and held) before its `413`.
+pub async fn declared_length_within(limit: usize, req: Request, next: Next) -> Response {
+    let declared = req
+        .headers()
+        .get(axum::http::header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    match declared {
+        Some(n) if n > limit as u64 => ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("the body is {n} bytes; the limit is {limit}"),
+        )
+        .into_response(),
+        _ => next.run(req).await,
+    }
+}

@@ -158,6 +158,7 @@ pub enum ServiceError {
 pub fn router(state: AppState) -> Router {
     // A tile blob: the 20-byte header and at most 1024 × 1024 RGB pixels.
     let tile_limit = protocol_limit();
+    let body_limit = state.cfg.max_body_bytes;
     let worker_routes = Router::new()
         .route("/worker/claim", post(worker_api::claim))
         .route("/worker/jobs/{id}", get(worker_api::job))
@@ -173,6 +174,9 @@ pub fn router(state: AppState) -> Router {
             post(worker_api::release),
         )
         .layer(DefaultBodyLimit::max(tile_limit))
+        .route_layer(axum::middleware::from_fn(move |req, next| {
+            error::declared_length_within(tile_limit, req, next)
+        }))
         .route_layer(axum::middleware::from_fn_with_state(
             state.clone(),
             auth::require_worker_token,
@@ -181,6 +185,9 @@ pub fn router(state: AppState) -> Router {
         .route("/jobs", get(api::list_jobs).post(api::submit))
         .route("/jobs/{id}", get(api::get_job).delete(api::delete_job))
         .layer(DefaultBodyLimit::max(state.cfg.max_body_bytes))
+        .route_layer(axum::middleware::from_fn(move |req, next| {
+            error::declared_length_within(body_limit, req, next)
+        }))
         .route_layer(axum::middleware::from_fn_with_state(
             state.clone(),
             auth::require_submit_token,

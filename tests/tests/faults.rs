@@ -176,6 +176,28 @@ fn limits_refuse_oversized_input_and_store_nothing() {
     let r = post(huge);
     assert_eq!(r.status(), 413);
     assert!(r.json::<Value>().expect("JSON 413")["error"].is_string());
+    // A body declared over the limit is refused on its headers, before a byte of it is
+    // sent (the service had read up to the limit first): here none ever is.
+    for path in ["/jobs", "/worker/jobs/j/tiles/0?lease=l"] {
+        use std::io::{Read, Write};
+        let mut s =
+            std::net::TcpStream::connect(svc.url.trim_start_matches("http://")).expect("connect");
+        s.set_read_timeout(Some(Duration::from_secs(20)))
+            .expect("timeout");
+        let method = if path == "/jobs" { "POST" } else { "PUT" };
+        write!(
+            s,
+            "{method} {path} HTTP/1.1\r\nHost: x\r\nContent-Length: 200000000\r\n\r\n"
+        )
+        .expect("write");
+        let mut answer = [0u8; 512];
+        let n = s.read(&mut answer).expect("an answer without the body");
+        let answer = String::from_utf8_lossy(&answer[..n]);
+        assert!(
+            answer.starts_with("HTTP/1.1 413") && answer.contains("the limit is"),
+            "{path}: {answer}"
+        );
+    }
 
     let r = post(b"[GLOBALS]\nwidth = 200\nheight = 200\n[/GLOBALS]\n".to_vec());
     assert_eq!(r.status(), 400);
