@@ -703,12 +703,16 @@ impl Queue {
 
     /// Requeues tiles whose lease expired (one failure each, counted against their worker
     /// too) and fails jobs with a tile out of attempts. Returns the number of tiles requeued.
+    /// Tiles of a job that has ended (cancelled, failed) are left as they are: nothing will
+    /// hand them out, and their workers did nothing wrong.
     pub async fn reap(&self, now: i64, max_attempts: u32, keep: KeepAway) -> Result<u64> {
         let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
         sqlx::query(
             "INSERT INTO keep_away (job_id, worker, failures, until)
              SELECT job_id, worker, 1, 0 FROM tiles
              WHERE state = 'leased' AND lease_expires < ?1 AND worker IS NOT NULL
+               AND EXISTS (SELECT 1 FROM jobs
+                           WHERE id = tiles.job_id AND state IN ('queued', 'running'))
              ON CONFLICT (job_id, worker) DO UPDATE SET failures = failures + 1",
         )
         .bind(now)
@@ -718,7 +722,9 @@ impl Queue {
             "UPDATE tiles SET state = 'queued', failures = failures + 1,
                               last_error = 'lease lost: worker ' || COALESCE(worker, '?') || ' stopped answering',
                               lease = NULL, worker = NULL, lease_expires = NULL
-             WHERE state = 'leased' AND lease_expires < ?1",
+             WHERE state = 'leased' AND lease_expires < ?1
+               AND EXISTS (SELECT 1 FROM jobs
+                           WHERE id = tiles.job_id AND state IN ('queued', 'running'))",
         )
         .bind(now)
         .execute(&mut *tx)

@@ -587,6 +587,8 @@ async fn a_cancelled_jobs_leases_are_stale() {
         q.job("j").await.expect("read").expect("job").state,
         "cancelled"
     );
-    // Nothing requeued: no tile of it is handed out again.
+    // Nothing requeued: no tile of it is handed out again, nor counted as lost when its
+    // leases run out.
     assert!(q.claim("v", 20, 60_000, 3).await.expect("claim").is_none());
+    assert_eq!(q.reap(120_000, 3, KEEP).await.expect("reap"), 0);
 }

@@ -86,7 +86,7 @@ impl Sampler {
         let threshold = threshold
             .or(own_threshold)
             .unwrap_or(Self::DEFAULT_THRESHOLD);
-        Ok(match name.unwrap_or(self.name()) {
+        let out = match name.unwrap_or(self.name()) {
             "center" => Sampler::Center,
             "thesis" => Sampler::Thesis,
             "grid" => Sampler::Grid { n },
@@ -97,7 +97,21 @@ impl Sampler {
                     "unknown sampler `{other}`: expected center, thesis, grid, jitter or adaptive"
                 ));
             }
-        })
+        };
+        // As in a scene file, a setting the sampler does not use is an error, not ignored.
+        if samples.is_some() && matches!(out, Sampler::Center | Sampler::Thesis) {
+            return Err(format!(
+                "samples applies to the grid, jitter and adaptive samplers, not to {}",
+                out.name()
+            ));
+        }
+        if threshold.is_some() && !matches!(out, Sampler::Adaptive { .. }) {
+            return Err(format!(
+                "threshold applies to the adaptive sampler only, not to {}",
+                out.name()
+            ));
+        }
+        Ok(out)
     }
 
     /// The most primary rays one pixel can take.
@@ -905,6 +919,32 @@ mod tests {
         assert!(s.with_overrides(None, Some(33), None, 32).is_err());
         assert!(s.with_overrides(None, None, Some(f64::NAN), 32).is_err());
         assert!(s.with_overrides(Some("random"), None, None, 32).is_err());
+        // A setting the resulting sampler does not use is refused, whichever side named the
+        // sampler; a scene's own unused setting is not the user's doing and is dropped.
+        let unused = |r: Result<Sampler, String>, what: &str| {
+            let e = r.expect_err("an unused setting");
+            assert!(e.starts_with(what), "{e}");
+        };
+        unused(
+            Sampler::Center.with_overrides(None, Some(4), None, 32),
+            "samples",
+        );
+        unused(
+            s.with_overrides(Some("thesis"), Some(4), None, 32),
+            "samples",
+        );
+        unused(
+            Sampler::Jitter { n: 2 }.with_overrides(None, None, Some(0.1), 32),
+            "threshold",
+        );
+        unused(
+            s.with_overrides(Some("grid"), None, Some(0.1), 32),
+            "threshold",
+        );
+        assert_eq!(
+            s.with_overrides(Some("center"), None, None, 32),
+            Ok(Sampler::Center)
+        );
     }
 
     #[test]

@@ -759,3 +759,14 @@ fn errors_are_capped_with_a_count_of_the_rest() {
     assert_eq!((last.0, last.1), ((max + 2) as u32, 1));
     assert_eq!(last.2, "25 more errors from here on are not shown");
 }
+
+/// `[rayfile]` wraps the whole scene: anything after its close is an error, once, at the
+/// first thing after it (it used to be read as part of the scene).
+#[test]
+fn nothing_follows_the_rayfile_wrapper() {
+    let inside = "[rayfile]\n[GLOBALS]\nwidth = 8\n[/GLOBALS]\n[/rayfile]\n";
+    ok(inside);
+    ok(&format!("# a comment\n{inside}\n# another\n"));
+    let after = format!("{inside}[OBJECT]\ntype = sphere\n[/OBJECT]\nwidth = 9\n");
+    one_error(&after, 6, 1, &["after [/rayfile] (line 5)"]);
+}

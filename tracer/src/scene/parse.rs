@@ -139,7 +139,21 @@ fn build_tree(items: Vec<Item>, errors: &mut Vec<Diagnostic>, max_depth: usize) 
     let mut seen_rayfile = false;
     let mut seen_anything = false;
     let mut stopped = false;
+    // Where `[/rayfile]` closed the wrapper, until something after it has been reported.
+    let mut rayfile_closed: Option<Pos> = None;
     for item in items {
+        if let (Some(closed), Item::Tag { pos, .. } | Item::Entry { key_pos: pos, .. }) =
+            (rayfile_closed, &item)
+        {
+            errors.push(Diagnostic::new(
+                *pos,
+                format!(
+                    "the scene goes on after [/rayfile] (line {}), which must end it",
+                    closed.line
+                ),
+            ));
+            rayfile_closed = None;
+        }
         match item {
             Item::Tag {
                 close: false, pos, ..
@@ -224,6 +238,9 @@ fn build_tree(items: Vec<Item>, errors: &mut Vec<Diagnostic>, max_depth: usize) 
                     }
                 }
                 if let Some(done) = stack.pop() {
+                    if done.name == "rayfile" && stack.len() == 1 {
+                        rayfile_closed = Some(pos);
+                    }
                     attach(&mut stack, done);
                 }
             }
