@@ -316,9 +316,11 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     };
     let source = tessera_tracer::scene_text(scene_bytes).map_err(|e| scene_error(&e))?;
     if source.trim().is_empty() {
-        return Err(ApiError::bad_request(
-            "empty body: send the scene file (curl --data-binary @scene.ray)",
-        ));
+        return Err(ApiError::bad_request(if is_multipart {
+            "the `scene` part is empty: attach the scene file (curl -F scene=@scene.ray)"
+        } else {
+            "empty body: send the scene file (curl --data-binary @scene.ray)"
+        }));
     }
     let tile = params.tile.or(state.cfg.tile);
     if tile.is_some_and(|t| !(MIN_TILE..=MAX_TILE).contains(&t)) {

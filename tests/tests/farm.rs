@@ -233,6 +233,14 @@ fn bad_requests_get_json_errors_and_store_nothing() {
         .send()
         .expect("answer");
     refused(r, "twice");
+    // An empty scene part is named as such, with the multipart way to send one.
+    let empty = reqwest::blocking::multipart::Form::new().text("scene", "");
+    let r = http
+        .post(format!("{}/jobs", svc.url))
+        .multipart(empty)
+        .send()
+        .expect("answer");
+    refused(r, "curl -F scene=@");
     // A job name too long for a list or a file name, or with a line break in it.
     for name in ["n".repeat(256), "two%0Alines".to_string()] {
         let r = http
