@@ -82,6 +82,7 @@ impl Sampler {
             Sampler::Adaptive { max, threshold } => (Some(max), Some(threshold)),
             _ => (None, None),
         };
+        let (samples_named, threshold_named) = (samples.is_some(), threshold.is_some());
         let n = samples.or(own_n).unwrap_or(4);
         let threshold = threshold
             .or(own_threshold)
@@ -99,13 +100,13 @@ impl Sampler {
             }
         };
         // As in a scene file, a setting the sampler does not use is an error, not ignored.
-        if samples.is_some() && matches!(out, Sampler::Center | Sampler::Thesis) {
+        if samples_named && matches!(out, Sampler::Center | Sampler::Thesis) {
             return Err(format!(
                 "samples applies to the grid, jitter and adaptive samplers, not to {}",
                 out.name()
             ));
         }
-        if threshold.is_some() && !matches!(out, Sampler::Adaptive { .. }) {
+        if threshold_named && !matches!(out, Sampler::Adaptive { .. }) {
             return Err(format!(
                 "threshold applies to the adaptive sampler only, not to {}",
                 out.name()

@@ -767,6 +767,12 @@ fn nothing_follows_the_rayfile_wrapper() {
     let inside = "[rayfile]\n[GLOBALS]\nwidth = 8\n[/GLOBALS]\n[/rayfile]\n";
     ok(inside);
     ok(&format!("# a comment\n{inside}\n# another\n"));
-    let after = format!("{inside}[OBJECT]\ntype = sphere\n[/OBJECT]\nwidth = 9\n");
-    one_error(&after, 6, 1, &["after [/rayfile] (line 5)"]);
+    let after = format!("{inside}[OBJECT]\ntype = sphere\n[/OBJECT]\n[LIGHT]\n[/LIGHT]\n");
+    let errs = errors(&after);
+    let reported: Vec<_> = errs
+        .iter()
+        .filter(|e| e.2.contains("after [/rayfile] (line 5)"))
+        .map(|e| (e.0, e.1))
+        .collect();
+    assert_eq!(reported, [(6, 1)], "{errs:?}");
 }
