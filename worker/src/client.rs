@@ -79,6 +79,10 @@ impl Client {
         let http = reqwest::Client::builder()
             .connect_timeout(Duration::from_secs(5))
             .timeout(Duration::from_secs(120))
+            // Below the service's idle timeout (120 s by default, to be kept above 60), so
+            // that an idle connection is dropped here before the service closes it under a
+            // request about to be sent.
+            .pool_idle_timeout(Duration::from_secs(50))
             .build()
             .map_err(ClientError::Unreachable)?;
         Ok(Client { http, base, token })
