@@ -140,13 +140,14 @@ fn run(args: &Args) -> Result<()> {
 
     if !args.quiet {
         let rays = stats.total() as f64;
+        let threads = pool.current_num_threads();
         eprintln!(
-            "{}: {}×{} in {:.3} s on {} threads, {:.2} rays/pixel, {:.2} Mrays/s",
+            "{}: {}×{} in {:.3} s on {threads} thread{}, {:.2} rays/pixel, {:.2} Mrays/s",
             args.output.display(),
             scene.width,
             scene.height,
             elapsed.as_secs_f64(),
-            pool.current_num_threads(),
+            if threads == 1 { "" } else { "s" },
             rays / total as f64,
             rays / elapsed.as_secs_f64() / 1e6
         );
