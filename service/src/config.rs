@@ -2,7 +2,7 @@
 //! from them. Every limit has a safe default; `README.md` lists them all.
 
 use clap::Parser;
-use tessera_tracer::{Limits, TextureLimits};
+use tessera_tracer::{Limits, MAX_THREADS, TextureLimits};
 
 /// Primary rays a tile should carry when the service picks its size: some 70 ms of tracing
 /// (mirrors bench scene, one core of the bench machine), against about 2 ms of CPU that
@@ -48,7 +48,7 @@ pub struct Config {
     /// Workers run inside this process, over the same HTTP protocol, one thread each: 0 to
     /// 1024 (default: one per core).
     #[arg(long, env = "TESSERA_LOCAL_WORKERS",
-          value_parser = clap::value_parser!(u16).range(0..=i64::from(tessera_tracer::MAX_THREADS)))]
+          value_parser = clap::value_parser!(u16).range(0..=i64::from(MAX_THREADS)))]
     pub local_workers: Option<u16>,
     /// Bearer token the worker routes require (none: open).
     #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true)]

@@ -1,7 +1,7 @@
 //! The web page's script, run by Node (`tests/tests/page/page.js`) against a real service:
 //! the job list a page at a time, a submission through the form, a refused scene's position,
-//! cancel and delete, a scene file with its textures. Skipped, with a note, where `node` is not installed (`.ci/run` installs
-//! it).
+//! cancel and delete, a scene file with its textures. Skipped, with a note, where `node` is
+//! not installed (`.ci/run` installs it).
 
 mod common;
 

@@ -43,8 +43,9 @@ impl Default for TextureLimits {
 }
 
 /// Largest texture file [`DirAssets`] reads (it reads regular files only: a name can name
-/// `/dev/zero`, which has no end). 1 GiB is more than the largest texture the limits allow takes in any format (an
-/// ASCII PPM of 2²⁶ 16-bit texels is about 1.2 GB only with padding no writer adds).
+/// `/dev/zero`, which has no end). 1 GiB is more than the largest texture the limits allow
+/// takes in any format (an ASCII PPM of 2²⁶ 16-bit texels passes it only with padding no
+/// writer adds).
 pub const MAX_TEXTURE_FILE_BYTES: u64 = 1 << 30;
 
 /// Why a texture could not be used.
