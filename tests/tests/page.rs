@@ -1,6 +1,6 @@
 //! The web page's script, run by Node (`tests/tests/page/page.js`) against a real service:
 //! the job list a page at a time, a submission through the form, a refused scene's position,
-//! cancel and delete, a scene file with its textures. Skipped, with a note, where `node` is
+//! cancel and delete, a scene file with its textures, the workers heard from. Skipped, with a note, where `node` is
 //! not installed (`.ci/run` installs it).
 
 mod common;
@@ -80,6 +80,7 @@ fn the_page_lists_submits_and_deletes() {
     assert_eq!(
         steps,
         [
+            "workers",
             "newest page",
             "older pages",
             "submitted",

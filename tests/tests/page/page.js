@@ -133,6 +133,21 @@ async function main() {
   };
   const step = (name, facts) => console.log(JSON.stringify({ step: name, ...facts }));
 
+  // 0. No worker yet; one that claims a tile is listed by name, with its tiles done.
+  const workerRows = () => elements.workers.children.map((tr) => tr.children.map((td) => td.text));
+  assert.deepEqual(workerRows(), [["No worker heard from in the last ten minutes."]]);
+  const claim = await api("/worker/claim", {
+    method: "POST",
+    headers: { "Content-Type": "application/json" },
+    body: JSON.stringify({ worker: "page-test" }),
+  });
+  assert.equal(claim.status, 200);
+  run("refreshWorkers()");
+  await settle();
+  assert.equal(workerRows().length, 1);
+  assert.deepEqual(workerRows()[0].slice(0, 2), ["page-test", "0"]);
+  step("workers", { rows: workerRows().length });
+
   // 1. The newest page: PAGE rows, newest first, "older" offered, "newer" not.
   // How the list labels a job: its name and id, or its id alone.
   const label = (j) => (j.name ? `${j.name} (${j.id})` : j.id);
