@@ -292,6 +292,11 @@ pub struct SubmitParams {
 /// `POST /jobs`: the raw scene as the body, or multipart with a `scene` part and one part
 /// per asset named as the scene names it.
 pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Response, ApiError> {
+    if let Some(key) = req.uri().query().and_then(non_utf8_param) {
+        return Err(ApiError::bad_request(format!(
+            "query parameter `{key}` is not UTF-8 text once percent-decoded"
+        )));
+    }
     let params: SubmitParams = match Query::<SubmitParams>::try_from_uri(req.uri()) {
         Ok(Query(p)) => p,
         Err(e) => {
@@ -417,6 +422,22 @@ async fn read_multipart(
 
 /// Decodes `%XX` escapes; anything malformed is kept as written.
 fn percent_decode(s: &str) -> String {
+    String::from_utf8(percent_decode_bytes(s)).unwrap_or_else(|_| s.to_string())
+}
+
+/// The first query parameter whose value, percent-decoded, is not UTF-8. The query parser
+/// turns such bytes into U+FFFD without a word: `name=%ff` was stored as "�".
+fn non_utf8_param(query: &str) -> Option<&str> {
+    query.split('&').find_map(|pair| {
+        let (key, value) = pair.split_once('=').unwrap_or((pair, ""));
+        std::str::from_utf8(&percent_decode_bytes(value))
+            .is_err()
+            .then_some(key)
+    })
+}
+
+/// The bytes `%XX` escapes stand for; anything malformed is kept as written.
+fn percent_decode_bytes(s: &str) -> Vec<u8> {
     let b = s.as_bytes();
     let mut out = Vec::with_capacity(b.len());
     let mut i = 0;
@@ -433,7 +454,7 @@ fn percent_decode(s: &str) -> String {
             i += 1;
         }
     }
-    String::from_utf8(out).unwrap_or_else(|_| s.to_string())
+    out
 }
 
 /// Longest job or asset name, in bytes (a file name's usual limit: a job's name becomes the

@@ -241,8 +241,13 @@ fn bad_requests_get_json_errors_and_store_nothing() {
         .send()
         .expect("answer");
     refused(r, "curl -F scene=@");
-    // A job name too long for a list or a file name, or with a line break in it.
-    for name in ["n".repeat(256), "two%0Alines".to_string()] {
+    // A job name too long for a list or a file name, with a line break in it, or bytes
+    // that are not UTF-8 (it was stored with U+FFFD in their place).
+    for name in [
+        "n".repeat(256),
+        "two%0Alines".to_string(),
+        "caf%E9".to_string(),
+    ] {
         let r = http
             .post(format!("{}/jobs?name={name}", svc.url))
             .body(read("thesis.ray"))
