@@ -248,6 +248,14 @@ impl Queue {
                 .min_connections(1)
                 .idle_timeout(None)
                 .max_lifetime(None)
+                // A connection that comes back still inside a transaction is closed, not
+                // reused. A COMMIT that fails (a full disk) leaves sqlx counting a
+                // transaction that SQLite has already rolled back, and every later `BEGIN`
+                // on that connection failed ("non-zero transaction depth"): the queue
+                // stayed broken after the disk had room again.
+                .after_release(|conn, _| {
+                    Box::pin(async move { Ok(!sqlx::Connection::is_in_transaction(&*conn)) })
+                })
                 .connect_with(opts)
         };
         // The writer's connection keeps
@@ -503,8 +511,14 @@ impl Queue {
         .bind(now.saturating_add(lease_ms as i64))
         .bind(now)
         .bind(i64::from(max_attempts))
-        .fetch_optional(&self.writer)
-        .await?;
+        // To the statement's end, not its first row: SQLite commits an autocommit statement
+        // when it finishes, and a commit that fails (a full disk) must be this call's error,
+        // not lost in a reset after the row was taken (the claim was answered with a lease
+        // that was never stored).
+        .fetch_all(&self.writer)
+        .await?
+        .into_iter()
+        .next();
         let Some(row) = row else { return Ok(None) };
         let job: String = row.try_get(0)?;
         let claim = Claim {
@@ -552,8 +566,14 @@ impl Queue {
         .bind(i64::from(idx))
         .bind(lease)
         .bind(now.saturating_add(lease_ms as i64))
-        .fetch_optional(&self.writer)
-        .await?;
+        // To the statement's end, not its first row: SQLite commits an autocommit statement
+        // when it finishes, and a commit that fails (a full disk) must be this call's error,
+        // not lost in a reset after the row was taken (the claim was answered with a lease
+        // that was never stored).
+        .fetch_all(&self.writer)
+        .await?
+        .into_iter()
+        .next();
         Ok(worker.map(Option::unwrap_or_default))
     }
 
@@ -612,8 +632,14 @@ impl Queue {
         .bind(i64::from(rect.y))
         .bind(i64::from(rect.width))
         .bind(i64::from(rect.height))
-        .fetch_optional(&self.writer)
-        .await?;
+        // To the statement's end, not its first row: SQLite commits an autocommit statement
+        // when it finishes, and a commit that fails (a full disk) must be this call's error,
+        // not lost in a reset after the row was taken (the claim was answered with a lease
+        // that was never stored).
+        .fetch_all(&self.writer)
+        .await?
+        .into_iter()
+        .next();
         if let Some((done_before, total, worker)) = stored {
             self.wrote(rgb.len());
             // `RETURNING` is computed before the trigger counts this tile (see the migration).
@@ -704,12 +730,15 @@ impl Queue {
     /// Requeues tiles whose lease expired (one failure each, counted against their worker
     /// too) and fails jobs with a tile out of attempts. Returns the number of tiles requeued.
     /// Tiles of a job that has ended (cancelled, failed) are left as they are: nothing will
-    /// hand them out, and their workers did nothing wrong.
+    /// hand them out, and their workers did nothing wrong. A worker whose several leases of
+    /// one job run out together (the tile it renders and the one it holds ahead: one stall)
+    /// is counted once towards keeping it away, not once a tile: one pause of a lone worker
+    /// was two strikes, enough to fail the job.
     pub async fn reap(&self, now: i64, max_attempts: u32, keep: KeepAway) -> Result<u64> {
         let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
         sqlx::query(
             "INSERT INTO keep_away (job_id, worker, failures, until)
-             SELECT job_id, worker, 1, 0 FROM tiles
+             SELECT DISTINCT job_id, worker, 1, 0 FROM tiles
              WHERE state = 'leased' AND lease_expires < ?1 AND worker IS NOT NULL
                AND EXISTS (SELECT 1 FROM jobs
                            WHERE id = tiles.job_id AND state IN ('queued', 'running'))

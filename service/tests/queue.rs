@@ -592,3 +592,23 @@ async fn a_cancelled_jobs_leases_are_stale() {
     assert!(q.claim("v", 20, 60_000, 3).await.expect("claim").is_none());
     assert_eq!(q.reap(120_000, 3, KEEP).await.expect("reap"), 0);
 }
+
+/// Leases of one job that run out together (a worker's tile and the one it holds ahead: one
+/// stall) count once towards keeping the worker away: with keep-away after two, one stall
+/// of a lone worker no longer bars it from the job.
+#[tokio::test]
+async fn one_stall_is_one_strike() {
+    let db = Db::new("one-strike");
+    let q = Queue::open(&db.url()).await.expect("open");
+    job(&q, "j", 32, 8, 8).await;
+    for _ in 0..2 {
+        q.claim("w", 0, 1_000, 4)
+            .await
+            .expect("claim")
+            .expect("a tile");
+    }
+    assert_eq!(q.reap(5_000, 4, KEEP).await.expect("reap"), 2);
+    // Kept away after two strikes: had the two leases counted as two, `w` would get nothing.
+    let c = q.claim("w", 6_000, 1_000, 4).await.expect("claim");
+    assert!(c.is_some(), "one stall kept the worker away");
+}
