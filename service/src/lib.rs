@@ -357,10 +357,32 @@ fn spawn_local_workers(
 /// Requeues expired leases a few times per lease period.
 async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
     let every = Duration::from_millis((state.cfg.lease_ms / 4).clamp(25, 1000));
+    let mut last = std::time::Instant::now();
     loop {
         tokio::select! {
             _ = tokio::time::sleep(every) => {}
             _ = stop.wait_for(|s| *s) => return,
+        }
+        // A service that did not run for half a lease (suspended, frozen, its machine
+        // asleep) could not take the renewals its workers sent meanwhile: their leases ran
+        // out through no fault of theirs, and reaping them would count it against them (a
+        // 20 s freeze with 2 s leases failed a job). Give every lease a fresh term instead,
+        // as a restart does.
+        let paused = last.elapsed();
+        last = std::time::Instant::now();
+        if paused > Duration::from_millis(state.cfg.lease_ms / 2) + every {
+            match state
+                .queue
+                .extend_leases(now_ms(), state.cfg.lease_ms)
+                .await
+            {
+                Ok(n) => warn!(
+                    "the service did not run for {:.1} s: {n} leases extended, none reaped",
+                    paused.as_secs_f64()
+                ),
+                Err(e) => warn!("extending leases after a pause: {e}"),
+            }
+            continue;
         }
         match state
             .queue

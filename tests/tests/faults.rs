@@ -603,3 +603,47 @@ fn silent_connections_are_closed() {
     assert_eq!(job["state"], "queued");
     assert!(started.elapsed() >= Duration::from_secs(1));
 }
+
+/// A service that was itself suspended longer than a lease does not blame its workers for
+/// the renewals it could not take: it gives every lease a fresh term, and a worker's lease
+/// from before the pause is still good after it (it was reaped, and the tile handed out
+/// again, as if the worker had died).
+#[test]
+fn a_paused_service_extends_leases_instead_of_reaping_them() {
+    let dir = TempDir::new("paused");
+    let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "1000"]);
+    let id = svc.submit(&read("thesis.ray"), "?tile=64")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    let c: Value = svc.claim("w").json().expect("claim");
+    let pid = svc.pid().to_string();
+    let signal = |sig: &str| {
+        assert!(
+            std::process::Command::new("kill")
+                .args([sig, &pid])
+                .status()
+                .expect("kill runs")
+                .success()
+        );
+    };
+    signal("-STOP");
+    // The pause itself: three leases long.
+    std::thread::sleep(Duration::from_secs(3));
+    signal("-CONT");
+    wait_until(
+        "the service to notice its pause",
+        Duration::from_secs(20),
+        || svc.log().contains("leases extended, none reaped"),
+    );
+    let renewed = client()
+        .post(format!(
+            "{}/worker/jobs/{id}/tiles/{}/renew?lease={}",
+            svc.url,
+            c["idx"],
+            c["lease"].as_str().expect("lease")
+        ))
+        .send()
+        .expect("answer");
+    assert_eq!(renewed.status(), 200, "{}", svc.log());
+}
