@@ -186,6 +186,12 @@ fn bad_requests_get_json_errors_and_store_nothing() {
             .send()
             .expect("answer")
     };
+    let post_form = |form: reqwest::blocking::multipart::Form| {
+        http.post(format!("{}/jobs", svc.url))
+            .multipart(form)
+            .send()
+            .expect("answer")
+    };
 
     // A misspelt key: 400 with its line and column.
     let e = refused(
@@ -227,20 +233,10 @@ fn bad_requests_get_json_errors_and_store_nothing() {
     let two = reqwest::blocking::multipart::Form::new()
         .text("scene", read("thesis.ray"))
         .text("scene", read("checker.ray"));
-    let r = http
-        .post(format!("{}/jobs", svc.url))
-        .multipart(two)
-        .send()
-        .expect("answer");
-    refused(r, "twice");
+    refused(post_form(two), "twice");
     // An empty scene part is named as such, with the multipart way to send one.
     let empty = reqwest::blocking::multipart::Form::new().text("scene", "");
-    let r = http
-        .post(format!("{}/jobs", svc.url))
-        .multipart(empty)
-        .send()
-        .expect("answer");
-    refused(r, "curl -F scene=@");
+    refused(post_form(empty), "curl -F scene=@");
     // A job name too long for a list or a file name, with a line break in it, or bytes
     // that are not UTF-8 (it was stored with U+FFFD in their place).
     for name in [

@@ -234,7 +234,18 @@ impl Texture {
         bytes: &[u8],
         limits: &TextureLimits,
     ) -> Result<Texture, TextureError> {
-        let (w, h) = Self::dimensions(name, bytes, limits)?;
+        let size = Self::dimensions(name, bytes, limits)?;
+        Self::decode_sized(name, bytes, limits, size)
+    }
+
+    /// [`Self::decode`] for a caller that has the size from [`Self::dimensions`] already
+    /// (the scene's texture budget needs it before decoding), so the header is read once.
+    pub(crate) fn decode_sized(
+        name: &str,
+        bytes: &[u8],
+        limits: &TextureLimits,
+        (w, h): (u32, u32),
+    ) -> Result<Texture, TextureError> {
         let mut reader = reader(name, bytes)?;
         let mut decoder_limits = image::Limits::default();
         decoder_limits.max_image_width = Some(limits.max_dimension);

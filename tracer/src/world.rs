@@ -487,7 +487,7 @@ impl Scene {
                     });
                 }
                 total += texels;
-                Texture::decode(name, &bytes, texture_limits)
+                Texture::decode_sized(name, &bytes, texture_limits, (w, h))
             });
             match loaded {
                 Ok(t) => {
