@@ -223,6 +223,76 @@ pub fn run(args: &Args) -> Result<()> {
     for layout in layouts {
         scaling(args, layout, repeats)?;
     }
+    if args.layout.is_none() && args.sizes.is_empty() {
+        csg_union(args, repeats)?;
+    }
+    Ok(())
+}
+
+/// The cloud's spheres as one flat CSG union: per-ray cost with the tree's child index
+/// (see `tessera_tracer::csg`), with the plain loop over its children, and of the same
+/// spheres as separate objects (the scene's BVH), so that the table shows what the index
+/// gains and what a union still costs over separate objects. The images with and without
+/// the index are compared byte for byte.
+fn csg_union(args: &Args, repeats: usize) -> Result<()> {
+    let (w, h) = if args.quick { (48, 36) } else { (160, 120) };
+    let sizes: &[usize] = if args.quick {
+        &[16, 256]
+    } else {
+        &[16, 256, 1024, 4096, 16384]
+    };
+    // The loop's cost grows with N per ray: measured once, and only up to here.
+    let loop_up_to = if args.quick { 256 } else { 4096 };
+    println!();
+    println!("CSG union of the cloud's N spheres (one [CSG] op = union), {w}x{h}, one thread:");
+    println!(
+        "{:>6} {:>10} {:>14} {:>12} {:>11} {:>15} {:>10}",
+        "N", "rays", "indexed ns/ray", "loop ns/ray", "loop/index", "objects ns/ray", "union/obj"
+    );
+    for &n in sizes {
+        let objects = spheres_scene(Layout::Cloud, n, w, h);
+        // The plane comes first, then the spheres: wrap the spheres.
+        let first = objects
+            .find("[OBJECT]\ntype = sphere")
+            .context("the cloud scene has no sphere")?;
+        let union = format!(
+            "{}[CSG]\nop = union\n{}[/CSG]\n",
+            &objects[..first],
+            &objects[first..]
+        );
+        let build = |src: &str| {
+            Scene::from_source(
+                src,
+                &Limits::default(),
+                &MemoryAssets::new(),
+                &TextureLimits::default(),
+            )
+            .map_err(|e| anyhow::anyhow!("{n} spheres: {e}"))
+        };
+        let full = Rect::full(w, h);
+        let indexed = build(&union)?;
+        let (secs, stats) = time_render(&indexed, full, repeats);
+        let ns = secs * 1e9 / stats.total() as f64;
+        let (plain, gain) = if n <= loop_up_to {
+            let plain = indexed.clone().without_acceleration();
+            let (lsecs, lstats) = time_render(&plain, full, 1);
+            anyhow::ensure!(
+                plain.render_rect_linear(full).0 == indexed.render_rect_linear(full).0,
+                "{n} spheres: the union's image differs with and without its index"
+            );
+            let lns = lsecs * 1e9 / lstats.total() as f64;
+            (format!("{lns:.0}"), format!("{:.1}", lns / ns))
+        } else {
+            ("-".to_string(), "-".to_string())
+        };
+        let (osecs, ostats) = time_render(&build(&objects)?, full, repeats);
+        let ons = osecs * 1e9 / ostats.total() as f64;
+        println!(
+            "{n:>6} {:>10} {ns:>14.0} {plain:>12} {gain:>11} {ons:>15.0} {:>10.1}",
+            stats.total(),
+            ns / ons
+        );
+    }
     Ok(())
 }
 

@@ -278,7 +278,7 @@ pub const BVH_MIN_PRIMS: usize = 8;
 
 /// ... or when testing every bounded prim costs at least as much as testing
 /// [`BVH_MIN_PRIMS`] similarity spheres ([`prim_cost`] units: such a sphere 1, another
-/// object 2, a CSG tree 2 per child). A few expensive solids gain from a BVH long before
+/// object 2, a CSG tree 2 per child it may evaluate, see [`Csg::cost`]). A few expensive solids gain from a BVH long before
 /// eight do: measured with callgrind on `tessera-bench tracer` scenes, four general shapes
 /// (`examples/shapes.ray`, cost 8) 1.94 G → 0.87 G instructions, the CSG example 1.88 G →
 /// 1.54 G, the CSG bench scene 111.5 M → 95.5 M; scenes of one or two solids (cost ≤ 4)
@@ -290,12 +290,15 @@ pub const BVH_MIN_COST: f64 = BVH_MIN_PRIMS as f64 * SPHERE_COST;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Acceleration {
     /// A BVH when there are at least [`BVH_MIN_PRIMS`] bounded prims or their cost is at
-    /// least [`BVH_MIN_COST`], else every prim.
+    /// least [`BVH_MIN_COST`], else every prim; an index in each union or difference with
+    /// at least [`crate::csg::CSG_INDEX_MIN`] children to index.
     #[default]
     Auto,
-    /// Every prim, in order, for every ray (the reference the BVH is checked against).
+    /// Every prim, in order, for every ray, and every CSG child in order (the reference
+    /// the BVH and the CSG indices are checked against).
     Off,
-    /// A BVH whenever there is at least one bounded prim.
+    /// A BVH whenever there is at least one bounded prim, and an index in every union and
+    /// difference.
     Always,
 }
 
@@ -326,7 +329,7 @@ fn prim_cost(prim: &Prim, objects: &[Object]) -> f64 {
     match prim {
         Prim::Object(o) if objects[*o as usize].sphere.is_some() => SPHERE_COST,
         Prim::Object(_) => 2.0,
-        Prim::Csg(c) => 2.0 * c.children.len() as f64,
+        Prim::Csg(c) => c.cost(),
     }
 }
 
@@ -518,6 +521,18 @@ impl Scene {
     /// lights found again, see [`crate::shadow`]). The images are the same whatever the
     /// mode; tests and benchmarks use [`Acceleration::Off`] as the reference.
     pub fn with_acceleration(mut self, mode: Acceleration) -> Scene {
+        // CSG nodes with many children carry their own index (see `crate::csg`): kept at its
+        // threshold by `Auto`, on every union and difference by `Always`, none with `Off`.
+        let min = match mode {
+            Acceleration::Auto => crate::csg::CSG_INDEX_MIN,
+            Acceleration::Always => 1,
+            Acceleration::Off => usize::MAX,
+        };
+        for prim in &mut self.prims {
+            if let Prim::Csg(c) = prim {
+                c.index_children(min);
+            }
+        }
         self.accel = Accel::new(&self.prims, &self.objects, mode);
         self.clear_lights =
             ClearLights::find(&self.objects, &self.prims, &self.lights, self.accel.bvh());

@@ -349,3 +349,106 @@ fn few_prims_stay_linear() {
     assert!(!common::scene(&(three.clone() + sphere)).uses_bvh());
     assert!(common::scene(&(three + &cube(9))).uses_bvh());
 }
+
+/// A union or difference of many children: random objects of every shape, exact copies
+/// (coincident surfaces, which the sweep merges), a nested tree, and sometimes a plane
+/// (a child with no box). Big enough for the tree's child index.
+fn big_csg(rng: &mut Rng, op: &str, n: usize, extent: f64, plane: bool) -> String {
+    let mut kids: Vec<String> = Vec::new();
+    if op == "difference" {
+        kids.push(format!(
+            "[OBJECT]\ntype = cube\nscale = {extent}\ncolor1 = <0.4, 0.6, 0.8>\n[/OBJECT]\n"
+        ));
+    }
+    for i in 0..n {
+        let kid = match rng.below(12) {
+            0 if kids.len() > 1 => kids[1 + rng.below(kids.len() as u64 - 1) as usize].clone(),
+            1 => format!(
+                "[CSG]\nop = union\ntranslate = {}\n{}{}[/CSG]\n",
+                v(rng.vec(extent)),
+                object(rng, 0.5),
+                object(rng, 0.5)
+            ),
+            _ => object(rng, extent),
+        };
+        kids.push(kid);
+        if plane && i == n / 2 {
+            kids.push("[OBJECT]\ntype = plane\ntranslate = <0, -3, 0>\n[/OBJECT]\n".into());
+        }
+    }
+    format!(
+        "[CSG]\nop = {op}\nrotate = {}\n{}[/CSG]\n",
+        v(rng.vec(30.0)),
+        kids.concat()
+    )
+}
+
+/// A CSG tree with many children finds them through its index (see `tessera_tracer::csg`),
+/// and answers exactly as the plain loop over its children: the nearest hit and the any-hit
+/// answer for awkward rays, and whole images, bit for bit.
+#[test]
+fn big_csg_trees_answer_the_same_with_and_without_their_index() {
+    let mut rng = Rng(4242);
+    let (mut hits, mut blocked, mut rays) = (0, 0, 0);
+    for (round, (op, n, plane)) in [
+        ("union", 60, false),
+        ("union", 200, true),
+        ("difference", 80, false),
+        ("difference", 150, true),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let extent = 4.0;
+        let src = format!(
+            "[GLOBALS]\nwidth = 48\nheight = 36\nshadow = 0.7\n[/GLOBALS]\n\
+             [CAMERA]\neye = <2, 4, 12>\nfov = 60\n[/CAMERA]\n\
+             [LIGHT]\nposition = <10, 20, 15>\n[/LIGHT]\n{}{}",
+            big_csg(&mut rng, op, n, extent, plane),
+            object(&mut rng, extent)
+        );
+        let indexed = common::scene(&src);
+        let plain = indexed.clone().without_acceleration();
+        let root = |s: &Scene| match &s.prims[0] {
+            tessera_tracer::csg::Prim::Csg(c) => c.is_indexed(),
+            tessera_tracer::csg::Prim::Object(_) => panic!("round {round}: no tree first"),
+        };
+        assert!(root(&indexed) && !root(&plain), "round {round}");
+        for _ in 0..1500 {
+            let r = random_ray(&mut rng, &plain, extent);
+            let t_max = match rng.below(3) {
+                0 => rng.range(0.0, 3.0),
+                _ => f64::INFINITY,
+            };
+            let (a, b) = (
+                plain.intersect(&r, t_max, None),
+                indexed.intersect(&r, t_max, None),
+            );
+            assert_eq!(
+                a.map(|h| (h.object, h.local)),
+                b.map(|h| (h.object, h.local)),
+                "round {round}: {r:?}, t_max {t_max}\n{src}"
+            );
+            let occluded = plain.occluded(&r, t_max, None);
+            assert_eq!(
+                occluded,
+                indexed.occluded(&r, t_max, None),
+                "round {round}: {r:?}"
+            );
+            rays += 1;
+            hits += usize::from(a.is_some());
+            blocked += usize::from(occluded);
+        }
+        let rect = Rect::full(indexed.width, indexed.height);
+        let ((a, sa), (b, sb)) = (
+            indexed.render_rect_stats(rect),
+            plain.render_rect_stats(rect),
+        );
+        assert_eq!(sa, sb, "round {round}: ray counts differ");
+        assert!(a == b, "round {round}: images differ");
+    }
+    assert!(
+        hits > rays / 4 && blocked > rays / 4,
+        "{hits} hits, {blocked} blocked of {rays}"
+    );
+}
