@@ -457,10 +457,17 @@ fn tile_blobs_are_checked_before_they_are_stored() {
     long.push(0);
     assert_eq!(put(lease, encode_tile(rect, &long)).status(), 422, "long");
     let other = Rect::new(rect.x + 32, rect.y, rect.width, rect.height);
-    assert_eq!(
-        put(lease, encode_tile(other, &good)).status(),
-        422,
-        "wrong tile"
+    let wrong = put(lease, encode_tile(other, &good));
+    assert_eq!(wrong.status(), 422, "wrong tile");
+    // Both rectangles, as a person reads them (size, then the top-left pixel).
+    let message = wrong.json::<Value>().expect("json")["error"]
+        .as_str()
+        .expect("message")
+        .to_string();
+    let shown = |r: Rect| format!("{}×{} at ({}, {})", r.width, r.height, r.x, r.y);
+    assert!(
+        message.contains(&shown(other)) && message.contains(&shown(rect)),
+        "{message}"
     );
     assert_eq!(put(lease, b"garbage".to_vec()).status(), 422, "no header");
     assert_eq!(

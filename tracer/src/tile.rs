@@ -12,6 +12,13 @@ pub struct Rect {
     pub height: u32,
 }
 
+/// `64×32 at (128, 0)`: the size, and the top-left pixel (column, row), as messages show it.
+impl std::fmt::Display for Rect {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}×{} at ({}, {})", self.width, self.height, self.x, self.y)
+    }
+}
+
 impl Rect {
     pub const fn new(x: u32, y: u32, width: u32, height: u32) -> Rect {
         Rect {

@@ -95,7 +95,7 @@ pub fn encode_tile(rect: Rect, rgb: &[u8]) -> Vec<u8> {
 pub enum BlobError {
     #[error("tile blob does not start with the TSR1 header")]
     BadMagic,
-    #[error("tile blob is for tile {got:?}, but this lease is for {expected:?}")]
+    #[error("tile blob is for the tile {got}, but this lease is for the tile {expected}")]
     WrongTile { expected: Rect, got: Rect },
     #[error("tile blob holds {got} pixel bytes; a {w}×{h} tile needs {expected}")]
     WrongLength {
