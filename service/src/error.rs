@@ -123,6 +123,11 @@ pub async fn json_errors(req: Request, next: Next) -> Response {
 /// Refuses a request whose `Content-Length` is over `limit` with `413` before reading any
 /// of its body. The body limit alone stops a body only once `limit` bytes of it have
 /// arrived: a request declaring 200 MB had 64 MB read (and held) before its `413`.
+///
+/// A body that declares no length (chunked) is stopped by the body limit once it passes
+/// it; that `413` comes from axum's extractor ("length limit exceeded"), and is answered
+/// here with the same kind of message as a declared one, so that a client sees the limit
+/// either way. (No handler on these routes answers `413` for anything else.)
 pub async fn declared_length_within(limit: usize, req: Request, next: Next) -> Response {
     let declared = req
         .headers()
@@ -135,6 +140,17 @@ pub async fn declared_length_within(limit: usize, req: Request, next: Next) -> R
             format!("the body is {n} bytes; the limit is {limit}"),
         )
         .into_response(),
-        _ => next.run(req).await,
+        _ => {
+            let resp = next.run(req).await;
+            if resp.status() == StatusCode::PAYLOAD_TOO_LARGE {
+                ApiError::new(
+                    StatusCode::PAYLOAD_TOO_LARGE,
+                    format!("the body is over the limit of {limit} bytes"),
+                )
+                .into_response()
+            } else {
+                resp
+            }
+        }
     }
 }

@@ -198,6 +198,43 @@ fn limits_refuse_oversized_input_and_store_nothing() {
             "{path}: {answer}"
         );
     }
+    // A chunked body (no declared length) one byte over the limit: the same kind of JSON
+    // message with the limit in it, not the extractor's "length limit exceeded". Exactly
+    // limit + 1 bytes are sent, so the service has read all of them when it answers (unread
+    // bytes at its close could reset the connection before the answer is read).
+    let tile_limit = tessera_service::protocol_limit();
+    for (method, path, limit) in [
+        ("POST", "/jobs", 1_048_576usize),
+        ("PUT", "/worker/jobs/j/tiles/0?lease=l", tile_limit),
+    ] {
+        use std::io::{Read, Write};
+        let mut s =
+            std::net::TcpStream::connect(svc.url.trim_start_matches("http://")).expect("connect");
+        s.set_read_timeout(Some(Duration::from_secs(20)))
+            .expect("timeout");
+        write!(
+            s,
+            "{method} {path} HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n"
+        )
+        .expect("write");
+        let chunk = vec![b'#'; 65536];
+        let mut left = limit + 1;
+        while left > 0 {
+            let n = left.min(chunk.len());
+            write!(s, "{n:x}\r\n").expect("write");
+            s.write_all(&chunk[..n]).expect("write");
+            s.write_all(b"\r\n").expect("write");
+            left -= n;
+        }
+        let mut answer = Vec::new();
+        let _ = s.read_to_end(&mut answer);
+        let answer = String::from_utf8_lossy(&answer);
+        assert!(
+            answer.starts_with("HTTP/1.1 413")
+                && answer.contains(&format!("over the limit of {limit} bytes")),
+            "{path}: {answer}"
+        );
+    }
 
     let r = post(b"[GLOBALS]\nwidth = 200\nheight = 200\n[/GLOBALS]\n".to_vec());
     assert_eq!(r.status(), 400);

@@ -15,7 +15,11 @@ pub struct Rect {
 /// `64×32 at (128, 0)`: the size, and the top-left pixel (column, row), as messages show it.
 impl std::fmt::Display for Rect {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}×{} at ({}, {})", self.width, self.height, self.x, self.y)
+        write!(
+            f,
+            "{}×{} at ({}, {})",
+            self.width, self.height, self.x, self.y
+        )
     }
 }
 
