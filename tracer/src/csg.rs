@@ -755,11 +755,14 @@ fn sweep(op: CsgOp, n: usize, ev_start: usize, scale: f64, scratch: &mut Scratch
     }
     // Stable: a child's own end points keep their order when equal.
     events.sort_by(|a, b| a.t.total_cmp(&b.t));
-    // Every entry is false between sweeps (each sweep clears those its events set, below),
-    // so only growth needs filling: clearing all `n` per ray cost a union of 16,384
-    // children some 16 KB of stores for the few dozen it met.
+    // Only the flags of children with events here are ever read, so only they are
+    // cleared: clearing all `n` per ray cost a union of 16,384 children some 16 KB of
+    // stores for the few dozen it met.
     if inside.len() < n {
         inside.resize(n, false);
+    }
+    for e in events.iter() {
+        inside[e.child as usize] = false;
     }
     // Children inside: all of them for union and intersection; the cutters for difference.
     let mut count = 0usize;
@@ -828,9 +831,6 @@ fn sweep(op: CsgOp, n: usize, ev_start: usize, scale: f64, scratch: &mut Scratch
                 surface: enter.surface,
             },
         });
-    }
-    for e in events.iter() {
-        inside[e.child as usize] = false;
     }
 }
 
