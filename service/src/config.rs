@@ -17,6 +17,10 @@ pub const MIN_AUTO_TILES: u64 = 16;
 /// The tile edges the service picks from.
 pub const AUTO_TILE_RANGE: (u32, u32) = (32, 256);
 
+/// Shortest lease a service hands out, in milliseconds: workers renew at a third of it,
+/// and below this a round trip could outlast the renewal interval.
+pub const MIN_LEASE_MS: u64 = 100;
+
 /// The tile edge for a `width × height` job whose pixels cost at least `rays_per_pixel`
 /// primary rays, when neither the job nor `--tile` sets one: the smallest power of two whose
 /// tile carries [`TILE_RAYS`], then halved while the job would have fewer than
@@ -60,19 +64,23 @@ pub struct Config {
     /// Accept jobs from anyone even when listening beyond loopback without --submit-token.
     #[arg(long, env = "TESSERA_OPEN_SUBMIT")]
     pub open_submit: bool,
-    /// Tile edge in pixels for jobs that do not ask with `?tile=`; by default the service
-    /// picks one per job from its size and samples per pixel.
-    #[arg(long, env = "TESSERA_TILE")]
+    /// Tile edge in pixels (8 to 1024) for jobs that do not ask with `?tile=`; by default
+    /// the service picks one per job from its size and samples per pixel.
+    #[arg(long, env = "TESSERA_TILE",
+          value_parser = clap::value_parser!(u32)
+              .range(i64::from(crate::api::MIN_TILE)..=i64::from(crate::api::MAX_TILE)))]
     pub tile: Option<u32>,
     /// Seconds the local workers keep rendering the tiles they hold after SIGINT/SIGTERM
     /// before giving them back (as `tessera-worker --grace-secs`).
     #[arg(long, env = "TESSERA_GRACE_SECS", default_value_t = 30)]
     pub grace_secs: u64,
-    /// Lease length in milliseconds; workers renew at a third of it.
-    #[arg(long, env = "TESSERA_LEASE_MS", default_value_t = 30_000)]
+    /// Lease length in milliseconds (at least 100); workers renew at a third of it.
+    #[arg(long, env = "TESSERA_LEASE_MS", default_value_t = 30_000,
+          value_parser = clap::value_parser!(u64).range(MIN_LEASE_MS..))]
     pub lease_ms: u64,
-    /// Failures (reported, or leases lost) after which a tile fails its job.
-    #[arg(long, env = "TESSERA_MAX_ATTEMPTS", default_value_t = 4)]
+    /// Failures (reported, or leases lost) after which a tile fails its job (at least 1).
+    #[arg(long, env = "TESSERA_MAX_ATTEMPTS", default_value_t = 4,
+          value_parser = clap::value_parser!(u32).range(1..))]
     pub max_attempts: u32,
     /// Failures of one worker on one job after which it is kept away from the job.
     #[arg(long, env = "TESSERA_KEEP_AWAY_AFTER", default_value_t = 2)]
@@ -93,7 +101,8 @@ pub struct Config {
     /// queue's only writer, so no claim or result of another job is stored meanwhile (about
     /// 0.5 s for 65,536 tiles); a job asking for more is refused with the smallest tile edge
     /// that would do.
-    #[arg(long, env = "TESSERA_MAX_TILES", default_value_t = 65_536)]
+    #[arg(long, env = "TESSERA_MAX_TILES", default_value_t = 65_536,
+          value_parser = clap::value_parser!(u64).range(1..))]
     pub max_tiles: u64,
     /// Most objects in a scene, CSG children included.
     #[arg(long, env = "TESSERA_MAX_OBJECTS", default_value_t = 100_000)]

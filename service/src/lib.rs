@@ -255,9 +255,17 @@ pub async fn serve(
             "--max-tiles must be at least 1".into(),
         ));
     }
-    if cfg.lease_ms < 100 || cfg.max_attempts == 0 {
+    // The command line refuses these already (clap ranges); a `Config` built in code is
+    // checked here.
+    if cfg.lease_ms < config::MIN_LEASE_MS {
+        return Err(ServiceError::Config(format!(
+            "--lease-ms must be at least {}",
+            config::MIN_LEASE_MS
+        )));
+    }
+    if cfg.max_attempts == 0 {
         return Err(ServiceError::Config(
-            "--lease-ms must be at least 100 and --max-attempts at least 1".into(),
+            "--max-attempts must be at least 1".into(),
         ));
     }
     let queue = Queue::open(&cfg.database).await?;

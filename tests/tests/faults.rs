@@ -462,6 +462,33 @@ fn thread_counts_are_bounded() {
     refused(WORKER, &["--threads", "0"], "--threads");
 }
 
+/// The service's numeric flags out of range exit with status 2 and clap's message naming
+/// the flag and its range, as the README says of every flag (they exited 1 with a message
+/// of the service's own, one message for two flags).
+#[test]
+fn service_flags_out_of_range_are_usage_errors() {
+    let dir = TempDir::new("flags");
+    let db = format!("sqlite://{}", dir.path().join("t.db").display());
+    for (flag, value, range) in [
+        ("--tile", "7", "8..=1024"),
+        ("--tile", "2000", "8..=1024"),
+        ("--lease-ms", "99", "100.."),
+        ("--max-attempts", "0", "1.."),
+        ("--max-tiles", "0", "1.."),
+    ] {
+        let out = std::process::Command::new(SERVICE)
+            .args([flag, value, "--local-workers", "0", "--database", &db])
+            .output()
+            .expect("runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{flag} {value}: {stderr}");
+        assert!(
+            stderr.contains(flag) && stderr.contains(range),
+            "{flag} {value}: {stderr}"
+        );
+    }
+}
+
 #[test]
 fn tile_blobs_are_checked_before_they_are_stored() {
     let dir = TempDir::new("blobs");
