@@ -37,6 +37,8 @@ pub enum QueueError {
     Migrate(#[from] sqlx::migrate::MigrateError),
     #[error("bad database URL `{url}`: {reason}")]
     Url { url: String, reason: String },
+    #[error("cannot open the database `{url}`: {source} (its folder must exist and be writable)")]
+    Open { url: String, source: sqlx::Error },
 }
 
 type Result<T> = std::result::Result<T, QueueError>;
@@ -228,6 +230,19 @@ impl Queue {
     /// Opens (creating if missing) the database at `url` (`sqlite://path`, or
     /// `sqlite::memory:`) and brings its schema up to date.
     pub async fn open(url: &str) -> Result<Queue> {
+        // sqlx reads any other scheme as a file name ("unable to open database file"). A bare
+        // path (`tessera.db`) is a SQLite file, as it always was.
+        if url
+            .split_once("://")
+            .is_some_and(|(scheme, _)| scheme != "sqlite")
+        {
+            return Err(QueueError::Url {
+                url: url.to_string(),
+                reason: "the queue is SQLite only: give sqlite://PATH (for example \
+                         sqlite://tessera.db, or sqlite:///var/lib/tessera/queue.db)"
+                    .into(),
+            });
+        }
         let opts = SqliteConnectOptions::from_str(url)
             .map_err(|e| QueueError::Url {
                 url: url.to_string(),
@@ -273,7 +288,12 @@ impl Queue {
             .clone()
             .pragma("cache_size", "-16384")
             .pragma("wal_autocheckpoint", WRITER_CHECKPOINT_PAGES.to_string());
-        let writer = connect(1, writer_opts).await?;
+        let writer = connect(1, writer_opts)
+            .await
+            .map_err(|source| QueueError::Open {
+                url: url.to_string(),
+                source,
+            })?;
         MIGRATOR.run(&writer).await?;
         // An in-memory database exists once per connection: it has only the writer's.
         let pool = if in_memory {
@@ -1046,5 +1066,36 @@ mod tests {
         let plan: Vec<String> = rows.into_iter().map(|r| r.3).collect();
         assert!(plan.iter().any(|d| d.contains("tiles_by_band")), "{plan:?}");
         assert!(!plan.iter().any(|d| d.contains("B-TREE")), "{plan:?}");
+    }
+
+    /// A database the queue cannot use says which and why: another scheme is refused as
+    /// not SQLite (sqlx took it for a file name), a file in a missing folder names the URL;
+    /// a bare path is still a SQLite file.
+    #[tokio::test]
+    async fn a_database_that_cannot_be_opened_is_named() {
+        for url in ["postgres://u@h/db", "bogus://x"] {
+            match Queue::open(url).await {
+                Err(e @ QueueError::Url { .. }) => {
+                    let m = e.to_string();
+                    assert!(m.contains(url) && m.contains("sqlite://PATH"), "{m}");
+                }
+                other => panic!("{url}: {:?}", other.err()),
+            }
+        }
+        let dir = std::env::temp_dir().join(format!("tessera-open-{}", std::process::id()));
+        let missing = format!("sqlite://{}/no-such-folder/q.db", dir.display());
+        match Queue::open(&missing).await {
+            Err(e @ QueueError::Open { .. }) => {
+                assert!(e.to_string().contains(&missing), "{e}");
+            }
+            other => panic!("{missing}: {:?}", other.err()),
+        }
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        let bare = dir.join("q.db");
+        let q = Queue::open(&bare.display().to_string()).await;
+        assert!(q.is_ok(), "{:?}", q.err());
+        assert!(bare.exists());
+        drop(q);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
