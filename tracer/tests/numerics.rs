@@ -343,7 +343,9 @@ fn a_checkered_plane_at_y_zero_has_no_noise_along_its_cells() {
 /// pocket 0.05 deep cut into a cube (a difference), two overlapping spheres of different
 /// colours (a union: the nearer surface must show its own colour), a rotated cube minus a
 /// sphere it does not touch (whose silhouette must be the cube's), under a light that
-/// skims the cube's top. Everything sits at `offset` plus integer coordinates, so moving
+/// skims the cube's top, and a rotated cube notched by a cutter whose face lies on the
+/// cube's own (coincident faces, which must still merge far away: no speck of the cube's
+/// face may show in the notch). Everything sits at `offset` plus integer coordinates, so moving
 /// the scene changes no coordinate but the offset's, exactly.
 fn csg_scene(offset: f64) -> String {
     let at = |x: i64, y: i64, z: i64| format!("<{}, {}, {}>", offset + x as f64, y, z);
@@ -353,19 +355,24 @@ fn csg_scene(offset: f64) -> String {
          [LIGHT]\nposition = {}\n[/LIGHT]\n\
          [CSG]\nop = difference\ntranslate = {}\n\
          [OBJECT]\ntype = cube\ncolor1 = <1, 0.5, 0>\n[/OBJECT]\n\
-         [OBJECT]\ntype = cube\nscale = <0.5, 0.5, 1>\ntranslate = <0, 0, 1.95>\ncolor1 = <0, 1, 1>\n[/OBJECT]\n[/CSG]\n\
+         [OBJECT]\ntype = cube\nscale = <0.5, 0.5, 1>\ntranslate = <0, 0, 1.95>\ncolor1 = <0, 1, 1>\n[/OBJECT]\n\
+         [/CSG]\n\
          [CSG]\nop = union\ntranslate = {}\n\
          [OBJECT]\ntype = sphere\ntranslate = <-0.3, 0, 0>\ncolor1 = <0.2, 0.9, 0.2>\n[/OBJECT]\n\
          [OBJECT]\ntype = sphere\ntranslate = <0.3, 0, 0.05>\ncolor1 = <0.2, 0.2, 0.9>\n[/OBJECT]\n[/CSG]\n\
          [CSG]\nop = difference\nrotate = <20, 35, 10>\ntranslate = {}\n\
          [OBJECT]\ntype = cube\nscale = 0.8\ncolor1 = <0.9, 0.7, 0.1>\n[/OBJECT]\n\
-         [OBJECT]\ntype = sphere\nradius = 0.5\ntranslate = <3, 0, 0>\n[/OBJECT]\n[/CSG]\n",
+         [OBJECT]\ntype = sphere\nradius = 0.5\ntranslate = <3, 0, 0>\n[/OBJECT]\n[/CSG]\n\
+         [CSG]\nop = difference\nrotate = <0, -50, 0>\ntranslate = {}\n\
+         [OBJECT]\ntype = cube\nscale = 0.6\ncolor1 = <0.8, 0.8, 0.8>\n[/OBJECT]\n\
+         [OBJECT]\ntype = cube\nscale = <0.3, 0.2, 0.2>\ntranslate = <0.3, 0, 0>\ncolor1 = <1, 0, 1>\n[/OBJECT]\n[/CSG]\n",
         at(0, 2, 9),
         at(0, 0, 0),
         at(-6, 2, 8),
         at(-3, 0, 0),
         at(0, 0, 0),
         at(3, 0, 0),
+        at(-1, -2, 1),
     )
 }
 
@@ -391,8 +398,8 @@ fn csg_far_from_the_origin_renders_the_same_image() {
             "offset {offset:e}: {pixels} pixels differ"
         );
     }
-    // The scene shows what it is for: the pocket's (cyan) floor and walls, and both
-    // spheres' colours, each on a good number of pixels.
+    // The scene shows what it is for: the pocket's (cyan) floor and walls, both spheres'
+    // colours and the notch's (magenta) walls, each on a good number of pixels.
     let count = |pick: fn(i32, i32, i32) -> bool| {
         image
             .chunks_exact(3)
@@ -402,8 +409,9 @@ fn csg_far_from_the_origin_renders_the_same_image() {
     let cyan = count(|r, g, b| g > r + 40 && b > r + 40);
     let green = count(|r, g, b| g > r + 40 && g > b + 40);
     let blue = count(|r, g, b| b > r + 40 && b > g + 40);
+    let magenta = count(|r, g, b| r > g + 40 && b > g + 40);
     assert!(
-        cyan > 20 && green > 20 && blue > 20,
-        "{cyan} {green} {blue}"
+        cyan > 20 && green > 20 && blue > 20 && magenta > 5,
+        "{cyan} {green} {blue} {magenta}"
     );
 }
