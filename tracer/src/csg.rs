@@ -253,6 +253,33 @@ impl Csg {
         self.index = ChildIndex::build(&self.children, &self.line_boxes, first, min).map(Box::new);
     }
 
+    /// Calls `visit` with every child whose box may pass `touches` (a conservative test of
+    /// a region, as [`Bvh::any_item`] takes): through the index where there is one, so a
+    /// tree of thousands of children costs about `log n` box tests plus the children
+    /// found; otherwise every child. Children without a box are always visited.
+    pub fn children_near<'a>(
+        &'a self,
+        mut touches: impl FnMut(&Aabb) -> bool,
+        mut visit: impl FnMut(&'a Prim),
+    ) {
+        let Some(ix) = &self.index else {
+            self.children.iter().for_each(visit);
+            return;
+        };
+        if self.op == CsgOp::Difference
+            && let Some(body) = self.children.first()
+        {
+            visit(body);
+        }
+        for &k in &ix.always {
+            visit(&self.children[k as usize]);
+        }
+        ix.bvh.any_item(&mut touches, |k| {
+            visit(&self.children[k as usize]);
+            false
+        });
+    }
+
     /// Whether this node finds its children through an index (see [`Self::index_children`]).
     pub fn is_indexed(&self) -> bool {
         self.index.is_some()

@@ -18,19 +18,22 @@
 //! The last is decided per tile, once, by projecting the solids onto the image
 //! ([`Footprints::new`]): a bounded solid's BVH boxes (a long cylinder's slices, see
 //! [`Object::pieces`]) are projected by their corners, and every pixel whose square meets
-//! the rectangle around them counts the solid; a similarity sphere, and a long object's
-//! slice (as its capsule, [`Object::slices`]), count only in those pixels whose
-//! cone around the centre ray (below) meets them; a box reaching behind the eye's plane
+//! the rectangle around them counts the solid; a similarity sphere, a long object's slice
+//! and a torus's ring piece (as capsules, [`Object::outline`]) count only in those pixels
+//! whose cone around the centre ray (below) meets them; a box reaching behind the eye's plane
 //! counts everywhere. Planes are tested per pixel.
 //!
 //! **Thin solids.** The same projection answers the opposite question,
 //! [`Footprints::may_hide`]: may a solid other than the one a pixel's first rays all saw show
 //! in its square? A sphere or rod thinner than the first rays' spacing can fall between them
 //! and leave them agreeing; the sampler then refines the pixel as if they had disagreed. Only
-//! the solids tested pixel by pixel (similarity spheres, and long objects' slices as
-//! capsules) are asked about: a box's rectangle is far larger than what it holds, and would
-//! send every pixel around a cube to the cap. Sub-pixel features come from small spheres and
-//! thin rods; other thin solids keep the sampler's colour and neighbour rules alone.
+//! the solids tested pixel by pixel (similarity spheres, long objects' slices and tori's
+//! ring pieces as capsules, [`Object::outline`]) are asked about, alone or inside a CSG tree
+//! (a tree counts by its rectangle, and its spheres, rods and tori also pixel by pixel under
+//! their own numbers, within the tree's box): a box's rectangle is far larger than what it
+//! holds, and would send every pixel around a cube to the cap. Sub-pixel features come from
+//! small spheres, thin rods and thin tori; other thin solids keep the sampler's colour and
+//! neighbour rules alone.
 //!
 //! **Cones.** Every ray through a pixel's square lies within [`crate::camera::Camera::pixel_angle`]
 //! of any other, so within the cone of that half-angle around any one of them, and within
@@ -276,7 +279,8 @@ pub struct Footprints<'s> {
     /// [`SEVERAL`].
     shown: Vec<u32>,
     /// Per pixel, as `shown`, but only the solids whose footprint is tested pixel by pixel
-    /// (spheres, and long rods slice by slice): what [`Footprints::may_hide`] answers from.
+    /// (spheres, and long rods and tori piece by piece, in a CSG tree or not): what
+    /// [`Footprints::may_hide`] answers from.
     fitted: Vec<u32>,
     /// The planes (world point, normal, object), tested per pixel.
     planes: Vec<(DVec3, DVec3, u32)>,
@@ -364,22 +368,20 @@ impl<'s> Footprints<'s> {
                     self.planes.push((p0, n, *o));
                     return;
                 }
-                if let Some((c, r2)) = obj.similarity_sphere() {
-                    self.add_sphere(*o, c, r2.sqrt());
+                if self.add_fitted(*o, None) {
                     return;
                 }
-                let pieces = obj.slices();
-                if pieces.is_empty() {
-                    (*o, obj.bounds.into_iter().collect::<Vec<Aabb>>())
-                } else {
-                    for p in pieces {
-                        let (a, e) = p.axis;
-                        self.add_where(*o, &p.bounds, |cone| cone.may_meet_capsule(a, e, p.radius));
-                    }
-                    return;
-                }
+                (*o, obj.bounds.into_iter().collect::<Vec<Aabb>>())
             }
-            prim @ Prim::Csg(_) => (CSG, prim.bounds(&scene.objects).into_iter().collect()),
+            Prim::Csg(c) => {
+                // The tree counts in its rectangle; its spheres, rods and tori also count
+                // pixel by pixel under their own numbers, so that `may_hide` knows of them
+                // (a child can only show within the tree's box).
+                if let Some(clip) = c.bounds {
+                    self.add_leaves(c, &clip);
+                }
+                (CSG, c.bounds.into_iter().collect())
+            }
         };
         if boxes.is_empty() {
             // Unbounded: anywhere.
@@ -476,11 +478,64 @@ impl<'s> Footprints<'s> {
         }
     }
 
-    /// Counts a similarity sphere in the pixels whose cone meets it: among those of the
-    /// rectangle of its box, each tested around the ray through its centre.
-    fn add_sphere(&mut self, id: u32, c: DVec3, r: f64) {
-        let b = Aabb::new(c - DVec3::splat(r), c + DVec3::splat(r));
-        self.add_where(id, &b, |cone| cone.meets_sphere(c, r));
+    /// Counts object `o` pixel by pixel if it is a similarity sphere, or has capsules that
+    /// hold it (a long rod's slices, a torus's ring, see [`Object::outline`]); `clip`, when
+    /// given, is a box outside which it cannot show (its CSG tree's). Returns false for
+    /// other shapes, which count by their rectangles.
+    fn add_fitted(&mut self, o: u32, clip: Option<&Aabb>) -> bool {
+        let obj = &self.scene.objects[o as usize];
+        // Boxes clipped to `clip`; an empty one (nothing of the object can show) is skipped,
+        // since `add_where` takes a box it cannot pad for "anywhere".
+        let clipped = |b: Aabb| match clip {
+            None => Some(b),
+            Some(c) => {
+                let b = Aabb::new(b.min.max(c.min), b.max.min(c.max));
+                (!b.is_empty()).then_some(b)
+            }
+        };
+        if let Some((c, r2)) = obj.similarity_sphere() {
+            let r = r2.sqrt();
+            let b = Aabb::new(c - DVec3::splat(r), c + DVec3::splat(r));
+            if let Some(b) = clipped(b) {
+                self.add_where(o, &b, |cone| cone.meets_sphere(c, r));
+            }
+            return true;
+        }
+        let pieces = obj.outline();
+        if pieces.is_empty() {
+            return false;
+        }
+        for p in pieces {
+            let (a, e) = p.axis;
+            if let Some(b) = clipped(p.bounds) {
+                self.add_where(o, &b, |cone| cone.may_meet_capsule(a, e, p.radius));
+            }
+        }
+        true
+    }
+
+    /// Counts the fitted leaves of a CSG tree ([`Self::add_fitted`]) within its box `clip`,
+    /// visiting only the children whose boxes may project into the region (through the
+    /// tree's index, when it has one: a union of thousands of spheres is not projected
+    /// child by child for every tile).
+    fn add_leaves(&mut self, c: &crate::csg::Csg, clip: &Aabb) {
+        let mut found: Vec<&Prim> = Vec::new();
+        c.children_near(
+            |b| match self.project_box(b) {
+                Projection::Behind => false,
+                Projection::Within(r) => self.rect_meets_region(r),
+                Projection::Anywhere => true,
+            },
+            |child| found.push(child),
+        );
+        for child in found {
+            match child {
+                Prim::Object(o) => {
+                    self.add_fitted(*o, Some(clip));
+                }
+                Prim::Csg(inner) => self.add_leaves(inner, clip),
+            }
+        }
     }
 
     /// Counts `id` in the pixels of the rectangle of box `b` where `meets` holds for the
@@ -516,8 +571,9 @@ impl<'s> Footprints<'s> {
         count(&mut self.shown[i], id);
     }
 
-    /// Whether a similarity sphere or a long object's slice other than `object` (a hit's
-    /// object, or [`Sample::BACKGROUND`]) may show in pixel `(px, py)`'s square: its cone
+    /// Whether a similarity sphere, a long object's slice or a torus's ring piece other than
+    /// `object` (a hit's object, or [`Sample::BACKGROUND`]) may show in pixel `(px, py)`'s
+    /// square: its cone
     /// around the centre ray meets one. Pixels outside the region: no.
     pub fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
         self.index(px, py)

@@ -194,7 +194,57 @@ impl Object {
     }
 }
 
-/// A slice of a long cylinder or cone (see [`Object::pieces`]): its box, and a capsule that
+/// Chords a torus's core circle is cut into for [`Object::outline`]: the arc between two
+/// neighbouring chord ends lies within `R·(1 − cos(π/32)) ≈ 0.0048·R` of its chord.
+pub const RING_CHORDS: usize = 32;
+
+impl Object {
+    /// Capsules that together hold the whole solid, for the adaptive sampler's per-pixel
+    /// footprints ([`crate::footprint`]): a long cylinder's or cone's slices
+    /// ([`Object::slices`]), and for a torus one capsule per chord of its core circle
+    /// ([`RING_CHORDS`]); empty for every other shape.
+    ///
+    /// **The torus.** In object space the tube is the set of points within `minor` of the
+    /// core circle, and every point of an arc lies within the sagitta `s = R·(1 − cos(π/n))`
+    /// of its chord, so the tube's piece over an arc lies in the capsule of radius
+    /// `minor + s` around the chord. The linear part `M` of the transform maps a ball of
+    /// radius `ρ` into one of radius `ρ·‖M‖` (`‖M‖` no larger than its Frobenius norm), so
+    /// the world capsule around the transformed chord with radius `(minor + s)·‖M‖_F` holds
+    /// the world piece. Padded as [`Object::slices`] pads its capsules.
+    pub fn outline(&self) -> Vec<Piece> {
+        let Shape::Torus { major, minor } = self.shape else {
+            return self.slices();
+        };
+        let m = self.transform.to_world();
+        let frobenius = (m.matrix3.x_axis.length_squared()
+            + m.matrix3.y_axis.length_squared()
+            + m.matrix3.z_axis.length_squared())
+        .sqrt();
+        let step = std::f64::consts::TAU / RING_CHORDS as f64;
+        let sagitta = major * (1.0 - (step / 2.0).cos());
+        let r = (minor + sagitta) * frobenius;
+        let at = |j: usize| {
+            let a = step * j as f64;
+            m.transform_point3(DVec3::new(major * a.cos(), 0.0, major * a.sin()))
+        };
+        (0..RING_CHORDS)
+            .map(|j| {
+                let (a, b) = (at(j), at(j + 1));
+                let size = a.abs().max(b.abs()).max_element() + r;
+                let radius = r + size * crate::bvh::SLACK;
+                let pad = DVec3::splat(radius);
+                Piece {
+                    bounds: Aabb::new(a.min(b) - pad, a.max(b) + pad),
+                    axis: (a, b),
+                    radius,
+                }
+            })
+            .collect()
+    }
+}
+
+/// A slice of a long cylinder or cone (see [`Object::pieces`]), or a piece of a torus's
+/// ring (see [`Object::outline`]): its box, and a capsule that
 /// holds it: the segment `axis` between its end discs' centres, and a radius no smaller than
 /// either disc's (the slice is the convex hull of its discs, so it lies in the hull of the
 /// two balls), padded as [`crate::bvh::padded`] pads boxes.

@@ -15,6 +15,7 @@ use common::Rng;
 use glam::DVec3;
 use tessera_tracer::footprint::{Footprints, PixelRegion};
 use tessera_tracer::sampler::Sample;
+use tessera_tracer::shape::Shape;
 use tessera_tracer::{Rect, Scene};
 
 fn v(p: DVec3) -> String {
@@ -29,7 +30,7 @@ fn random_scene(rng: &mut Rng) -> String {
     for _ in 0..rng.below(30) + 5 {
         let at = rng.vec(6.0);
         let c = v(DVec3::new(rng.unit(), rng.unit(), rng.unit()));
-        solids += &match rng.below(10) {
+        solids += &match rng.below(12) {
             0..=5 => {
                 // Radii from 0.005 (a tenth of a pixel at this distance) to 2.
                 let r = 0.005 * 400f64.powf(rng.unit());
@@ -62,6 +63,24 @@ fn random_scene(rng: &mut Rng) -> String {
                  [OBJECT]\ntype = cube\nscale = 0.6\ntranslate = <0.5, 0.5, 0.5>\n[/OBJECT]\n[/CSG]\n",
                 v(at)
             ),
+            // Sub-pixel solids inside a tree: small spheres and a thin rotated torus in a
+            // union, which the adaptive sampler must not lose between its first rays.
+            10 | 11 => {
+                let mut kids = String::new();
+                for _ in 0..rng.below(4) + 1 {
+                    let r = 0.005 * 40f64.powf(rng.unit());
+                    kids += &format!(
+                        "[OBJECT]\ntype = sphere\nradius = {r}\ntranslate = {}\n[/OBJECT]\n",
+                        v(rng.vec(1.0))
+                    );
+                }
+                kids += &format!(
+                    "[OBJECT]\ntype = torus\nmajor = 1\nminor = {}\nscale = <1, 0.5, 1.5>\nrotate = {}\n[/OBJECT]\n",
+                    0.005 * 10f64.powf(rng.unit()),
+                    v(rng.vec(90.0))
+                );
+                format!("[CSG]\nop = union\ntranslate = {}\n{kids}[/CSG]\n", v(at))
+            }
             _ => {
                 let checker = if rng.below(2) == 0 {
                     format!("color2 = 0.1\nscale = {}\n", rng.range(0.2, 3.0))
@@ -173,8 +192,8 @@ fn a_pixel_called_smooth_shows_one_solid_everywhere() {
     assert!(f64::from(not) > 0.1 * total, "{not} not smooth of {total}");
 }
 
-/// The other question the footprints answer: wherever a similarity sphere or a long rod
-/// shows at some point of a pixel's square, [`Footprints::may_hide`] must say it may, to
+/// The other question the footprints answer: wherever a similarity sphere, a long rod or a
+/// torus, alone or in a CSG tree, shows at some point of a pixel's square, [`Footprints::may_hide`] must say it may, to
 /// every object but itself, so that a pixel whose first rays all missed it is refined. Same
 /// random scenes and grid as above.
 #[test]
@@ -185,9 +204,15 @@ fn a_sphere_or_rod_that_shows_in_a_pixel_is_never_hidden() {
         let src = random_scene(&mut rng);
         let s = common::scene(&src);
         let fp = Footprints::new(&s, past_the_image(&s));
+        // Spheres placed by a similarity, rods (cylinders, cones) and tori, in a tree or
+        // not (a tree's child is seen as itself).
         let fitted = |o: u32| {
             s.objects.get(o as usize).is_some_and(|obj| {
-                !obj.in_csg && (obj.similarity_sphere().is_some() || !obj.slices().is_empty())
+                obj.similarity_sphere().is_some()
+                    || matches!(
+                        obj.shape,
+                        Shape::Cylinder | Shape::Cone | Shape::Torus { .. }
+                    )
             })
         };
         for py in -2..s.height as i64 + 2 {
