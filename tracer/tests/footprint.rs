@@ -338,3 +338,38 @@ fn plain_scenes_take_one_ray_in_flat_pixels_and_stay_tile_independent() {
         assert!(assembled == whole, "tiles of {tile} differ from the whole");
     }
 }
+
+/// The footprints are computed per tile (with a border), and a tree's children are found
+/// through its index by the tile's region: the adaptive image must still not depend on the
+/// tiling. Random scenes of every solid (unions of sub-pixel spheres and thin tori among
+/// them), tiles of 7 and 16 against the whole image, byte for byte.
+#[test]
+fn adaptive_images_of_every_solid_stay_tile_independent() {
+    let mut rng = Rng(0x7113);
+    for case in 0..6 {
+        let src = random_scene(&mut rng).replacen(
+            "[/GLOBALS]",
+            "sampler = adaptive\nsamples = 4\nthreshold = 0.05\n[/GLOBALS]",
+            1,
+        );
+        let s = common::scene(&src);
+        let (w, h) = (s.width, s.height);
+        let whole = s.render_rect(Rect::full(w, h));
+        for tile in [7u32, 16] {
+            let mut assembled = vec![0u8; whole.len()];
+            for r in tessera_tracer::tile::tiles(w, h, tile) {
+                let bytes = s.render_rect(r);
+                for row in 0..r.height {
+                    let from = (row * r.width * 3) as usize;
+                    let start = (((r.y + row) * w + r.x) * 3) as usize;
+                    assembled[start..start + (r.width * 3) as usize]
+                        .copy_from_slice(&bytes[from..from + (r.width * 3) as usize]);
+                }
+            }
+            assert!(
+                assembled == whole,
+                "case {case}: tiles of {tile} differ\n{src}"
+            );
+        }
+    }
+}
