@@ -1702,6 +1702,38 @@ mod tests {
         }
     }
 
+    /// `children_near` visits every child whose box meets a region (the adaptive
+    /// sampler's footprints rely on it), through the index as without it: random boxes
+    /// against unions and differences of many children, and the same trees unindexed.
+    #[test]
+    fn children_near_visits_every_child_whose_box_meets_the_region() {
+        let mut rng = Rng::new(23);
+        for (op, n, unbounded) in [("union", 200, true), ("difference", 60, false)] {
+            let s = scene(&many_children(&mut rng, op, n, unbounded));
+            let mut plain = root(&s).clone();
+            plain.index_children(usize::MAX);
+            for c in [root(&s), &plain] {
+                for _ in 0..300 {
+                    let lo = rng.in_ball(4.0);
+                    let region = Aabb::new(lo, lo + DVec3::splat(rng.range(0.0, 2.0)));
+                    let meets =
+                        |b: &Aabb| (b.min.cmple(region.max) & region.min.cmple(b.max)).all();
+                    let mut visited: Vec<*const Prim> = Vec::new();
+                    c.children_near(meets, |p| visited.push(p as *const Prim));
+                    for child in &c.children {
+                        let must = child.bounds(&s.objects).is_none_or(|b| meets(&b));
+                        if must {
+                            assert!(
+                                visited.contains(&(child as *const Prim)),
+                                "{op}: a child meeting {region:?} was not visited"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// The threshold: a union of a few children keeps the loop, an intersection never has
     /// an index, and `index_children(usize::MAX)` removes every index, nested ones too.
     #[test]
