@@ -376,10 +376,8 @@ impl<'s> Footprints<'s> {
             Prim::Csg(c) => {
                 // The tree counts in its rectangle; its spheres, rods and tori also count
                 // pixel by pixel under their own numbers, so that `may_hide` knows of them
-                // (a child can only show within the tree's box).
-                if let Some(clip) = c.bounds {
-                    self.add_leaves(c, &clip);
-                }
+                // (a child can only show within the tree's box, when it has one).
+                self.add_leaves(c, c.bounds.as_ref());
                 (CSG, c.bounds.into_iter().collect())
             }
         };
@@ -514,11 +512,12 @@ impl<'s> Footprints<'s> {
         true
     }
 
-    /// Counts the fitted leaves of a CSG tree ([`Self::add_fitted`]) within its box `clip`,
+    /// Counts the fitted leaves of a CSG tree ([`Self::add_fitted`]) within its box `clip`
+    /// (none for an unbounded tree),
     /// visiting only the children whose boxes may project into the region (through the
     /// tree's index, when it has one: a union of thousands of spheres is not projected
     /// child by child for every tile).
-    fn add_leaves(&mut self, c: &crate::csg::Csg, clip: &Aabb) {
+    fn add_leaves(&mut self, c: &crate::csg::Csg, clip: Option<&Aabb>) {
         let mut found: Vec<&Prim> = Vec::new();
         c.children_near(
             |b| match self.project_box(b) {
@@ -531,7 +530,7 @@ impl<'s> Footprints<'s> {
         for child in found {
             match child {
                 Prim::Object(o) => {
-                    self.add_fitted(*o, Some(clip));
+                    self.add_fitted(*o, clip);
                 }
                 Prim::Csg(inner) => self.add_leaves(inner, clip),
             }
