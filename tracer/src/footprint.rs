@@ -513,10 +513,9 @@ impl<'s> Footprints<'s> {
     }
 
     /// Counts the fitted leaves of a CSG tree ([`Self::add_fitted`]) within its box `clip`
-    /// (none for an unbounded tree),
-    /// visiting only the children whose boxes may project into the region (through the
-    /// tree's index, when it has one: a union of thousands of spheres is not projected
-    /// child by child for every tile).
+    /// (none for an unbounded tree), visiting only the children whose boxes may project
+    /// into the region (through the tree's index, when it has one: a union of thousands of
+    /// spheres is not projected child by child for every tile).
     fn add_leaves(&mut self, c: &crate::csg::Csg, clip: Option<&Aabb>) {
         let mut found: Vec<&Prim> = Vec::new();
         c.children_near(
