@@ -328,8 +328,9 @@ pub const BVH_MIN_PRIMS: usize = 8;
 
 /// ... or when testing every bounded prim costs at least as much as testing
 /// [`BVH_MIN_PRIMS`] similarity spheres ([`prim_cost`] units: such a sphere 1, another
-/// object 2, a CSG tree 2 per child it may evaluate, see [`Csg::cost`]). A few expensive solids gain from a BVH long before
-/// eight do: measured with callgrind on `tessera-bench tracer` scenes, four general shapes
+/// object 2, a CSG tree 2 per child it may evaluate, see [`Csg::cost`]). A few expensive
+/// solids gain from a BVH long before eight do: measured with callgrind on
+/// `tessera-bench tracer` scenes, four general shapes
 /// (`examples/shapes.ray`, cost 8) 1.94 G → 0.87 G instructions, the CSG example 1.88 G →
 /// 1.54 G, the CSG bench scene 111.5 M → 95.5 M; scenes of one or two solids (cost ≤ 4)
 /// are 10–14 % slower with one and stay linear.
