@@ -39,10 +39,12 @@ use crate::world::{Hit, Object, Scene};
 /// pole) was shadowed by that surface on a random quarter of the pixels it lights: the
 /// crossing at the light comes out a few ulps before or after `t = 1` from ray to ray. The
 /// segment from a point to its light is open at the light (SCENE.md's "clear" segment
-/// ends there), and 1e-12 of the scale is some 5,000 ulps of it, as for coincident CSG
-/// surfaces ([`crate::csg::COINCIDENT_REL`]): a blocker nearer the light than that (2e-11
-/// of a unit for a scene 20 units across) is lost, which no pixel can show.
-pub const SHADOW_END_REL: f64 = 1e-12;
+/// ends there). 1e-14 of the scale is some 45 ulps of it: the crossing's rounding is a few
+/// ulps of the coordinates (of `|origin|` for an object placed by a general matrix, less
+/// for one placed by a similarity), and a blocker nearer the light than that is lost,
+/// 2e-13 of a unit for a scene 20 units across, 1e-5 of a unit for one placed at 1e9. (At
+/// 1e-12, the first value tried, a light 1e-3 under a plane at 1e9 shone through it.)
+pub const SHADOW_END_REL: f64 = 1e-14;
 
 /// Counts of rays traced, for benchmarks ("rays per pixel").
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]

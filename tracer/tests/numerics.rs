@@ -453,3 +453,39 @@ fn a_light_on_a_surface_is_not_shadowed_by_it() {
         assert!(shadowed > 100, "{on}: only {shadowed} pixels in shadow");
     }
 }
+
+/// The other side of the light's end: a light just behind a surface (1e-3 under a plane,
+/// with a sphere above whose lower half faces the light) stays behind it, at the origin and
+/// with the scene moved to 1e9, where 1e-3 is some 8,000 ulps of the coordinates. With the
+/// shadow ray's stop at 1e-12 of its scale, 1.7e-3 of a unit there, the light shone through
+/// the plane onto the sphere's whole lower half (133 pixels).
+#[test]
+fn a_light_just_behind_a_surface_stays_behind_it_far_away() {
+    let at = |offset: f64, x: f64, y: f64, z: f64| {
+        format!("<{}, {}, {}>", offset + x, offset + y, offset + z)
+    };
+    let src = |offset: f64| {
+        format!(
+            "[GLOBALS]\nwidth = 60\nheight = 45\nambient = 0.1\n[/GLOBALS]\n\
+             [CAMERA]\neye = {}\nlook_at = {}\nfov = 40\n[/CAMERA]\n\
+             [LIGHT]\nposition = {}\n[/LIGHT]\n\
+             [OBJECT]\ntype = plane\ncolor1 = 0.8\ntranslate = {}\n[/OBJECT]\n\
+             [OBJECT]\ntype = sphere\ncolor1 = <1, 0.3, 0.3>\ntranslate = <0, 1.5, 0>\n\
+             translate = {}\n[/OBJECT]\n",
+            at(offset, 0.0, 1.5, 8.0),
+            at(offset, 0.0, 1.2, 0.0),
+            at(offset, 0.7, -0.001, 0.3),
+            at(offset, 0.0, 0.0, 0.0),
+            at(offset, 0.0, 0.0, 0.0),
+        )
+    };
+    let near = scene(&src(0.0)).render_rect(Rect::full(60, 45));
+    let far = scene(&src(1e9)).render_rect(Rect::full(60, 45));
+    let (pixels, _) = diff(&near, &far);
+    assert!(pixels <= 60 * 45 / 1000, "{pixels} pixels differ at 1e9");
+    // The light under the plane lights nothing but the plane's underside, which the camera
+    // above does not see: every pixel is ambient only, sphere or plane alike.
+    let unlit = scene(&src(0.0).replace("[LIGHT]\nposition", "[LIGHT]\ncolor = 0\nposition"))
+        .render_rect(Rect::full(60, 45));
+    assert_eq!(diff(&near, &unlit).0, 0);
+}
