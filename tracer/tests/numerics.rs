@@ -489,3 +489,44 @@ fn a_light_just_behind_a_surface_stays_behind_it_far_away() {
         .render_rect(Rect::full(60, 45));
     assert_eq!(diff(&near, &unlit).0, 0);
 }
+
+/// A light on a cone's axis just above its apex (1e-9), on the apex, and just inside it
+/// (1e-9 below). A line passing that near the apex has two roots that nearly coincide, and
+/// from the middle of the bounding box they came out only to √ε ≈ 1e-8: the cone shadowed
+/// a random half of the floor from the light above it (2,478 of 7,500 pixels) and let the
+/// light inside it through to 2,378. 1e-9 above the apex the floor must be lit as by a light
+/// 1e-7 above it (the shading differs by at most one 8-bit step), and on the apex but for
+/// the edge of the cone's shadow; from inside, every segment to the floor crosses the cone,
+/// so nothing is lit at all.
+#[test]
+fn a_light_at_a_cones_apex_casts_no_speckles() {
+    let src = |y: &str, color: &str| {
+        format!(
+            "[GLOBALS]\nwidth = 100\nheight = 75\nambient = 0.1\n[/GLOBALS]\n\
+             [CAMERA]\neye = <3, 4, 6>\nlook_at = <0, -0.5, 0>\nfov = 40\n[/CAMERA]\n\
+             [LIGHT]\nposition = <0, {y}, 0>\ncolor = {color}\n[/LIGHT]\n\
+             [OBJECT]\ntype = plane\ncolor1 = 0.8\ntranslate = <0, -2, 0>\n[/OBJECT]\n\
+             [OBJECT]\ntype = cone\ncolor1 = <0.3, 0.6, 1>\n[/OBJECT]\n"
+        )
+    };
+    let render = |y: &str, color: &str| scene(&src(y, color)).render_rect(Rect::full(100, 75));
+    let reference = render("1.0000001", "1");
+    let (pixels, max) = diff(&render("1.000000001", "1"), &reference);
+    assert!(
+        max <= 1,
+        "1e-9 above: {pixels} pixels differ, by up to {max}"
+    );
+    // Exactly on the apex, the segments along the cone's generators lie on its surface:
+    // pixels on the edge of the cone's shadow may go either way (ten do), no others.
+    let (pixels, _) = diff(&render("1", "1"), &reference);
+    assert!(
+        pixels <= 100 * 75 / 500,
+        "on the apex: {pixels} pixels differ"
+    );
+    assert_eq!(
+        diff(&render("0.999999999", "1"), &render("0.999999999", "0")).0,
+        0
+    );
+    // Not vacuous: the floor is lit, and the cone does cast a shadow.
+    assert!(diff(&reference, &render("1.0000001", "0")).0 > 3000);
+}

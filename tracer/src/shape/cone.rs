@@ -9,10 +9,11 @@
 //! slab, and since the cone is convex the (at most two, touching at the apex) clipped pieces
 //! join into one span.
 //!
-//! Numerics. The quadratic is set up after moving the ray origin to the middle of the line's
-//! passage through the bounding box and normalising the direction, so its coefficients are of
-//! the size of the cone whatever the distance of the eye (from 1e7 away the raw coefficients
-//! would be 1e14 and their differences noise). Roots use the cancellation-free pair `q/a`,
+//! Numerics. The quadratic is set up after moving the ray origin to the line's point nearest
+//! the apex and normalising the direction, so its coefficients are of the size of the cone
+//! whatever the distance of the eye (from 1e7 away the raw coefficients would be 1e14 and
+//! their differences noise), and small for a line passing near the apex, whose two roots
+//! nearly coincide there and would otherwise come out only to √ε. Roots use the cancellation-free pair `q/a`,
 //! `c/q`, then one Newton polish on the well-conditioned form `ρ − (1 − y)/2` (ρ the distance
 //! from the axis), which is the horizontal distance to the surface, not its square. Hit points
 //! are then projected onto the side's profile line in their (ρ, y) half-plane, so they lie on
@@ -65,9 +66,16 @@ fn polish(o: DVec3, d: DVec3, s: f64, reach: f64) -> f64 {
 /// The line's span in the solid, with the faces crossed, in the ray's own `t`.
 fn span(ray: &Ray) -> Option<(Crossing, Crossing)> {
     let (d, len) = unit_dir(ray.dir)?;
-    // The whole-line passage through the bounding box [-1, 1]³, in distance units along d.
-    let (u0, u1) = line_box(ray.origin, d, DVec3::ONE)?;
-    let um = 0.5 * (u0 + u1);
+    // Lines that miss the bounding box [-1, 1]³ miss the cone.
+    line_box(ray.origin, d, DVec3::ONE)?;
+    // The local origin: the line's point nearest the apex. Within the box's reach of the
+    // cone (the line meets the box), so the coefficients stay of the cone's size however far
+    // the eye is; and a line passing near the apex has small coefficients there, whose
+    // roots come out to a few ulps of its distance from the apex. (From the middle of the
+    // line's passage through the box, the two roots of a line passing 1e-9 from the apex,
+    // nearly a double root, came out only to √ε ≈ 1e-8: a light just above the apex was
+    // shadowed by the cone on a random half of the floor.)
+    let um = (DVec3::Y - ray.origin).dot(d);
     let o = ray.origin + d * um;
 
     // The slab |y| ≤ 1 in the local parameter s. Leaving by y = +1 means leaving through the
