@@ -178,7 +178,7 @@ impl Scene {
                     Some(o) if can_block => self.clear_lights(o),
                     _ => 0,
                 };
-                for light in &self.lights {
+                for (li, light) in self.lights.iter().enumerate() {
                     // Bit 0 is this light's; lights past the 64th find it 0.
                     let known_clear = clear & 1 == 1;
                     clear >>= 1;
@@ -195,7 +195,21 @@ impl Scene {
                         let shadow_ray = Ray::new(origin, light.position - origin);
                         let scale = origin.length() / shadow_ray.dir.length() + 1.0;
                         let end = 1.0 - SHADOW_END_REL * scale;
-                        if self.occluded(&shadow_ray, end, self_skip) {
+                        // Objects the light lies on cannot shadow it from their outer side
+                        // (see `Scene::lights_on`); past four, the rest are traced.
+                        let lies_on = self.lights_on(li);
+                        let blocked = if lies_on.is_empty() {
+                            self.occluded(&shadow_ray, end, self_skip)
+                        } else {
+                            let mut on: arrayvec::ArrayVec<u32, 4> = arrayvec::ArrayVec::new();
+                            for &(o, n) in lies_on {
+                                if n.dot(origin - light.position) > 0.0 && on.try_push(o).is_err() {
+                                    break;
+                                }
+                            }
+                            self.occluded_skipping(&shadow_ray, end, self_skip, &on)
+                        };
+                        if blocked {
                             v = 1.0 - self.shadow;
                         }
                     }

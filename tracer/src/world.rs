@@ -243,6 +243,86 @@ impl Object {
     }
 }
 
+impl Object {
+    /// The world outward normal (not unit) of the surface at `p` when `p` lies on it, to
+    /// within the rounding of carrying `p` into object space, at a point where the shape is
+    /// convex and smooth: a sphere anywhere, a plane, a cube's face or a cylinder's or
+    /// cone's side or cap away from their edges, a torus where its tangent plane holds it
+    /// all on one side. `None` elsewhere (edges, corners, the apex, the rest of a torus)
+    /// and off the surface.
+    ///
+    /// The tolerance is twice the error bound of the object-space point (`γ(3)` of the
+    /// inverse matrix's products, as in [`crate::transform::Transform::round_trip_error`])
+    /// plus a few ulps of it: a light the scene puts on a surface is within it, a light
+    /// 1e-14 of a unit inside a unit sphere is not.
+    pub fn normal_through(&self, p: DVec3) -> Option<DVec3> {
+        let q = self.transform.ray_to_object(&Ray::new(p, DVec3::X)).origin;
+        let inv = self.transform.to_object();
+        let (c0, c1, c2) = (inv.matrix3.x_axis, inv.matrix3.y_axis, inv.matrix3.z_axis);
+        let err = crate::math::gamma(3)
+            * (c0.abs() * p.x.abs()
+                + c1.abs() * p.y.abs()
+                + c2.abs() * p.z.abs()
+                + inv.translation.abs());
+        let tol = 2.0 * err.max_element() + crate::math::gamma(4) * (q.abs().max_element() + 1.0);
+        let near = |a: f64, b: f64| (a - b).abs() <= tol;
+        let n = match self.shape {
+            Shape::Sphere => near(q.length(), 1.0).then_some(q),
+            Shape::Plane => near(q.y, 0.0).then_some(DVec3::Y),
+            Shape::Cube => {
+                let a = q.abs();
+                let on: Vec<usize> = (0..3).filter(|&i| near(a[i], 1.0)).collect();
+                match on[..] {
+                    [i] if a.max_element() <= 1.0 + tol => {
+                        let mut n = DVec3::ZERO;
+                        n[i] = q[i].signum();
+                        Some(n)
+                    }
+                    _ => None,
+                }
+            }
+            Shape::Cylinder => {
+                let rho = q.x.hypot(q.z);
+                if near(rho, 1.0) && q.y.abs() < 1.0 - tol {
+                    Some(DVec3::new(q.x, 0.0, q.z))
+                } else if near(q.y.abs(), 1.0) && rho < 1.0 - tol {
+                    Some(DVec3::new(0.0, q.y.signum(), 0.0))
+                } else {
+                    None
+                }
+            }
+            Shape::Cone => {
+                let rho = q.x.hypot(q.z);
+                if near(rho, 0.5 * (1.0 - q.y)) && q.y.abs() < 1.0 - tol && rho > tol {
+                    Some(DVec3::new(q.x / rho, 0.5, q.z / rho))
+                } else if near(q.y, -1.0) && rho < 1.0 - tol {
+                    Some(DVec3::NEG_Y)
+                } else {
+                    None
+                }
+            }
+            Shape::Torus { major, minor } => {
+                // Not convex: only where the tangent plane holds the whole torus on its
+                // inner side (the top and bottom circles, the outer equator), which is where
+                // `n·q` reaches the torus's support `R·|n_xz| + r` in the direction `n`.
+                let rho = q.x.hypot(q.z);
+                let core = if rho > 0.0 {
+                    DVec3::new(q.x, 0.0, q.z) * (major / rho)
+                } else {
+                    DVec3::ZERO
+                };
+                let n = (q - core).normalize_or_zero();
+                let support = major * n.x.hypot(n.z) + minor;
+                (rho > 0.0
+                    && near((q - core).length(), minor)
+                    && n.dot(q) >= support - tol * (1.0 + major))
+                    .then_some(n)
+            }
+        }?;
+        Some(self.transform.normal_to_world(n))
+    }
+}
+
 /// A slice of a long cylinder or cone (see [`Object::pieces`]), or a piece of a torus's
 /// ring (see [`Object::outline`]): its box, and a capsule that
 /// holds it: the segment `axis` between its end discs' centres, and a radius no smaller than
@@ -319,6 +399,9 @@ pub struct Scene {
     accel: Accel,
     /// The lights each object's shadow rays need not be traced to (see [`crate::shadow`]).
     clear_lights: ClearLights,
+    /// Per light, the lone convex objects whose surface passes through it (see
+    /// [`Scene::lights_on`]).
+    lights_on: Vec<Vec<(u32, DVec3)>>,
 }
 
 /// Below this many bounded prims a scene tests every prim for every ray: a BVH's box tests
@@ -489,6 +572,21 @@ impl Scene {
         let (objects, prims) = Self::place(desc, assets, texture_limits)?;
         let accel = Accel::new(&prims, &objects, Acceleration::Auto);
         let clear_lights = ClearLights::find(&objects, &prims, &desc.lights, accel.bvh());
+        let lights_on = desc
+            .lights
+            .iter()
+            .map(|l| {
+                (0..objects.len() as u32)
+                    .filter_map(|o| {
+                        let obj = &objects[o as usize];
+                        (!obj.in_csg)
+                            .then(|| obj.normal_through(l.position))
+                            .flatten()
+                            .map(|n| (o, n))
+                    })
+                    .collect()
+            })
+            .collect();
         Ok(Scene {
             width: desc.width,
             height: desc.height,
@@ -501,6 +599,7 @@ impl Scene {
             lights: desc.lights.clone(),
             accel,
             clear_lights,
+            lights_on,
             objects,
             prims,
         })
@@ -596,6 +695,18 @@ impl Scene {
     pub fn without_shadow_culling(mut self) -> Scene {
         self.clear_lights = ClearLights::default();
         self
+    }
+
+    /// The lone convex objects whose surface passes through light `light` (within the
+    /// rounding of carrying the light into their space), each with its world outward normal
+    /// there ([`Object::normal_through`]). Such an object cannot shadow its light from a
+    /// point on the outer side of its tangent plane there: the object lies in the other
+    /// half-space, and the segment meets it only at the light, which SCENE.md's segment
+    /// does not include. Tracing it anyway decides by rounding: a shadow ray reaching the
+    /// light nearly tangent meets the surface in two nearly equal roots, known only to
+    /// about √ε, and some of them fell before the light.
+    pub fn lights_on(&self, light: usize) -> &[(u32, DVec3)] {
+        self.lights_on.get(light).map_or(&[], Vec::as_slice)
     }
 
     /// Whether a shadow ray from `object` (convex, left from outside) to light `light` is
@@ -748,6 +859,30 @@ impl Scene {
     /// search stops at the first.
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_max: f64, skip: Option<u32>) -> bool {
+        self.occluded_unless(ray, t_max, move |i| skip == Some(i))
+    }
+
+    /// [`Self::occluded`], also leaving out the objects `also` (those a light lies on, for a
+    /// point outside them: see [`Self::lights_on`]).
+    #[inline]
+    pub fn occluded_skipping(
+        &self,
+        ray: &Ray,
+        t_max: f64,
+        skip: Option<u32>,
+        also: &[u32],
+    ) -> bool {
+        if also.is_empty() {
+            return self.occluded(ray, t_max, skip);
+        }
+        self.occluded_unless(ray, t_max, move |i| skip == Some(i) || also.contains(&i))
+    }
+
+    /// The any-hit search, leaving out the lone objects `skip` names. Generic so that the
+    /// common search (one object left out, or none) costs no more than it did before
+    /// lights on surfaces were known: each caller gets its own compiled copy.
+    #[inline]
+    fn occluded_unless(&self, ray: &Ray, t_max: f64, skip: impl Fn(u32) -> bool + Copy) -> bool {
         match &self.accel {
             Accel::Linear => self
                 .prims
@@ -773,7 +908,7 @@ impl Scene {
         quick: &[Quick],
         ray: &Ray,
         t_max: f64,
-        skip: Option<u32>,
+        skip: impl Fn(u32) -> bool + Copy,
     ) -> bool {
         unbounded
             .iter()
@@ -792,11 +927,11 @@ impl Scene {
 
     /// Whether one prim has a hit with `0 < t < t_max`.
     #[inline]
-    fn prim_blocks(&self, prim: &Prim, ray: &Ray, t_max: f64, skip: Option<u32>) -> bool {
+    fn prim_blocks(&self, prim: &Prim, ray: &Ray, t_max: f64, skip: impl Fn(u32) -> bool) -> bool {
         match prim {
             Prim::Object(i) => {
                 let obj = &self.objects[*i as usize];
-                skip != Some(*i)
+                !skip(*i)
                     && !obj.certainly_missed_by(ray)
                     && obj
                         .shape
