@@ -323,6 +323,43 @@ impl Object {
     }
 }
 
+/// The lone objects whose surface passes through `p`, with their normals there (see
+/// [`Object::normal_through`]). Only the solids whose (padded) boxes hold `p` are asked,
+/// found through the BVH when the scene has one, so that a thousand lights over a million
+/// objects cost a point query each, not a billion tests.
+fn surfaces_through(
+    objects: &[Object],
+    prims: &[Prim],
+    accel: &Accel,
+    p: DVec3,
+) -> Vec<(u32, DVec3)> {
+    let mut found = Vec::new();
+    let mut ask = |pi: u32| {
+        if let Prim::Object(o) = prims[pi as usize]
+            && let Some(n) = objects[o as usize].normal_through(p)
+        {
+            found.push((o, n));
+        }
+    };
+    match accel {
+        Accel::Linear => (0..prims.len() as u32).for_each(&mut ask),
+        Accel::Bvh { bvh, unbounded, .. } => {
+            unbounded.iter().copied().for_each(&mut ask);
+            bvh.any_item(
+                |b| (b.min.cmple(p) & p.cmple(b.max)).all(),
+                |pi| {
+                    ask(pi);
+                    false
+                },
+            );
+        }
+    }
+    // A long object is in the tree once per slice: one entry each.
+    found.sort_unstable_by_key(|e| e.0);
+    found.dedup_by_key(|e| e.0);
+    found
+}
+
 /// A slice of a long cylinder or cone (see [`Object::pieces`]), or a piece of a torus's
 /// ring (see [`Object::outline`]): its box, and a capsule that
 /// holds it: the segment `axis` between its end discs' centres, and a radius no smaller than
@@ -575,17 +612,7 @@ impl Scene {
         let lights_on = desc
             .lights
             .iter()
-            .map(|l| {
-                (0..objects.len() as u32)
-                    .filter_map(|o| {
-                        let obj = &objects[o as usize];
-                        (!obj.in_csg)
-                            .then(|| obj.normal_through(l.position))
-                            .flatten()
-                            .map(|n| (o, n))
-                    })
-                    .collect()
-            })
+            .map(|l| surfaces_through(&objects, &prims, &accel, l.position))
             .collect();
         Ok(Scene {
             width: desc.width,

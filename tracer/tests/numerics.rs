@@ -583,9 +583,20 @@ fn a_light_on_a_curved_surface_is_not_shadowed_by_grazing_rays() {
             ),
         ),
     ];
-    for ((eye, at, solid), (wall, on, off)) in cases {
+    // Ten far spheres behind the camera put the scene in a BVH, whose point query finds
+    // the objects a light lies on; without them the scene tests every solid.
+    let far: String = (0..10)
+        .map(|i| {
+            format!("[OBJECT]\ntype = sphere\nradius = 0.1\ntranslate = <{i}, 40, 40>\n[/OBJECT]\n")
+        })
+        .collect();
+    for (((eye, at, solid), (wall, on, off)), extra) in
+        cases.into_iter().flat_map(|c| [(c, ""), (c, far.as_str())])
+    {
         let render = |light: &str| {
-            scene(&frame(60, eye, at, light, solid, wall)).render_rect(Rect::full(60, 60))
+            let s = scene(&(frame(60, eye, at, light, solid, wall) + extra));
+            assert_eq!(s.uses_bvh(), !extra.is_empty());
+            s.render_rect(Rect::full(60, 60))
         };
         let (pixels, _) = diff(&render(on), &render(off));
         assert!(
