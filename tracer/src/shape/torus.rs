@@ -260,7 +260,14 @@ pub(super) fn intersect(ray: &Ray, t_max: f64, major: f64, minor: f64) -> Option
     let ts = &roots.t[..roots.n];
     let mut k = ts.iter().position(|&t| t > 0.0)?;
     let origin_outside = !(signed_distance(ray.origin, major, minor) < 0.0);
-    if (k % 2 == 0) != origin_outside {
+    // Roots alternate entry, exit. When the first root ahead is not of the kind the origin
+    // calls for, the origin sits on a surface within rounding, and the root nearer zero is
+    // that surface: if it is the one ahead (a secondary ray lifted off the face it leaves,
+    // whose crossing rounded to a tiny positive `t`), it is skipped; if it is the one behind
+    // (an eye exactly on the surface, looking in: the entry rounded to a tiny negative `t`),
+    // the ray has crossed it, and the root ahead is the right one. Skipping it there made
+    // the tube vanish and showed the floor through it.
+    if (k % 2 == 0) != origin_outside && !(k > 0 && ts[k - 1].abs() < ts[k].abs()) {
         k += 1;
     }
     let t = *ts.get(k)?;
