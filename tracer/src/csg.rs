@@ -175,13 +175,19 @@ impl ChildIndex {
         Some(ChildIndex { bvh, always })
     }
 
+    /// Whether `item` holds for some indexed child: those without a box, then those in the
+    /// tree whose path of node boxes all pass `touches` ([`Bvh::any_item`]). Stops at the
+    /// first `true`.
+    fn any(&self, touches: impl FnMut(&Aabb) -> bool, mut item: impl FnMut(u32) -> bool) -> bool {
+        self.always.iter().any(|&k| item(k)) || self.bvh.any_item(touches, item)
+    }
+
     /// Appends to `out`, in increasing order, every indexed child whose line box the line
     /// meets (exactly the children the plain loop evaluates).
     fn children_met(&self, line_boxes: &[Option<Aabb>], ray: &Ray, inv: DVec3, out: &mut Vec<u32>) {
         let start = out.len();
         let meets = |k: u32| line_boxes[k as usize].is_none_or(|b| line_meets(&b, ray, inv));
-        out.extend(self.always.iter().copied().filter(|&k| meets(k)));
-        self.bvh.any_item(
+        self.any(
             |b| line_meets(b, ray, inv),
             |k| {
                 if meets(k) {
@@ -194,11 +200,8 @@ impl ChildIndex {
     }
 
     /// Whether `inside` holds for some indexed child whose box may hold `p`.
-    fn any_holding(&self, p: DVec3, mut inside: impl FnMut(u32) -> bool) -> bool {
-        self.always.iter().any(|&k| inside(k))
-            || self
-                .bvh
-                .any_item(|b| (b.min.cmple(p) & p.cmple(b.max)).all(), inside)
+    fn any_holding(&self, p: DVec3, inside: impl FnMut(u32) -> bool) -> bool {
+        self.any(|b| b.contains(p), inside)
     }
 }
 
@@ -259,7 +262,7 @@ impl Csg {
     /// found; otherwise every child. Children without a box are always visited.
     pub fn children_near<'a>(
         &'a self,
-        mut touches: impl FnMut(&Aabb) -> bool,
+        touches: impl FnMut(&Aabb) -> bool,
         mut visit: impl FnMut(&'a Prim),
     ) {
         let Some(ix) = &self.index else {
@@ -271,10 +274,7 @@ impl Csg {
         {
             visit(body);
         }
-        for &k in &ix.always {
-            visit(&self.children[k as usize]);
-        }
-        ix.bvh.any_item(&mut touches, |k| {
+        ix.any(touches, |k| {
             visit(&self.children[k as usize]);
             false
         });

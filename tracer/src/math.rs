@@ -75,6 +75,11 @@ impl Aabb {
         Aabb::new(self.min.min(p), self.max.max(p))
     }
 
+    /// Whether the closed box holds `p`.
+    pub fn contains(&self, p: DVec3) -> bool {
+        (self.min.cmple(p) & p.cmple(self.max)).all()
+    }
+
     pub fn is_empty(&self) -> bool {
         self.min.x > self.max.x || self.min.y > self.max.y || self.min.z > self.max.z
     }

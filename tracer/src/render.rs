@@ -167,6 +167,7 @@ impl Scene {
 
         // Every secondary ray leaves on the incoming side: one origin serves them all.
         let mut ahead: Option<DVec3> = None;
+        let mut ahead_len: Option<f64> = None;
         let mut color = Color::ZERO;
         if m.mirror < 1.0 {
             let mut light_sum = Color::ZERO;
@@ -192,11 +193,13 @@ impl Scene {
                     if can_block && !known_clear {
                         Counters::bump(&c.shadow);
                         let origin = *ahead.get_or_insert_with(|| sp.origin_ahead());
+                        let origin_len = *ahead_len.get_or_insert_with(|| origin.length());
                         let shadow_ray = Ray::new(origin, light.position - origin);
-                        let scale = origin.length() / shadow_ray.dir.length() + 1.0;
+                        let scale = origin_len / shadow_ray.dir.length() + 1.0;
                         let end = 1.0 - SHADOW_END_REL * scale;
                         // Objects the light lies on cannot shadow it from their outer side
-                        // (see `Scene::lights_on`); past four, the rest are traced.
+                        // (see `Scene::lights_on`); past four, the rest are traced. Most
+                        // lights lie on nothing: their search is the plain one.
                         let lies_on = self.lights_on(li);
                         let blocked = if lies_on.is_empty() {
                             self.occluded(&shadow_ray, end, self_skip)

@@ -150,12 +150,28 @@ impl Transform {
     /// object-space test may see it back on the surface it left.
     #[inline]
     pub fn round_trip_error(&self, p: DVec3) -> DVec3 {
-        let inv = &self.to_object.matrix3;
-        let abs_inv = DMat3::from_cols(inv.x_axis.abs(), inv.y_axis.abs(), inv.z_axis.abs());
         let m = &self.to_world.matrix3;
         let abs_m = DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
-        let obj_err = gamma(3) * (abs_inv * p.abs() + self.to_object.translation.abs());
-        abs_m * obj_err
+        abs_m * self.to_object_error(p)
+    }
+
+    /// An object-space bound on the error of carrying world point `p` into object space
+    /// (`γ(3)·(|M⁻¹|·|p| + |t⁻¹|)`, the products of the inverse matrix), per axis.
+    #[inline]
+    pub fn to_object_error(&self, p: DVec3) -> DVec3 {
+        let inv = &self.to_object.matrix3;
+        let abs_inv = DMat3::from_cols(inv.x_axis.abs(), inv.y_axis.abs(), inv.z_axis.abs());
+        gamma(3) * (abs_inv * p.abs() + self.to_object.translation.abs())
+    }
+
+    /// World point `p` in object space, computed as the ray tests compute a ray's origin
+    /// ([`Self::ray_to_object`]).
+    #[inline]
+    pub fn point_to_object(&self, p: DVec3) -> DVec3 {
+        match self.similarity {
+            Some((_, t)) => (p - t) * self.inv_scale,
+            None => self.to_object.transform_point3(p),
+        }
     }
 
     /// World normal (unnormalised) of an object-space normal.

@@ -241,9 +241,7 @@ impl Object {
             })
             .collect()
     }
-}
 
-impl Object {
     /// The world outward normal (not unit) of the surface at `p` when `p` lies on it, to
     /// within the rounding of carrying `p` into object space, at a point where the shape is
     /// convex and smooth: a sphere anywhere, a plane, a cube's face or a cylinder's or
@@ -251,19 +249,12 @@ impl Object {
     /// all on one side. `None` elsewhere (edges, corners, the apex, the rest of a torus)
     /// and off the surface.
     ///
-    /// The tolerance is twice the error bound of the object-space point (`γ(3)` of the
-    /// inverse matrix's products, as in [`crate::transform::Transform::round_trip_error`])
-    /// plus a few ulps of it: a light the scene puts on a surface is within it, a light
+    /// The tolerance is twice the error bound of the object-space point
+    /// ([`crate::transform::Transform::to_object_error`]) plus a few ulps of it: a light the scene puts on a surface is within it, a light
     /// 1e-14 of a unit inside a unit sphere is not.
     pub fn normal_through(&self, p: DVec3) -> Option<DVec3> {
-        let q = self.transform.ray_to_object(&Ray::new(p, DVec3::X)).origin;
-        let inv = self.transform.to_object();
-        let (c0, c1, c2) = (inv.matrix3.x_axis, inv.matrix3.y_axis, inv.matrix3.z_axis);
-        let err = crate::math::gamma(3)
-            * (c0.abs() * p.x.abs()
-                + c1.abs() * p.y.abs()
-                + c2.abs() * p.z.abs()
-                + inv.translation.abs());
+        let q = self.transform.point_to_object(p);
+        let err = self.transform.to_object_error(p);
         let tol = 2.0 * err.max_element() + crate::math::gamma(4) * (q.abs().max_element() + 1.0);
         let near = |a: f64, b: f64| (a - b).abs() <= tol;
         let n = match self.shape {
@@ -346,7 +337,7 @@ fn surfaces_through(
         Accel::Bvh { bvh, unbounded, .. } => {
             unbounded.iter().copied().for_each(&mut ask);
             bvh.any_item(
-                |b| (b.min.cmple(p) & p.cmple(b.max)).all(),
+                |b| b.contains(p),
                 |pi| {
                     ask(pi);
                     false
