@@ -7,7 +7,7 @@ use tessera_tracer::{Limits, MAX_THREADS, TextureLimits};
 /// Primary rays a tile should carry when the service picks its size: some 70 ms of tracing
 /// (mirrors bench scene, one core of the bench machine), against about 2 ms of CPU that
 /// the service and the worker spend per tile on a loaded machine (claim, post, store; see
-/// README "The farm's figures"): about 3 %.
+/// docs/PERFORMANCE.md, "The farm's figures"): about 3 %.
 pub const TILE_RAYS: u64 = 262_144;
 
 /// Tiles a job should have at least when the service picks their size, so that a handful of
