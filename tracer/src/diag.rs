@@ -37,15 +37,19 @@ pub struct Diagnostic {
 
 impl Diagnostic {
     /// A message at `pos`. Messages quote the scene's own text, which may hold control
-    /// characters (a NUL, an escape sequence that would restyle a terminal): those are
-    /// written as escapes (`\0`, `\u{1b}`), so a message is always one line of plain text.
+    /// characters (a NUL, an escape sequence that would restyle a terminal) or invisible
+    /// ones (a zero-width space pasted from a web page, a byte-order mark in mid-file):
+    /// those are written as escapes (`\0`, `\u{1b}`, `\u{200b}`), so a message is always
+    /// one line of plain text that shows every character it quotes.
     pub fn new(pos: Pos, message: impl Into<String>) -> Self {
         let mut message = message.into();
-        if message.contains(char::is_control) {
+        if message.contains(|c: char| c.is_control() || is_invisible(c)) {
             let mut plain = String::with_capacity(message.len() + 8);
             for c in message.chars() {
                 if c.is_control() {
                     plain.extend(c.escape_debug());
+                } else if is_invisible(c) {
+                    plain.extend(c.escape_unicode());
                 } else {
                     plain.push(c);
                 }
@@ -53,6 +57,84 @@ impl Diagnostic {
             message = plain;
         }
         Diagnostic { pos, message }
+    }
+}
+
+/// Characters that print as nothing: Unicode's format characters (category Cf: zero-width
+/// spaces and joiners, direction marks and overrides, the byte-order mark, invisible
+/// operators) and the line and paragraph separators.
+fn is_invisible(c: char) -> bool {
+    matches!(c,
+        '\u{ad}' | '\u{600}'..='\u{605}' | '\u{61c}' | '\u{6dd}' | '\u{70f}' | '\u{180e}'
+        | '\u{200b}'..='\u{200f}' | '\u{2028}'..='\u{202e}' | '\u{2060}'..='\u{2064}'
+        | '\u{2066}'..='\u{206f}' | '\u{feff}' | '\u{fff9}'..='\u{fffb}'
+        | '\u{e0001}' | '\u{e0020}'..='\u{e007f}')
+}
+
+/// At most 40 characters of user text for an error message: a value, a key or a tag's name
+/// (a line of a binary file read as a key would otherwise be echoed whole).
+pub(crate) fn shorten(s: &str) -> String {
+    if s.chars().count() <= 40 {
+        s.to_string()
+    } else {
+        let mut out: String = s.chars().take(37).collect();
+        out.push_str("...");
+        out
+    }
+}
+
+/// The diagnostics of one pass, as they are found, in bounded memory: a file of millions of
+/// bad lines kept every one of them (160 bytes each) to print the first hundred. Only the
+/// earliest [`MAX_DIAGNOSTICS`] + 1 by position are kept (the one past the shown ones says
+/// where the rest begin); the others are only counted, so a diagnostic repeated word for
+/// word at the same place counts twice in "more errors" if both copies are past the kept
+/// ones (kept ones are deduplicated as before).
+#[derive(Debug, Default)]
+pub(crate) struct Found {
+    kept: Vec<Diagnostic>,
+    /// Diagnostics pushed and then dropped as later than the kept ones.
+    dropped: usize,
+    /// Every diagnostic pushed so far: a check compares it before and after a block to learn
+    /// whether the block had errors of its own.
+    pushed: usize,
+}
+
+impl Found {
+    const KEEP: usize = MAX_DIAGNOSTICS + 1;
+
+    pub(crate) fn push(&mut self, d: Diagnostic) {
+        self.pushed += 1;
+        self.kept.push(d);
+        if self.kept.len() >= 4 * Self::KEEP {
+            // Sorting is stable, so equal positions keep the order they were found in,
+            // as the final sort in `SceneError::new` would have left them.
+            self.kept.sort_by_key(|d| d.pos);
+            self.kept.dedup();
+            if self.kept.len() > Self::KEEP {
+                self.dropped += self.kept.len() - Self::KEEP;
+                self.kept.truncate(Self::KEEP);
+            }
+        }
+    }
+
+    /// The diagnostics kept so far, in no particular order.
+    #[cfg(test)]
+    pub(crate) fn kept(&self) -> &[Diagnostic] {
+        &self.kept
+    }
+
+    pub(crate) fn pushed(&self) -> usize {
+        self.pushed
+    }
+
+    #[cfg(test)]
+    pub(crate) fn is_empty(&self) -> bool {
+        self.pushed == 0
+    }
+
+    /// The error these diagnostics make; `None` if there are none.
+    pub(crate) fn into_error(self) -> Option<SceneError> {
+        (!self.kept.is_empty()).then(|| SceneError::with_dropped(self.kept, self.dropped))
     }
 }
 
@@ -76,12 +158,17 @@ pub const MAX_DIAGNOSTICS: usize = 100;
 impl SceneError {
     /// Builds an error from a non-empty list; the list is sorted by position, deduplicated,
     /// and cut to the first [`MAX_DIAGNOSTICS`] plus a note of how many more there were.
-    pub fn new(mut diagnostics: Vec<Diagnostic>) -> Self {
+    pub fn new(diagnostics: Vec<Diagnostic>) -> Self {
+        Self::with_dropped(diagnostics, 0)
+    }
+
+    /// As [`new`](Self::new), with `dropped` more diagnostics found after all of these.
+    fn with_dropped(mut diagnostics: Vec<Diagnostic>, dropped: usize) -> Self {
         diagnostics.sort_by_key(|d| d.pos);
         diagnostics.dedup();
         debug_assert!(!diagnostics.is_empty());
         if diagnostics.len() > MAX_DIAGNOSTICS {
-            let more = diagnostics.len() - MAX_DIAGNOSTICS;
+            let more = diagnostics.len() - MAX_DIAGNOSTICS + dropped;
             let at = diagnostics[MAX_DIAGNOSTICS].pos;
             diagnostics.truncate(MAX_DIAGNOSTICS);
             diagnostics.push(Diagnostic::new(
@@ -216,6 +303,35 @@ fn edit_distance(a: &str, b: &str) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The bounded list gives the error the whole list gives (same diagnostics shown, same
+    /// count of the rest), in a few hundred entries, whatever order the positions come in.
+    #[test]
+    fn found_keeps_the_earliest_in_bounded_memory() {
+        // Distinct positions in a scrambled order (a line twice, at different columns).
+        let all: Vec<Diagnostic> = (0..20_000u32)
+            .map(|i| {
+                let line = (i.wrapping_mul(7_919) % 9_973) + 1;
+                Diagnostic::new(Pos::new(line, 1 + i % 3), format!("e{}", line % 5))
+            })
+            .collect();
+        let mut found = Found::default();
+        let mut most = 0;
+        for d in &all {
+            found.push(d.clone());
+            most = most.max(found.kept().len());
+        }
+        assert!(most < 4 * Found::KEEP, "{most}");
+        assert_eq!(found.pushed(), all.len());
+        let bounded = found.into_error().expect("some");
+        let whole = SceneError::new(all);
+        assert_eq!(bounded.diagnostics().len(), MAX_DIAGNOSTICS + 1);
+        assert_eq!(
+            bounded.diagnostics()[..MAX_DIAGNOSTICS],
+            whole.diagnostics()[..MAX_DIAGNOSTICS]
+        );
+        assert_eq!(bounded, whole);
+    }
 
     #[test]
     fn distance_counts_edits_and_transpositions() {

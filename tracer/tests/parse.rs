@@ -227,7 +227,7 @@ fn duplicated_keys_are_errors_but_transforms_may_repeat() {
         "[OBJECT]\ntype = sphere\nmirror = 0.5\nreflection = 0.5\n[/OBJECT]\n",
         4,
         1,
-        &["twice"],
+        &["`reflection` repeats `mirror` (line 3)"],
     );
     ok(
         "[OBJECT]\ntype = sphere\nscale = 2\nscale = 3\nrotate = <0,0,1>\nrotate = <1,0,0>\n[/OBJECT]\n",
@@ -397,6 +397,61 @@ fn conflicting_keys_are_errors() {
     );
 }
 
+/// A misspelt tag is one mistake: one error, not a cascade (the opener's block swallowing
+/// the next, correct block and asking for its own misspelt closer). Each case is the one
+/// typo's error alone, and the scene without the typo parses.
+#[test]
+fn a_misspelt_tag_is_one_error() {
+    let sphere = "type = sphere\nradius = 3\n";
+    let cube = "[OBJECT]\ntype = cube\n[/OBJECT]\n";
+    ok(&format!("[OBJECT]\n{sphere}[/OBJECT]\n{cube}"));
+    // The opener misspelt; its block ends at the known closer, which is not reported.
+    one_error(
+        &format!("[OBJCET]\n{sphere}[/OBJECT]\n{cube}"),
+        1,
+        1,
+        &["unknown tag [OBJCET]", "did you mean [OBJECT]"],
+    );
+    // The closer misspelt: it closes the block it misspells.
+    one_error(
+        &format!("[OBJECT]\n{sphere}[/OBJCET]\n{cube}"),
+        4,
+        1,
+        &["unknown tag [/OBJCET]", "did you mean [/OBJECT]"],
+    );
+    // An unknown block closed by its own name, and one whose closer never comes: the next
+    // known tag ends it.
+    one_error(
+        &format!("[MATERIAL]\ncolor = <1,0,0>\n[/MATERIAL]\n{cube}"),
+        1,
+        1,
+        &["unknown tag [MATERIAL]"],
+    );
+    one_error(
+        &format!("[MATERIAL]\ncolor = <1,0,0>\n{cube}"),
+        1,
+        1,
+        &["unknown tag [MATERIAL]"],
+    );
+    // An unknown wrapper around known blocks: its closer, after them, is not reported again.
+    one_error(
+        &format!("[OBJECTS]\n{cube}{cube}[/OBJECTS]\n"),
+        1,
+        1,
+        &["unknown tag [OBJECTS]"],
+    );
+    // An unknown tag inside a known block: the block's own checks (a missing `type`) stay
+    // quiet, since the unknown block may have swallowed the key.
+    one_error(
+        "[OBJECT]\n[MATERIAL]\ntype = sphere\n[/OBJECT]\n",
+        2,
+        1,
+        &["unknown tag [MATERIAL]"],
+    );
+    // A closer nobody opened and that misspells nothing still says so.
+    one_error(&format!("{cube}[/OBJECT]\n"), 4, 1, &["closes nothing"]);
+}
+
 #[test]
 fn tag_structure_errors() {
     one_error(
@@ -503,6 +558,19 @@ fn numbers_past_the_largest_are_refused_where_they_are_written() {
     for (src, line, column) in cases {
         one_error(src, line, column, &["magnitude at most 1e15"]);
     }
+    // A literal past the largest `f64` is too large too, not "not a number".
+    one_error(
+        "[OBJECT]\ntype = sphere\nradius = 1e400\n[/OBJECT]\n",
+        3,
+        10,
+        &["magnitude at most 1e15"],
+    );
+    one_error(
+        "[OBJECT]\ntype = sphere\nradius = -1e400\n[/OBJECT]\n",
+        3,
+        10,
+        &["magnitude at most 1e15"],
+    );
 }
 
 #[test]
@@ -744,6 +812,79 @@ fn quoted_control_characters_are_escaped() {
     assert!(message.contains("`8\\0\\u{1b}[31m`"), "{message}");
 }
 
+/// Characters that print as nothing (a zero-width space pasted from a web page, a
+/// byte-order mark in mid-file) are shown escaped where a message quotes them: the message
+/// read "found `` in `width`".
+#[test]
+fn quoted_invisible_characters_are_escaped() {
+    for (c, escaped) in [
+        ('\u{200b}', "\\u{200b}"),
+        ('\u{feff}', "\\u{feff}"),
+        ('\u{202e}', "\\u{202e}"),
+        ('\u{2060}', "\\u{2060}"),
+    ] {
+        let errs = errors(&format!("[GLOBALS]\n{c}width = 8\n[/GLOBALS]\n"));
+        assert_eq!(errs.len(), 1, "{errs:?}");
+        let message = &errs[0].2;
+        assert!(!message.contains(c), "{message:?}");
+        assert!(
+            message.contains(&format!("found `{escaped}` in `{escaped}width`")),
+            "{message}"
+        );
+    }
+}
+
+/// Names quoted in messages are cut short, as values are: a line of a binary file read as a
+/// key, or a tag of 50,000 letters, was echoed whole (a 1 MB key made a 1 MB message).
+#[test]
+fn quoted_names_are_cut_short() {
+    let long = "x".repeat(50_000);
+    let cases = [
+        format!("[GLOBALS]\n{long} = 1\n[/GLOBALS]\n"),
+        format!("[GLOBALS]\n[/GLOBALS]\n{long} = 1\n"),
+        format!("[{long}]\n[/{long}]\n"),
+        format!("[OBJECT]\ntype = sphere\n[/{long}]\n"),
+        format!("[GLOBALS]\n{long}! = 1\n[/GLOBALS]\n"),
+        format!("[{long}!]\n"),
+    ];
+    for src in &cases {
+        let errs = errors(src);
+        for (_, _, message) in &errs {
+            assert!(
+                message.len() < 300,
+                "{} bytes: {}",
+                message.len(),
+                &message[..300]
+            );
+        }
+        assert!(
+            errs.iter()
+                .any(|(_, _, m)| m.to_ascii_lowercase().contains("xxx...")),
+            "{errs:?}"
+        );
+    }
+}
+
+/// A line far longer than any scene line is refused on its own, at its line, and the lines
+/// around it are still read: one 100 MB line used to be widened to 400 MB of characters
+/// before its first was refused.
+#[test]
+fn an_overlong_line_is_one_error() {
+    let long = format!("color = <{}>", "1,".repeat(40_000));
+    let errs = errors(&format!(
+        "[GLOBALS]\nwidth = 8\n{long}\nheight = x\n[/GLOBALS]\n"
+    ));
+    assert_eq!(errs.len(), 2, "{errs:?}");
+    assert_eq!((errs[0].0, errs[0].1), (3, 1));
+    assert!(errs[0].2.contains("80010 bytes"), "{}", errs[0].2);
+    assert_eq!((errs[1].0, errs[1].1), (4, 10));
+    // Just under the cap, a line is read as usual (its value is then wrong, and says so).
+    let under = format!("ambient = {}", "1".repeat(65_536 - 10));
+    let errs = errors(&format!("[GLOBALS]\n{under}\n[/GLOBALS]\n"));
+    assert_eq!(errs.len(), 1, "{errs:?}");
+    assert!(!errs[0].2.contains("bytes"), "{}", errs[0].2);
+}
+
 /// A file of many bad lines reports the first hundred and says how many more there were,
 /// at the first of them.
 #[test]
@@ -758,6 +899,34 @@ fn errors_are_capped_with_a_count_of_the_rest() {
     let last = &errs[max];
     assert_eq!((last.0, last.1), ((max + 2) as u32, 1));
     assert_eq!(last.2, "25 more errors from here on are not shown");
+}
+
+/// The count past the first hundred is exact however many there are, and which are shown
+/// does not depend on the order the checks found them in: errors found late (a missing
+/// `type`, found after every line is read) but written early are among those shown. The
+/// parser keeps only a few hundred at a time (the memory of a million bad lines), so this
+/// checks its bounded list against the same errors counted line by line.
+#[test]
+fn many_errors_are_counted_exactly_and_the_earliest_shown() {
+    let max = tessera_tracer::diag::MAX_DIAGNOSTICS;
+    let bad = 5_000;
+    // Line 1 opens an object with no `type` (reported after all lines are read, at line 1);
+    // then one malformed line each (found by the lexer first).
+    let lines: String = (0..bad).map(|i| format!("junk {i}\n")).collect();
+    let errs = errors(&format!("[OBJECT]\nradius = 2\n[/OBJECT]\n{lines}"));
+    assert_eq!(errs.len(), max + 1);
+    // Missing `type` at 1:1, then the junk lines from line 4 on.
+    assert_eq!((errs[0].0, errs[0].1), (1, 1), "{:?}", errs[0]);
+    assert!(errs[0].2.contains("type"), "{:?}", errs[0]);
+    for (k, e) in errs[1..max].iter().enumerate() {
+        assert_eq!(e.0, 4 + k as u32, "{e:?}");
+    }
+    let total = bad + 1;
+    assert_eq!(
+        errs[max].2,
+        format!("{} more errors from here on are not shown", total - max)
+    );
+    assert_eq!(errs[max].0, 4 + (max - 1) as u32);
 }
 
 /// `[rayfile]` wraps the whole scene: anything after its close is an error, once, at the

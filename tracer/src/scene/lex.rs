@@ -1,7 +1,7 @@
 //! Line lexer for `.ray` files: splits the text into tags and `key = value` items, each with
 //! its position. It knows nothing about which tags or keys exist; that is the parser's job.
 
-use crate::diag::{Diagnostic, Pos};
+use crate::diag::{Diagnostic, Found, Pos, shorten};
 
 /// One meaningful line of a scene file.
 #[derive(Debug, Clone, PartialEq)]
@@ -20,13 +20,31 @@ pub(crate) enum Item {
     },
 }
 
+/// The longest line read, in bytes. A scene's lines are a tag or one `key = value`; a longer
+/// one is a file that is not a scene (a binary, a minified dump), and each line is widened to
+/// 4-byte `char`s to be read, so without a cap one 100 MB line cost 400 MB before its first
+/// character was refused.
+pub(crate) const MAX_LINE_BYTES: usize = 64 * 1024;
+
 /// Splits `source` into items. Lines that are neither blank, a comment, a tag nor an entry
 /// become diagnostics; lexing carries on so that every such line is reported.
-pub(crate) fn lex(source: &str) -> (Vec<Item>, Vec<Diagnostic>) {
+pub(crate) fn lex(source: &str) -> (Vec<Item>, Found) {
     let mut items = Vec::new();
-    let mut errors = Vec::new();
+    let mut errors = Found::default();
     for (index, raw) in source.lines().enumerate() {
         let line = u32::try_from(index + 1).unwrap_or(u32::MAX);
+        if raw.len() > MAX_LINE_BYTES {
+            errors.push(Diagnostic::new(
+                Pos::new(line, 1),
+                format!(
+                    "a line of {} bytes: a scene's lines are a tag or one `key = value` \
+                     (at most {MAX_LINE_BYTES} bytes)",
+                    raw.len()
+                ),
+            ));
+            items.push(Item::Broken);
+            continue;
+        }
         let chars: Vec<char> = raw.chars().collect();
         let end = comment_start(&chars);
         let text = &chars[..end];
@@ -75,7 +93,10 @@ pub(crate) fn lex(source: &str) -> (Vec<Item>, Vec<Diagnostic>) {
         {
             errors.push(Diagnostic::new(
                 pos,
-                format!("a key is letters, digits and `_`; found `{bad}` in `{key}`"),
+                format!(
+                    "a key is letters, digits and `_`; found `{bad}` in `{}`",
+                    shorten(&key)
+                ),
             ));
             items.push(Item::Broken);
             continue;
@@ -124,7 +145,8 @@ fn lex_tag(body: &[char]) -> Result<(String, bool), String> {
     };
     if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
         return Err(format!(
-            "`[{inner}]` is not a tag: expected a name such as [OBJECT]"
+            "`[{}]` is not a tag: expected a name such as [OBJECT]",
+            shorten(inner)
         ));
     }
     Ok((name.to_ascii_lowercase(), close))
@@ -171,7 +193,7 @@ mod tests {
     #[test]
     fn reports_every_malformed_line() {
         let (_, errors) = lex("radius 5\n[OBJ ECT]\n= 3\n[OBJECT\n");
-        let lines: Vec<u32> = errors.iter().map(|e| e.pos.line).collect();
+        let lines: Vec<u32> = errors.kept().iter().map(|e| e.pos.line).collect();
         assert_eq!(lines, vec![1, 2, 3, 4]);
     }
 
@@ -181,7 +203,7 @@ mod tests {
         // `é` is not a valid key character, so the line is an error at column 3.
         assert_eq!(items, vec![Item::Broken]);
         let (_, errors) = lex("  é = 1\n");
-        assert_eq!(errors[0].pos, Pos::new(1, 3));
+        assert_eq!(errors.kept()[0].pos, Pos::new(1, 3));
         let (items, _) = lex("ambient = 0.5 # é\n");
         assert!(matches!(&items[0], Item::Entry { value, .. } if value == "0.5"));
     }

@@ -4,7 +4,7 @@
 //! recorded and parsing goes on with the next item, so one run reports every independent
 //! mistake. Only the final result is all-or-nothing.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use glam::DVec3;
 
@@ -13,7 +13,7 @@ use super::{
     CameraDesc, CsgDesc, CsgOp, Light, Limits, MaterialDesc, Node, ObjectDesc, SceneDesc,
     TextureRef,
 };
-use crate::diag::{Diagnostic, Pos, SceneError, closest};
+use crate::diag::{Diagnostic, Found, Pos, SceneError, closest, shorten};
 use crate::math::Color;
 use crate::sampler::Sampler;
 use crate::shape::Shape;
@@ -83,10 +83,9 @@ pub fn parse(source: &str, limits: &Limits) -> Result<SceneDesc, SceneError> {
         light_pos: Vec::new(),
     };
     let desc = p.scene(&root);
-    if p.errors.is_empty() {
-        Ok(desc)
-    } else {
-        Err(SceneError::new(p.errors))
+    match p.errors.into_error() {
+        None => Ok(desc),
+        Some(e) => Err(e),
     }
 }
 
@@ -108,6 +107,9 @@ struct Block {
     /// Something inside could not be read (a malformed line, an unclosed child): checks for
     /// missing keys or children would only echo that error, so they are skipped.
     broken: bool,
+    /// An unknown tag's block, already reported: its contents are not read, and the next
+    /// known tag ends it without another error (see `build_tree`).
+    unknown: bool,
 }
 
 impl Block {
@@ -118,6 +120,7 @@ impl Block {
             entries: Vec::new(),
             children: Vec::new(),
             broken: false,
+            unknown: false,
         }
     }
 
@@ -130,12 +133,23 @@ impl Block {
 /// unclosed tags. The returned root holds the top-level blocks (a `[rayfile]` wrapper is
 /// unwrapped) and any entries written outside every block.
 ///
+/// A misspelt tag is one mistake and gets one error. An unknown opening tag (`[OBJCET]`)
+/// opens a block that the next known tag ends, silently: an opening one (the block was
+/// likely never meant to hold it), or a closing one that matches nothing open (most likely
+/// the closer of the misspelt opener, `[/OBJECT]`); the unknown name's own closer is then
+/// ignored wherever it comes. An unknown closing tag (`[/OBJCET]`) whose nearest known name
+/// is the innermost open block's closes that block. Without these rules, one typo produced
+/// three more errors, one of them asking for `[/OBJCET]` and one blaming the next, correct
+/// block.
+///
 /// At most `max_depth` blocks are open at once: a tag that would open one more is an error
 /// and ends the reading there. Everything that walks the tree (the checks, and dropping it)
 /// recurses once per level, so an unbounded nesting (100,000 `[CSG]` tags: 600 KB) would
 /// overflow the stack and abort the process, the service's included.
-fn build_tree(items: Vec<Item>, errors: &mut Vec<Diagnostic>, max_depth: usize) -> Block {
+fn build_tree(items: Vec<Item>, errors: &mut Found, max_depth: usize) -> Block {
     let mut stack: Vec<Block> = vec![Block::new(String::new(), Pos::new(1, 1))];
+    // Unknown opening tags' names, whose closers are then not reported again.
+    let mut unknown_names: HashSet<String> = HashSet::new();
     let mut seen_rayfile = false;
     let mut seen_anything = false;
     let mut stopped = false;
@@ -173,8 +187,12 @@ fn build_tree(items: Vec<Item>, errors: &mut Vec<Diagnostic>, max_depth: usize) 
                 close: false,
                 pos,
             } => {
+                let known = TAGS.contains(&name.as_str());
+                if known {
+                    end_unknown(&mut stack);
+                }
                 let parent = stack.last().map(|b| b.name.as_str()).unwrap_or("");
-                if !TAGS.contains(&name.as_str()) {
+                if !known {
                     let hint = match closest(&name, TAGS.iter().copied()) {
                         Some(s) => format!("; did you mean [{}]?", s.to_ascii_uppercase()),
                         None => {
@@ -183,8 +201,12 @@ fn build_tree(items: Vec<Item>, errors: &mut Vec<Diagnostic>, max_depth: usize) 
                     };
                     errors.push(Diagnostic::new(
                         pos,
-                        format!("unknown tag [{}]{hint}", name.to_ascii_uppercase()),
+                        format!(
+                            "unknown tag [{}]{hint}",
+                            shorten(&name.to_ascii_uppercase())
+                        ),
                     ));
+                    unknown_names.insert(name.clone());
                 } else if name == "rayfile" {
                     if seen_rayfile || seen_anything || stack.len() > 1 {
                         errors.push(Diagnostic::new(
@@ -211,38 +233,63 @@ fn build_tree(items: Vec<Item>, errors: &mut Vec<Diagnostic>, max_depth: usize) 
                     }
                 }
                 seen_anything = true;
-                stack.push(Block::new(name, pos));
+                let mut block = Block::new(name, pos);
+                block.unknown = !known;
+                stack.push(block);
             }
             Item::Tag {
                 name,
                 close: true,
                 pos,
             } => {
-                let Some(depth) = stack.iter().skip(1).rposition(|b| b.name == name) else {
-                    errors.push(Diagnostic::new(
-                        pos,
-                        format!(
-                            "[/{0}] closes nothing: no [{0}] is open",
-                            name.to_ascii_uppercase()
-                        ),
-                    ));
+                let open_at = stack.iter().skip(1).rposition(|b| b.name == name);
+                let Some(depth) = open_at else {
+                    let top = stack.len() - 1;
+                    if TAGS.contains(&name.as_str()) {
+                        if !end_unknown(&mut stack) {
+                            errors.push(Diagnostic::new(
+                                pos,
+                                format!(
+                                    "[/{0}] closes nothing: no [{0}] is open",
+                                    name.to_ascii_uppercase()
+                                ),
+                            ));
+                        }
+                    } else if !unknown_names.contains(&name) {
+                        let hint = closest(&name, TAGS.iter().copied());
+                        errors.push(Diagnostic::new(
+                            pos,
+                            match hint {
+                                Some(s) => format!(
+                                    "unknown tag [/{}]; did you mean [/{}]?",
+                                    shorten(&name.to_ascii_uppercase()),
+                                    s.to_ascii_uppercase()
+                                ),
+                                None => format!(
+                                    "unknown tag [/{}]",
+                                    shorten(&name.to_ascii_uppercase())
+                                ),
+                            },
+                        ));
+                        // The innermost block's own closer, misspelt: it ends that block.
+                        if top > 0 && hint == Some(stack[top].name.as_str()) {
+                            close_top(&mut stack, &mut rayfile_closed, pos);
+                        }
+                    }
                     continue;
                 };
                 let depth = depth + 1;
                 while stack.len() > depth + 1 {
                     let Some(open) = stack.pop() else { break };
-                    errors.push(unclosed(&open, Some(pos)));
+                    if !open.unknown {
+                        errors.push(unclosed(&open, Some(pos)));
+                    }
                     attach(&mut stack, open);
                     if let Some(parent) = stack.last_mut() {
                         parent.broken = true;
                     }
                 }
-                if let Some(done) = stack.pop() {
-                    if done.name == "rayfile" && stack.len() == 1 {
-                        rayfile_closed = Some(pos);
-                    }
-                    attach(&mut stack, done);
-                }
+                close_top(&mut stack, &mut rayfile_closed, pos);
             }
             Item::Broken => {
                 if let Some(top) = stack.last_mut() {
@@ -269,7 +316,7 @@ fn build_tree(items: Vec<Item>, errors: &mut Vec<Diagnostic>, max_depth: usize) 
     }
     while stack.len() > 1 {
         let Some(mut open) = stack.pop() else { break };
-        if stopped {
+        if stopped || open.unknown {
             // Not read to its end: its closing tag may well be in the part not read.
             open.broken = true;
         } else {
@@ -280,6 +327,32 @@ fn build_tree(items: Vec<Item>, errors: &mut Vec<Diagnostic>, max_depth: usize) 
     stack
         .pop()
         .unwrap_or_else(|| Block::new(String::new(), Pos::new(1, 1)))
+}
+
+/// Ends the innermost block at its closing tag at `pos`.
+fn close_top(stack: &mut Vec<Block>, rayfile_closed: &mut Option<Pos>, pos: Pos) {
+    if let Some(done) = stack.pop() {
+        if done.name == "rayfile" && stack.len() == 1 {
+            *rayfile_closed = Some(pos);
+        }
+        attach(stack, done);
+    }
+}
+
+/// Ends the innermost block if it is an unknown tag's (reported when it opened); its parent
+/// is marked broken, since what the block swallowed may have been the parent's. Returns
+/// whether there was one.
+fn end_unknown(stack: &mut Vec<Block>) -> bool {
+    if stack.len() < 2 || !stack[stack.len() - 1].unknown {
+        return false;
+    }
+    if let Some(open) = stack.pop() {
+        attach(stack, open);
+    }
+    if let Some(parent) = stack.last_mut() {
+        parent.broken = true;
+    }
+    true
 }
 
 /// Adds a finished block to its parent; a `[rayfile]` wrapper is dissolved into it.
@@ -308,7 +381,7 @@ fn unclosed(block: &Block, at: Option<Pos>) -> Diagnostic {
 }
 
 struct Parser<'a> {
-    errors: Vec<Diagnostic>,
+    errors: Found,
     limits: &'a Limits,
     objects: usize,
     textures: Vec<String>,
@@ -358,7 +431,7 @@ impl Parser<'_> {
             };
             self.err(
                 e.key_pos,
-                format!("`{}` is outside every block{hint}", e.key),
+                format!("`{}` is outside every block{hint}", shorten(&e.key)),
             );
         }
         let mut globals_at: Option<Pos> = None;
@@ -442,7 +515,8 @@ impl Parser<'_> {
     /// Checks keys against the block's list, reports unknown and duplicated ones, and returns
     /// the entries to interpret (transform keys may repeat; others may not).
     fn entries<'b>(&mut self, b: &'b Block, keys: &[&str]) -> Vec<&'b Entry> {
-        let mut seen: HashMap<&str, Pos> = HashMap::new();
+        // Each key's first entry: where, and the spelling used there (`mirror` or its alias).
+        let mut seen: HashMap<&str, (Pos, &str)> = HashMap::new();
         let mut out = Vec::new();
         for e in &b.entries {
             if !keys.contains(&e.key.as_str()) {
@@ -456,19 +530,27 @@ impl Parser<'_> {
                 e.key.as_str()
             };
             if !TRANSFORM_KEYS.contains(&canonical) {
-                if let Some(first) = seen.get(canonical) {
-                    self.err(
-                        e.key_pos,
+                if let Some((first, first_key)) = seen.get(canonical) {
+                    let message = if *first_key == e.key {
                         format!(
                             "`{}` is given twice in {}; the first is at line {}",
                             e.key,
                             b.display(),
                             first.line
-                        ),
-                    );
+                        )
+                    } else {
+                        format!(
+                            "`{}` repeats `{first_key}` (line {}): they are one key, given \
+                             once in {}",
+                            e.key,
+                            first.line,
+                            b.display()
+                        )
+                    };
+                    self.err(e.key_pos, message);
                     continue;
                 }
-                seen.insert(canonical, e.key_pos);
+                seen.insert(canonical, (e.key_pos, e.key.as_str()));
             }
             out.push(e);
         }
@@ -489,7 +571,8 @@ impl Parser<'_> {
             return format!("`{key}` is not a {block} key; it belongs in {home}");
         }
         format!(
-            "unknown key `{key}` in {block}; expected one of: {}",
+            "unknown key `{}` in {block}; expected one of: {}",
+            shorten(key),
             keys.join(", ")
         )
     }
@@ -712,7 +795,7 @@ impl Parser<'_> {
     fn object(&mut self, b: &Block) -> Option<ObjectDesc> {
         self.count_object(b.pos);
         let entries = self.entries(b, OBJECT_KEYS);
-        let errors_before = self.errors.len();
+        let errors_before = self.errors.pushed();
 
         // The shape first: which own keys apply depends on it.
         let kind = match entries.iter().find(|e| e.key == "type") {
@@ -844,7 +927,7 @@ impl Parser<'_> {
             .map_or(b.pos, |e| e.key_pos);
         let transform =
             self.transform(std::iter::once((TransformOp::Scale(own_scale), size_at)).chain(steps));
-        if self.errors.len() > errors_before {
+        if self.errors.pushed() > errors_before {
             return None;
         }
         Some(ObjectDesc {
@@ -883,7 +966,7 @@ impl Parser<'_> {
             );
             return None;
         }
-        let errors_before = self.errors.len();
+        let errors_before = self.errors.pushed();
         let mut op = None;
         let mut steps = Vec::new();
         for e in self.entries(b, CSG_KEYS) {
@@ -930,7 +1013,7 @@ impl Parser<'_> {
             );
         }
         let transform = self.transform(steps);
-        if self.errors.len() > errors_before {
+        if self.errors.pushed() > errors_before {
             return None;
         }
         Some(CsgDesc {
@@ -1221,24 +1304,11 @@ fn parse_f64(s: &str) -> Result<f64, BadNumber> {
     {
         return Err(BadNumber::NotANumber);
     }
-    let x = s
-        .parse::<f64>()
-        .ok()
-        .filter(|x| x.is_finite())
-        .ok_or(BadNumber::NotANumber)?;
+    let x = s.parse::<f64>().map_err(|_| BadNumber::NotANumber)?;
+    // Only digits, signs, points and exponents got here, so an infinite value is a literal
+    // too large for an `f64` (`1e400`), not `inf`.
     if x.abs() > MAX_NUMBER {
         return Err(BadNumber::TooLarge);
     }
     Ok(x)
-}
-
-/// At most 40 characters of user text for an error message.
-fn shorten(s: &str) -> String {
-    if s.chars().count() <= 40 {
-        s.to_string()
-    } else {
-        let mut out: String = s.chars().take(37).collect();
-        out.push_str("...");
-        out
-    }
 }
