@@ -49,7 +49,7 @@ pub use diag::{Diagnostic, Pos, SceneError, scene_text};
 pub use png_out::{PngError, PngWriter, SharedBuffer, encode_png};
 pub use render::RayStats;
 pub use sampler::Sampler;
-pub use scene::{Limits, SceneDesc, parse};
+pub use scene::{Limits, MAX_SCENE_FILE_BYTES, SceneDesc, parse};
 pub use texture::{AssetSource, DirAssets, MemoryAssets, Texture, TextureError, TextureLimits};
 pub use tile::{Rect, tile_count, tiles};
 pub use world::{Acceleration, Scene};

@@ -136,6 +136,12 @@ impl AssetSource for DirAssets {
             name: name.to_string(),
             reason: format!("{}: {reason}", path.display()),
         };
+        // Asked before opening too: opening a named pipe waits for a writer, for ever if none
+        // comes. The open file is asked again below, in case the path changed meanwhile.
+        let before = std::fs::metadata(&path).map_err(|e| missing(e.to_string()))?;
+        if !before.is_file() {
+            return Err(missing("not a regular file".to_string()));
+        }
         let file = std::fs::File::open(&path).map_err(|e| missing(e.to_string()))?;
         let meta = file.metadata().map_err(|e| missing(e.to_string()))?;
         if !meta.is_file() {

@@ -218,3 +218,129 @@ fn a_texture_that_is_not_a_file_is_refused() {
         "{stderr}"
     );
 }
+
+/// Runs `cmd` to its end, or fails the test if it has not ended within `limit`: for the
+/// cases below, which used to run for ever (a render of hours, a read of `/dev/zero`, an
+/// open of a pipe). A guard against a hang, not a measure of speed: the cases take well
+/// under a second.
+fn output_within(cmd: &mut Command, limit: std::time::Duration) -> std::process::Output {
+    use std::process::Stdio;
+    let mut child = cmd
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("runs");
+    let start = std::time::Instant::now();
+    loop {
+        if child.try_wait().expect("wait").is_some() {
+            return child.wait_with_output().expect("output");
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("still running after {limit:?}");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
+/// A scene that would take hours: its output path is checked before the render, so that a
+/// mistyped `-o` fails at once instead of after the render (a directory, a missing folder).
+/// An existing file is not truncated by the check, and a path the check creates is removed.
+#[test]
+fn an_output_that_cannot_be_written_fails_before_the_render() {
+    let dir = temp_dir("output");
+    let scene = dir.join("slow.ray");
+    std::fs::write(
+        &scene,
+        "[GLOBALS]\nwidth = 16384\nheight = 16384\nsampler = jitter\nsamples = 32\n[/GLOBALS]\n\
+         [OBJECT]\ntype = sphere\n[/OBJECT]\n",
+    )
+    .expect("write");
+    let limit = std::time::Duration::from_secs(60);
+    for (output, expected) in [
+        (dir.join("missing").join("x.png"), "No such file"),
+        (dir.clone(), "it is a directory"),
+    ] {
+        let out = output_within(bin().arg(&scene).arg("-o").arg(&output).arg("-q"), limit);
+        assert!(!out.status.success());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            stderr.contains(&format!("cannot create {}", output.display()))
+                && stderr.contains(expected),
+            "{stderr}"
+        );
+    }
+    // A writable path passes the check (made before the textures are loaded) and leaves
+    // nothing behind when the scene then fails to build; an existing file keeps its bytes.
+    let bad = dir.join("bad.ray");
+    std::fs::write(
+        &bad,
+        "[OBJECT]\ntype = sphere\ntexture = none.png\n[/OBJECT]\n",
+    )
+    .expect("write");
+    let fresh = dir.join("fresh.png");
+    let kept = dir.join("kept.png");
+    std::fs::write(&kept, b"old image").expect("write");
+    for output in [&fresh, &kept] {
+        let out = bin()
+            .arg(&bad)
+            .arg("-o")
+            .arg(output)
+            .output()
+            .expect("runs");
+        assert!(!out.status.success());
+    }
+    assert!(!fresh.exists());
+    assert_eq!(std::fs::read(&kept).expect("kept"), b"old image");
+}
+
+/// A scene path that never ends (`/dev/zero`) is read up to the cap and refused, instead of
+/// until memory runs out.
+#[test]
+fn a_scene_file_is_read_only_up_to_its_cap() {
+    if !Path::new("/dev/zero").exists() {
+        eprintln!("skipped: no /dev/zero here");
+        return;
+    }
+    let limit = std::time::Duration::from_secs(60);
+    let out = output_within(bin().args(["/dev/zero", "-q"]), limit);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let cap = tessera_tracer::MAX_SCENE_FILE_BYTES >> 20;
+    assert!(
+        stderr.contains(&format!("/dev/zero is larger than {cap} MiB")),
+        "{stderr}"
+    );
+}
+
+/// A texture name that names a pipe is refused at once: opening a pipe waits for a writer,
+/// and the render waited for ever.
+#[test]
+fn a_texture_that_is_a_pipe_is_refused() {
+    let dir = temp_dir("fifo");
+    let fifo = dir.join("pipe.png");
+    let _ = std::fs::remove_file(&fifo);
+    match Command::new("mkfifo").arg(&fifo).status() {
+        Ok(s) if s.success() => {}
+        _ => {
+            eprintln!("skipped: no mkfifo here");
+            return;
+        }
+    }
+    let scene = dir.join("s.ray");
+    std::fs::write(
+        &scene,
+        "[OBJECT]\ntype = sphere\ntexture = pipe.png\n[/OBJECT]\n",
+    )
+    .expect("write");
+    let limit = std::time::Duration::from_secs(60);
+    let out = output_within(bin().arg(&scene).arg("-o").arg(dir.join("x.png")), limit);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains(&format!("{}:3:11: ", scene.display()))
+            && stderr.contains("pipe.png: not a regular file"),
+        "{stderr}"
+    );
+}

@@ -1,8 +1,8 @@
 //! `tessera-render`: the stand-alone tracer. Renders a `.ray` scene to a PNG on this machine,
 //! on all cores (or `--threads N`), with no service involved.
 
-use std::fs::File;
-use std::io::{BufWriter, IsTerminal, Write};
+use std::fs::{File, OpenOptions};
+use std::io::{BufWriter, IsTerminal, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
@@ -12,7 +12,8 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use tessera_tracer::{
-    DirAssets, Limits, MAX_THREADS, PngWriter, Scene, SceneError, TextureLimits, parse, scene_text,
+    DirAssets, Limits, MAX_SCENE_FILE_BYTES, MAX_THREADS, PngWriter, Scene, SceneError,
+    TextureLimits, parse, scene_text,
 };
 
 /// The output file, shared with the PNG encoder. The encoder owns its writer and gives no
@@ -88,10 +89,58 @@ fn main() -> ExitCode {
     }
 }
 
+/// The scene file's bytes, at most [`MAX_SCENE_FILE_BYTES`] of them. Any readable file is
+/// taken, a pipe included (`<(generate-scene)`), but not read past the cap.
+fn read_scene(path: &Path) -> Result<Vec<u8>> {
+    let what = || format!("cannot read {}", path.display());
+    let file = File::open(path).with_context(what)?;
+    let mut bytes = Vec::new();
+    file.take(MAX_SCENE_FILE_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .with_context(what)?;
+    if bytes.len() as u64 > MAX_SCENE_FILE_BYTES {
+        anyhow::bail!(
+            "{} is larger than {} MiB, the most a scene file may have: is it a scene?",
+            path.display(),
+            MAX_SCENE_FILE_BYTES >> 20
+        );
+    }
+    Ok(bytes)
+}
+
+/// Fails now if the PNG could not be written at the end, so that a mistyped `-o` does not
+/// cost the render: a directory, a missing folder, a file that may not be written. A path
+/// that does not exist is created to prove it can be and removed again; an existing file is
+/// opened for writing, not truncated, so that it is kept if the render fails. Devices and
+/// pipes are left alone (opening a pipe waits for its reader).
+fn check_output(path: &Path) -> Result<()> {
+    let what = || format!("cannot create {}", path.display());
+    match std::fs::metadata(path) {
+        Ok(meta) if meta.is_dir() => {
+            anyhow::bail!("cannot create {}: it is a directory", path.display())
+        }
+        Ok(meta) if meta.is_file() => {
+            OpenOptions::new()
+                .write(true)
+                .open(path)
+                .with_context(what)?;
+        }
+        Ok(_) => {}
+        Err(_) => {
+            OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(path)
+                .with_context(what)?;
+            // It was made just now, empty; the real one is written after the render.
+            std::fs::remove_file(path).with_context(what)?;
+        }
+    }
+    Ok(())
+}
+
 fn run(args: &Args) -> Result<()> {
-    let bytes = std::fs::read(&args.scene)
-        .with_context(|| format!("cannot read {}", args.scene.display()))?;
-    let source = scene_text(bytes)?;
+    let source = scene_text(read_scene(&args.scene)?)?;
     let limits = Limits::default();
     let mut desc = parse(&source, &limits)?;
     desc.sampler = desc
@@ -104,6 +153,7 @@ fn run(args: &Args) -> Result<()> {
         )
         .map_err(anyhow::Error::msg)?;
     let dir = args.scene.parent().unwrap_or(Path::new("."));
+    check_output(&args.output)?;
     let scene = Scene::build(&desc, &DirAssets::new(dir), &TextureLimits::default())?;
 
     let mut pool = rayon::ThreadPoolBuilder::new();
