@@ -600,6 +600,53 @@ fn errors_format_as_file_line_col_message() {
     assert!(text.starts_with("scene.ray:2:8: "), "{text}");
 }
 
+/// Past the object limit the file is not read further (one error, at the first object too
+/// many), so what the parser holds is bounded by the limit, not by the file: 2,000,000
+/// spheres took 2 GB to be refused. Likewise past the most lines one block may hold.
+#[test]
+fn the_reading_stops_at_the_object_and_block_limits() {
+    let limits = Limits {
+        max_objects: 3,
+        ..Limits::default()
+    };
+    let sphere = "[OBJECT]\ntype = sphere\n[/OBJECT]\n";
+    // Three objects are fine; the fourth [OBJECT] (line 10) is the error, and the bad line
+    // after it is not read.
+    parse(&sphere.repeat(3), &limits).expect("three objects");
+    let src = format!("{}width = x\n", sphere.repeat(10));
+    let errs = errors_with(&src, &limits);
+    assert_eq!(errs.len(), 1, "{errs:?}");
+    assert_eq!((errs[0].0, errs[0].1), (10, 1));
+    assert!(
+        errs[0].2.contains("too many objects: the limit is 3"),
+        "{errs:?}"
+    );
+    // CSG children count: two children and a loose sphere are three, a fourth is refused.
+    let csg = format!("[CSG]\nop = union\n{sphere}{sphere}[/CSG]\n");
+    parse(&format!("{csg}{sphere}"), &limits).expect("three objects");
+    let errs = errors_with(&format!("{csg}{sphere}{sphere}"), &limits);
+    assert_eq!(errs.len(), 1, "{errs:?}");
+    assert_eq!(errs[0].0, 13);
+
+    let max = tessera_tracer::scene::MAX_BLOCK_ENTRIES;
+    let chain = |n: usize| {
+        format!(
+            "[OBJECT]\ntype = sphere\n{}[/OBJECT]\n",
+            "scale = 1\n".repeat(n - 1)
+        )
+    };
+    ok(&chain(max));
+    let errs = errors(&format!("{}width = x\n", chain(max + 1)));
+    assert_eq!(errs.len(), 1, "{errs:?}");
+    assert_eq!((errs[0].0, errs[0].1), ((max + 2) as u32, 1));
+    assert!(
+        errs[0]
+            .2
+            .contains(&format!("more than {max} lines in [OBJECT]")),
+        "{errs:?}"
+    );
+}
+
 #[test]
 fn limits_are_enforced() {
     let limits = Limits {

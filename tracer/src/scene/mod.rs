@@ -11,7 +11,7 @@ mod parse;
 
 use glam::DVec3;
 
-pub use parse::{MAX_NUMBER, parse};
+pub use parse::{MAX_BLOCK_ENTRIES, MAX_NUMBER, parse};
 
 use crate::diag::Pos;
 use crate::math::Color;

@@ -74,11 +74,15 @@ pub fn parse(source: &str, limits: &Limits) -> Result<SceneDesc, SceneError> {
     let (items, mut errors) = lex(source);
     // `[rayfile]`, the CSG levels and the `[OBJECT]` inside the deepest, and room for a few
     // levels more, which the CSG check then reports as such.
-    let root = build_tree(items, &mut errors, limits.max_csg_depth + 8);
+    let root = build_tree(
+        items,
+        &mut errors,
+        limits.max_csg_depth + 8,
+        limits.max_objects,
+    );
     let mut p = Parser {
         errors,
         limits,
-        objects: 0,
         textures: Vec::new(),
         light_pos: Vec::new(),
     };
@@ -133,6 +137,10 @@ impl Block {
 /// unclosed tags. The returned root holds the top-level blocks (a `[rayfile]` wrapper is
 /// unwrapped) and any entries written outside every block.
 ///
+/// Most `key = value` lines one block may hold: far more than any block's keys, and room for
+/// a long chain of transforms.
+pub const MAX_BLOCK_ENTRIES: usize = 4_096;
+
 /// A misspelt tag is one mistake and gets one error. An unknown opening tag (`[OBJCET]`)
 /// opens a block that the next known tag ends, silently: an opening one (the block was
 /// likely never meant to hold it), or a closing one that matches nothing open (most likely
@@ -142,11 +150,18 @@ impl Block {
 /// three more errors, one of them asking for `[/OBJCET]` and one blaming the next, correct
 /// block.
 ///
+/// The tree holds the whole file before it is read for meaning, some hundreds of bytes an
+/// entry, so what it may hold is bounded here, where the file is read: past `max_objects`
+/// `[OBJECT]` tags (2,000,000 spheres, 62 MB, took 2 GB to be refused as too many) or
+/// [`MAX_BLOCK_ENTRIES`] lines in one block (7,000,000 `scale = 1` lines on one sphere took
+/// 1.4 GB, and were accepted), the reading stops with that error.
+///
 /// At most `max_depth` blocks are open at once: a tag that would open one more is an error
 /// and ends the reading there. Everything that walks the tree (the checks, and dropping it)
 /// recurses once per level, so an unbounded nesting (100,000 `[CSG]` tags: 600 KB) would
 /// overflow the stack and abort the process, the service's included.
-fn build_tree(items: Vec<Item>, errors: &mut Found, max_depth: usize) -> Block {
+fn build_tree(items: Vec<Item>, errors: &mut Found, max_depth: usize, max_objects: usize) -> Block {
+    let mut object_tags = 0usize;
     let mut stack: Vec<Block> = vec![Block::new(String::new(), Pos::new(1, 1))];
     // Unknown opening tags' names, whose closers are then not reported again.
     let mut unknown_names: HashSet<String> = HashSet::new();
@@ -183,10 +198,49 @@ fn build_tree(items: Vec<Item>, errors: &mut Found, max_depth: usize) -> Block {
                 break;
             }
             Item::Tag {
+                ref name,
+                close: false,
+                pos,
+            } if name == "object" && object_tags == max_objects => {
+                errors.push(Diagnostic::new(
+                    pos,
+                    format!(
+                        "too many objects: the limit is {max_objects}; the rest of the file is \
+                         not read"
+                    ),
+                ));
+                stopped = true;
+                break;
+            }
+            Item::Entry { key_pos, .. }
+                if stack
+                    .last()
+                    .is_some_and(|b| b.entries.len() == MAX_BLOCK_ENTRIES) =>
+            {
+                let block = stack.last().map_or(String::new(), Block::display);
+                errors.push(Diagnostic::new(
+                    key_pos,
+                    format!(
+                        "more than {MAX_BLOCK_ENTRIES} lines in {}; the rest of the file is \
+                         not read",
+                        if block == "[]" {
+                            "no block"
+                        } else {
+                            block.as_str()
+                        }
+                    ),
+                ));
+                stopped = true;
+                break;
+            }
+            Item::Tag {
                 name,
                 close: false,
                 pos,
             } => {
+                if name == "object" {
+                    object_tags += 1;
+                }
                 let known = TAGS.contains(&name.as_str());
                 if known {
                     end_unknown(&mut stack);
@@ -383,7 +437,6 @@ fn unclosed(block: &Block, at: Option<Pos>) -> Diagnostic {
 struct Parser<'a> {
     errors: Found,
     limits: &'a Limits,
-    objects: usize,
     textures: Vec<String>,
     /// Where each light of the scene was written, in the order they are counted.
     light_pos: Vec<Pos>,
@@ -782,18 +835,7 @@ impl Parser<'_> {
         }
     }
 
-    fn count_object(&mut self, pos: Pos) {
-        self.objects += 1;
-        if self.objects == self.limits.max_objects + 1 {
-            self.err(
-                pos,
-                format!("too many objects: the limit is {}", self.limits.max_objects),
-            );
-        }
-    }
-
     fn object(&mut self, b: &Block) -> Option<ObjectDesc> {
-        self.count_object(b.pos);
         let entries = self.entries(b, OBJECT_KEYS);
         let errors_before = self.errors.pushed();
 
