@@ -718,3 +718,33 @@ fn a_paused_service_extends_leases_instead_of_reaping_them() {
         .expect("answer");
     assert_eq!(renewed.status(), 200, "{}", svc.log());
 }
+
+/// A cancelled job's tile stops rendering when the worker's next renewal is refused: the
+/// worker is free for the next job within a fraction of a lease. It used to render the tile
+/// to its end (here a billion rays, minutes), and every job waited behind it.
+#[test]
+fn a_cancelled_jobs_tile_stops_rendering() {
+    let dir = TempDir::new("cancel-tile");
+    let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "600"]);
+    // The eye inside a mirrored sphere: every sample bounces 64 times, with a shadow ray
+    // each time; a billion samples in the one tile.
+    let slow = "[GLOBALS]\nwidth = 1024\nheight = 1024\nsampler = jitter\nsamples = 32\n\
+                max_depth = 64\n[/GLOBALS]\n[CAMERA]\neye = <0, 0, 0>\nlook_at = <0, 0, -1>\n\
+                [/CAMERA]\n[LIGHT]\nposition = <0, 1, 0>\n[/LIGHT]\n\
+                [OBJECT]\ntype = sphere\nradius = 50\nmirror = 0.9\n[/OBJECT]\n";
+    let job = svc.submit(slow, "?tile=1024");
+    let id = job["id"].as_str().expect("id").to_string();
+    let _worker = Worker::start(&svc.url, "w", &[]);
+    wait_until("the tile to be claimed", Duration::from_secs(60), || {
+        svc.get_json(&format!("/jobs/{id}"))["state"] == "running"
+    });
+    let r = client()
+        .delete(format!("{}/jobs/{id}", svc.url))
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 200);
+    let next = svc.submit(&read("thesis.ray"), "");
+    let next = next["id"].as_str().expect("id");
+    let done = svc.wait_finished(next, Duration::from_secs(60));
+    assert_eq!(done["state"], "done", "{done}");
+}

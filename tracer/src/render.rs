@@ -18,7 +18,7 @@
 //! tile-independent, so any rectangle can be rendered alone and match the whole image.
 
 use std::cell::Cell;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -252,9 +252,30 @@ impl Scene {
 
     /// [`Self::render_rect_linear`] with another sampler than the scene's.
     pub fn render_rect_linear_with(&self, rect: Rect, sampler: &Sampler) -> (Vec<Color>, RayStats) {
+        self.rect_linear(rect, sampler, || false)
+    }
+
+    /// The samples of `rect`, each traced unless `stopped()` says the tile is no longer
+    /// wanted, in which case it is the background's black at no cost (the values are then
+    /// meaningless, and the caller drops them). `stopped` is a constant `false` for every
+    /// render but a worker's, and is then compiled away.
+    fn rect_linear(
+        &self,
+        rect: Rect,
+        sampler: &Sampler,
+        stopped: impl Fn() -> bool,
+    ) -> (Vec<Color>, RayStats) {
         let counters = Counters::default();
         let mut out = vec![Color::ZERO; rect.pixel_count()];
-        let trace = |x, y| self.primary(x, y, &counters);
+        let trace = |x, y| {
+            if stopped() {
+                return Sample {
+                    color: Color::ZERO,
+                    object: Sample::BACKGROUND,
+                };
+            }
+            self.primary(x, y, &counters)
+        };
         if matches!(sampler, Sampler::Adaptive { .. }) {
             // The adaptive sampler asks the geometry which pixels may end after one ray and
             // which may hide a solid their first rays missed; which solids may show in each
@@ -302,11 +323,25 @@ impl Scene {
     /// override).
     pub fn render_rect_stats_with(&self, rect: Rect, sampler: &Sampler) -> (Vec<u8>, RayStats) {
         let (linear, stats) = self.render_rect_linear_with(rect, sampler);
-        let mut bytes = Vec::with_capacity(linear.len() * 3);
-        for c in linear {
-            bytes.extend_from_slice(&srgb::encode_rgb8(c));
+        (encode_rgb8(linear), stats)
+    }
+
+    /// [`Self::render_rect_stats_with`], given up once `stop` is set: the tile's remaining
+    /// samples are not traced and `None` is returned. A worker sets it when the tile's lease
+    /// is lost (its job cancelled, or the tile handed to another worker), so that its render
+    /// thread is free for the next tile within one sample's time rather than the tile's (a
+    /// cancelled job's big tile held a worker for a minute).
+    pub fn render_rect_stats_until(
+        &self,
+        rect: Rect,
+        sampler: &Sampler,
+        stop: &AtomicBool,
+    ) -> Option<(Vec<u8>, RayStats)> {
+        let (linear, stats) = self.rect_linear(rect, sampler, || stop.load(Ordering::Relaxed));
+        if stop.load(Ordering::Relaxed) {
+            return None;
         }
-        (bytes, stats)
+        Some((encode_rgb8(linear), stats))
     }
 
     /// Renders the whole image as 8-bit sRGB RGB rows, on the current rayon pool, in tiles of
@@ -338,4 +373,13 @@ impl Scene {
         }
         (image, total)
     }
+}
+
+/// 8-bit sRGB bytes of linear pixel values, 3 a pixel.
+fn encode_rgb8(linear: Vec<Color>) -> Vec<u8> {
+    let mut bytes = Vec::with_capacity(linear.len() * 3);
+    for c in linear {
+        bytes.extend_from_slice(&srgb::encode_rgb8(c));
+    }
+    bytes
 }

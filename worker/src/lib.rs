@@ -287,8 +287,11 @@ impl Renderer {
                     // The same bytes `tessera-render` writes: a pixel's value does not depend
                     // on its tile.
                     let p = &job.scene;
+                    // Given up mid-tile once the slot sets `cancel` (the lease was lost).
                     let rendered = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                        p.scene.render_rect_stats_with(rect, &p.sampler).0
+                        p.scene
+                            .render_rect_stats_until(rect, &p.sampler, &job.cancel)
+                            .map(|(rgb, _)| rgb)
                     }))
                     .map_err(|panic| {
                         let what = panic
@@ -298,6 +301,12 @@ impl Renderer {
                             .unwrap_or_else(|| "unknown panic".into());
                         format!("rendering panicked: {what}")
                     });
+                    let rendered = match rendered {
+                        Ok(Some(rgb)) => Ok(rgb),
+                        // Given up: the slot has moved on and waits for no answer.
+                        Ok(None) => continue,
+                        Err(panicked) => Err(panicked),
+                    };
                     // The slot may have given the tile up meanwhile: nobody to tell.
                     let _ = job.reply.send(rendered);
                 }
