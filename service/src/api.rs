@@ -18,7 +18,7 @@ use tessera_tracer::{MemoryAssets, Sampler, Scene, SceneError, parse, tile_count
 
 use crate::config::auto_tile;
 use crate::error::{ApiError, ok_json};
-use crate::queue::{JobRow, NewJob};
+use crate::queue::{Cancel, JobRow, NewJob};
 use crate::{AppState, now_ms};
 
 /// Smallest and largest tile edge a job may ask for.
@@ -162,30 +162,58 @@ pub async fn get_job(
     }
 }
 
-/// Cancels a queued or running job (`200` with the job); deletes a finished, failed or
-/// cancelled one with everything stored for it (`204`).
+/// `DELETE /jobs/{id}` query parameters.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DeleteParams {
+    /// Remove an ended job and everything stored for it, instead of cancelling.
+    #[serde(default)]
+    pub purge: bool,
+}
+
+/// `DELETE /jobs/{id}` cancels a queued or running job (`200` with the job). It is
+/// idempotent, as HTTP clients (which retry a `DELETE`) and double clicks expect: a job that
+/// has already ended is answered as it is, and one whose every tile is in (its image being
+/// written) is not cancelled (`409`). `?purge=true` removes an ended job with its image
+/// (`204`); an active one must be cancelled first (`409`). Until both were one request, a
+/// repeated cancel deleted the job it had just cancelled, and a cancel that reached a job
+/// just finished deleted its image.
 pub async fn delete_job(
     State(state): State<AppState>,
     Path(id): Path<String>,
+    Query(params): Query<DeleteParams>,
 ) -> Result<Response, ApiError> {
-    let before = state.queue.cancel(&id, now_ms()).await?;
-    // Cancelled or deleted: either way, waiting requests answer now.
-    state.ended.notify_waiters();
-    match before.as_deref() {
-        None => Err(ApiError::not_found(format_args!("job `{id}`"))),
-        Some("queued" | "running") => {
-            let row = state
-                .queue
-                .job(&id)
-                .await?
-                .ok_or_else(|| ApiError::not_found("job"))?;
-            Ok(ok_json(JobView::from(row)).into_response())
+    let view = |row: Option<JobRow>| {
+        row.map(JobView::from)
+            .ok_or_else(|| ApiError::not_found(format_args!("job `{id}`")))
+    };
+    if params.purge {
+        let job = view(state.queue.job(&id).await?)?;
+        if matches!(job.row.state.as_str(), "queued" | "running") {
+            return Err(ApiError::conflict(format!(
+                "job `{id}` is {}: cancel it first (DELETE /jobs/{id}), then purge it",
+                job.row.state
+            ))
+            .with("state", job.row.state.clone()));
         }
-        Some(_) => {
-            state.queue.delete(&id).await?;
-            Ok(StatusCode::NO_CONTENT.into_response())
-        }
+        state.queue.delete(&id).await?;
+        state.ended.notify_waiters();
+        return Ok(StatusCode::NO_CONTENT.into_response());
     }
+    let outcome = state.queue.cancel(&id, now_ms()).await?;
+    // Waiting requests look again now.
+    state.ended.notify_waiters();
+    if outcome == Cancel::Unknown {
+        return Err(ApiError::not_found(format_args!("job `{id}`")));
+    }
+    let job = view(state.queue.job(&id).await?)?;
+    if outcome == Cancel::Complete && job.row.state == "running" {
+        return Err(ApiError::conflict(format!(
+            "every tile of job `{id}` is in and its image is being written: it is not cancelled"
+        ))
+        .with("state", job.row.state.clone()));
+    }
+    Ok(ok_json(job).into_response())
 }
 
 /// The finished PNG, streamed from the database chunk by chunk.
@@ -278,8 +306,10 @@ fn content_disposition(name: Option<&str>, id: &str) -> String {
     header
 }
 
-/// `POST /jobs` query parameters.
+/// `POST /jobs` query parameters. Any other is refused: a misspelt `?tiles=8` or `?sample=4`
+/// rendered with the defaults, unlike a misspelt key in a scene.
 #[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct SubmitParams {
     pub tile: Option<u32>,
     pub sampler: Option<String>,

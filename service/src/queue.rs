@@ -156,6 +156,20 @@ const BAND_SQL: &str = "SELECT t.x, t.w, t.h, p.rgb FROM tiles t
      JOIN tile_pixels p ON p.job_id = t.job_id AND p.idx = t.idx
      WHERE t.job_id = ?1 AND t.y = ?2 ORDER BY t.idx";
 
+/// What [`Queue::cancel`] found.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Cancel {
+    /// No such job.
+    Unknown,
+    /// It was queued or running (`from`); now it is cancelled.
+    Cancelled { from: String },
+    /// Every tile is in (a done job, or a running one whose image is being written): not
+    /// cancelled.
+    Complete,
+    /// It had already ended (failed or cancelled): nothing changed.
+    Ended { state: String },
+}
+
 /// The queue over one SQLite database.
 #[derive(Debug, Clone)]
 pub struct Queue {
@@ -467,24 +481,33 @@ impl Queue {
     }
 
     /// Cancels a queued or running job (its tiles are no longer handed out and results for
-    /// it are refused) and drops its partial pixels and image (by the migrations' trigger).
-    /// Returns the job's state before.
-    pub async fn cancel(&self, id: &str, now: i64) -> Result<Option<String>> {
+    /// it are refused) and drops its partial pixels and image (by the migrations' trigger),
+    /// unless every tile is already in: then the job is as good as done (its image is being
+    /// written), and throwing the pixels away would lose a finished render that a worker was
+    /// told was stored.
+    pub async fn cancel(&self, id: &str, now: i64) -> Result<Cancel> {
         let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
-        let before: Option<String> = sqlx::query_scalar("SELECT state FROM jobs WHERE id = ?1")
-            .bind(id)
-            .fetch_optional(&mut *tx)
-            .await?;
-        if matches!(before.as_deref(), Some("queued" | "running")) {
-            // The `job_ended_without_image` trigger drops its pixels and image chunks.
-            sqlx::query("UPDATE jobs SET state = 'cancelled', finished_at = ?2 WHERE id = ?1")
+        let before: Option<(String, i64, i64)> =
+            sqlx::query_as("SELECT state, tiles_done, tiles_total FROM jobs WHERE id = ?1")
                 .bind(id)
-                .bind(now)
-                .execute(&mut *tx)
+                .fetch_optional(&mut *tx)
                 .await?;
-        }
+        let outcome = match before {
+            None => Cancel::Unknown,
+            Some((_, done, total)) if done >= total => Cancel::Complete,
+            Some((from, _, _)) if matches!(from.as_str(), "queued" | "running") => {
+                // The `job_ended_without_image` trigger drops its pixels and image chunks.
+                sqlx::query("UPDATE jobs SET state = 'cancelled', finished_at = ?2 WHERE id = ?1")
+                    .bind(id)
+                    .bind(now)
+                    .execute(&mut *tx)
+                    .await?;
+                Cancel::Cancelled { from }
+            }
+            Some((state, _, _)) => Cancel::Ended { state },
+        };
         tx.commit().await?;
-        Ok(before)
+        Ok(outcome)
     }
 
     /// Removes a finished job and everything stored for it.

@@ -4,7 +4,7 @@
 use std::collections::HashSet;
 use std::sync::Arc;
 
-use tessera_service::queue::{Completion, KeepAway, NewJob, Queue};
+use tessera_service::queue::{Cancel, Completion, KeepAway, NewJob, Queue};
 use tessera_tracer::{Rect, tiles};
 
 struct Db(std::path::PathBuf);
@@ -297,6 +297,32 @@ async fn a_job_no_live_worker_may_take_fails() {
     assert!(j.error.unwrap_or_default().contains("bad texture"));
 }
 
+/// A job whose every tile is stored is not cancelled: its image is being written, and the
+/// worker that posted the last tile was told it was stored. (A cancel racing the last
+/// result ended such a job "cancelled" with all its tiles done and no image.)
+#[tokio::test]
+async fn a_job_with_every_tile_in_is_not_cancelled() {
+    let db = Db::new("complete");
+    let q = Queue::open(&db.url()).await.expect("open");
+    job(&q, "j", 16, 8, 8).await;
+    for last in [false, true] {
+        let c = q
+            .claim("w", 0, 1_000, 1)
+            .await
+            .expect("claim")
+            .expect("tile");
+        let stored = q
+            .complete("j", c.idx, &c.lease, c.rect(), &pixels(c.rect()))
+            .await
+            .expect("complete");
+        assert!(matches!(stored, Completion::Stored { last: l, .. } if l == last));
+    }
+    assert_eq!(q.cancel("j", 5).await.expect("cancel"), Cancel::Complete);
+    let j = q.job("j").await.expect("read").expect("job");
+    assert_eq!(j.state, "running");
+    assert_eq!(band(&q, "j", 0).await.len(), 2, "its pixels are kept");
+}
+
 #[tokio::test]
 async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
     let db = Db::new("ended");
@@ -324,8 +350,10 @@ async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
 
     store_one("cancelled").await;
     assert_eq!(
-        q.cancel("cancelled", 5).await.expect("cancel").as_deref(),
-        Some("running")
+        q.cancel("cancelled", 5).await.expect("cancel"),
+        Cancel::Cancelled {
+            from: "running".into()
+        }
     );
     assert!(band(&q, "cancelled", 0).await.is_empty());
     assert_eq!(q.image_chunks("cancelled").await.expect("count"), 0);
@@ -574,9 +602,19 @@ async fn a_cancelled_jobs_leases_are_stale() {
     let a = q.claim("w", 0, 60_000, 3).await.expect("claim").expect("a");
     let b = q.claim("w", 0, 60_000, 3).await.expect("claim").expect("b");
     assert_eq!(
-        q.cancel("j", 5).await.expect("cancel").as_deref(),
-        Some("running")
+        q.cancel("j", 5).await.expect("cancel"),
+        Cancel::Cancelled {
+            from: "running".into()
+        }
     );
+    // Again: it has ended, and nothing changes.
+    assert_eq!(
+        q.cancel("j", 6).await.expect("cancel"),
+        Cancel::Ended {
+            state: "cancelled".into()
+        }
+    );
+    assert_eq!(q.cancel("nope", 6).await.expect("cancel"), Cancel::Unknown);
     assert!(
         !q.fail_tile("j", a.idx, &a.lease, "w", "boom", 10, 3, KEEP)
             .await

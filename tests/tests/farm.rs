@@ -223,6 +223,16 @@ fn bad_requests_get_json_errors_and_store_nothing() {
         .send()
         .expect("answer");
     assert_eq!(r.status(), 400);
+    // A misspelt parameter is refused, naming it, instead of rendering with the defaults.
+    for typo in ["tiles=8", "sampler=jitter&sample=4"] {
+        let r = http
+            .post(format!("{}/jobs?{typo}", svc.url))
+            .body(read("thesis.ray"))
+            .send()
+            .expect("answer");
+        let bad = typo.rsplit('&').next().and_then(|p| p.split('=').next());
+        refused(r, &format!("`{}`", bad.unwrap_or_default()));
+    }
     let r = http
         .post(format!("{}/jobs", svc.url))
         .body(b"[GLOBALS]\nwidth = 8\xff\n".to_vec())
@@ -283,13 +293,37 @@ fn bad_requests_get_json_errors_and_store_nothing() {
     assert_eq!(svc.get_json(&format!("/jobs/{id}"))["state"], "cancelled");
     let claim = svc.claim("w");
     assert_eq!(claim.status(), 204);
-    // Deleting a finished (here: cancelled) job removes it.
+    // A cancel again changes nothing (clients retry a DELETE): the job stays, cancelled.
     let r = http
         .delete(format!("{}/jobs/{id}", svc.url))
         .send()
         .expect("answer");
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.json::<Value>().expect("json")["state"], "cancelled");
+    // A misspelt parameter is refused, not taken for a cancel.
+    let r = http
+        .delete(format!("{}/jobs/{id}?purg=true", svc.url))
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 400);
+    assert!(r.json::<Value>().expect("json")["error"].is_string());
+    // Purging an ended (here: cancelled) job removes it; an active one must be cancelled
+    // first.
+    let r = http
+        .delete(format!("{}/jobs/{id}?purge=true", svc.url))
+        .send()
+        .expect("answer");
     assert_eq!(r.status(), 204);
     assert_eq!(svc.get(&format!("/jobs/{id}")).status(), 404);
+    let active = svc.submit(&read("thesis.ray"), "");
+    let active = active["id"].as_str().expect("id");
+    let r = http
+        .delete(format!("{}/jobs/{active}?purge=true", svc.url))
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 409);
+    assert_eq!(r.json::<Value>().expect("json")["state"], "queued");
+    assert_eq!(svc.get_json(&format!("/jobs/{active}"))["state"], "queued");
 
     assert_eq!(svc.get("/healthz").status(), 200);
     let page = svc.get("/").text().expect("page");

@@ -209,10 +209,17 @@ async function main() {
   // 5. Cancelling a queued job asks nothing; deleting a finished one asks, and "no" keeps it.
   const button = () => rows()[0].children.at(-1).find("button");
   assert.equal(button().textContent, "cancel");
-  button().onclick();
+  const drawn = button();
+  drawn.onclick();
   await settle();
   assert.equal(confirmed.length, 0, "a cancel needs no confirmation");
   assert.equal((await api("/jobs/" + id)).body.state, "cancelled");
+  // The same "cancel" clicked again (a double click, or a list drawn before the job ended)
+  // deletes nothing: it is a cancel, whatever the job's state now.
+  drawn.onclick();
+  await settle();
+  assert.equal(confirmed.length, 0);
+  assert.equal((await api("/jobs/" + id)).status, 200, "a repeated cancel keeps the job");
   assert.equal(button().textContent, "delete");
   confirmAnswer = false;
   button().onclick();
@@ -234,7 +241,8 @@ async function main() {
   const anchor = all[checks.page - 1];
   const anchorId = (await api("/jobs")).body.find((j) => label(j) === anchor).id;
   assert.equal((await api("/jobs/" + anchorId, { method: "DELETE" })).status, 200);
-  assert.equal((await api("/jobs/" + anchorId, { method: "DELETE" })).status, 204);
+  assert.equal((await api("/jobs/" + anchorId, { method: "DELETE" })).status, 200);
+  assert.equal((await api("/jobs/" + anchorId + "?purge=true", { method: "DELETE" })).status, 204);
   run("refresh()");
   await settle();
   assert.equal(elements.newer.hidden, true, "back on the newest page");
