@@ -17,7 +17,7 @@ pub mod queue;
 pub mod worker_api;
 
 use std::collections::HashMap;
-use std::future::Future;
+use std::future::{Future, IntoFuture};
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
@@ -306,19 +306,43 @@ pub async fn serve(
         state.cfg.database
     );
     let mut stop_for_server = stop_rx.clone();
+    let (drain_tx, drain_rx) = tokio::sync::oneshot::channel::<()>();
     let graceful = async move {
         let _ = stop_for_server.wait_for(|s| *s).await;
         for w in locals {
             let _ = w.await;
         }
+        let _ = drain_tx.send(());
+    };
+    // Once the local workers are done, open requests get `DRAIN` to finish. A graceful stop
+    // otherwise waited for every connection to close: a client that had sent half a request
+    // held the stop for the idle timeout (two minutes), one that trickled its upload for
+    // ever, past any service manager's patience.
+    let deadline = async move {
+        if drain_rx.await.is_ok() {
+            tokio::time::sleep(DRAIN).await;
+        } else {
+            std::future::pending::<()>().await;
+        }
     };
     let idle = Duration::from_secs(state.cfg.idle_timeout_secs);
-    axum::serve(idle::IdleListener::new(listener, idle), router(state))
+    let server = axum::serve(idle::IdleListener::new(listener, idle), router(state))
         .with_graceful_shutdown(graceful)
-        .await?;
+        .into_future();
+    tokio::select! {
+        served = server => served?,
+        () = deadline => warn!(
+            "requests still open {} s after the stop: closing their connections",
+            DRAIN.as_secs()
+        ),
+    }
     info!("stopped");
     Ok(())
 }
+
+/// How long requests still open when a stop begins (after the local workers are done) may
+/// take before their connections are closed.
+pub const DRAIN: Duration = Duration::from_secs(5);
 
 fn spawn_local_workers(
     cfg: &Config,

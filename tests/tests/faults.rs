@@ -748,3 +748,32 @@ fn a_cancelled_jobs_tile_stops_rendering() {
     let done = svc.wait_finished(next, Duration::from_secs(60));
     assert_eq!(done["state"], "done", "{done}");
 }
+
+/// A stop does not wait for clients that never finish their requests: one that sent half
+/// its headers and one part of an upload held a graceful stop for the idle timeout (two
+/// minutes here), a trickling one for ever. Once the local workers are done, open requests
+/// get a few seconds, then their connections are closed and the service exits cleanly.
+#[test]
+fn a_stop_does_not_wait_for_unfinished_requests() {
+    use std::io::Write;
+    let dir = TempDir::new("stop-deadline");
+    let mut svc = Service::start(&dir, &["--local-workers", "0"]);
+    let addr = svc.url.trim_start_matches("http://").to_string();
+    let mut half = std::net::TcpStream::connect(&addr).expect("connect");
+    half.write_all(b"GET /jobs HTTP/1.1\r\nHost: x\r\n")
+        .expect("write");
+    let mut upload = std::net::TcpStream::connect(&addr).expect("connect");
+    upload
+        .write_all(b"POST /jobs HTTP/1.1\r\nHost: x\r\nContent-Length: 100000\r\n\r\n[GLOBALS]\n")
+        .expect("write");
+    // Both are in: connections are accepted in order, and a later one has been answered.
+    assert_eq!(svc.get("/healthz").status(), 200);
+    let status = svc.terminate();
+    assert!(status.success(), "{status:?}\n{}", svc.log());
+    assert!(
+        svc.log().contains("closing their connections"),
+        "{}",
+        svc.log()
+    );
+    drop((half, upload));
+}
