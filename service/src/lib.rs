@@ -83,6 +83,7 @@ impl AppState {
         KeepAway {
             after: self.cfg.keep_away_after,
             for_ms: (self.cfg.keep_away_secs as i64).saturating_mul(1000),
+            stall_ms: i64::try_from(self.cfg.lease_ms / 2).unwrap_or(i64::MAX),
         }
     }
 

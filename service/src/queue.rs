@@ -115,6 +115,10 @@ pub struct KeepAway {
     pub after: u32,
     /// For how long.
     pub for_ms: i64,
+    /// Leases of one worker on one job that run out within this of the first are one stall
+    /// (the service uses half a lease: a worker renews all its leases at once, every third
+    /// of one).
+    pub stall_ms: i64,
 }
 
 /// Tiles stored by one `INSERT` when a job is stored.
@@ -770,44 +774,93 @@ impl Queue {
         Ok(r.rows_affected() == 1)
     }
 
-    /// Requeues tiles whose lease expired (one failure each, counted against their worker
-    /// too) and fails jobs with a tile out of attempts. Returns the number of tiles requeued.
-    /// Tiles of a job that has ended (cancelled, failed) are left as they are: nothing will
-    /// hand them out, and their workers did nothing wrong. A worker whose several leases of
-    /// one job run out together (the tile it renders and the one it holds ahead: one stall)
-    /// is counted once towards keeping it away, not once a tile: one pause of a lone worker
-    /// was two strikes, enough to fail the job.
+    /// Requeues tiles whose lease expired and fails jobs with a tile out of attempts.
+    /// Returns the number of tiles requeued. Tiles of a job that has ended (cancelled,
+    /// failed) are left as they are: nothing will hand them out, and their workers did
+    /// nothing wrong.
+    ///
+    /// A worker's leases on one job that run out within `keep.stall_ms` of each other are
+    /// one stall, in this pass or across passes: one strike towards keeping the worker away,
+    /// and one failure charged to the tile whose lease ran out first, the one it was
+    /// rendering (it renews the tile it holds ahead with it, and that one was claimed
+    /// later). The tiles it held ahead go back to the queue uncharged. Counted once a tile,
+    /// one pause or crash of a lone worker was two strikes, enough to fail its job, and tiles
+    /// never begun ran out of attempts.
     pub async fn reap(&self, now: i64, max_attempts: u32, keep: KeepAway) -> Result<u64> {
         let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
-        sqlx::query(
-            "INSERT INTO keep_away (job_id, worker, failures, until)
-             SELECT DISTINCT job_id, worker, 1, 0 FROM tiles
-             WHERE state = 'leased' AND lease_expires < ?1 AND worker IS NOT NULL
-               AND EXISTS (SELECT 1 FROM jobs
-                           WHERE id = tiles.job_id AND state IN ('queued', 'running'))
-             ON CONFLICT (job_id, worker) DO UPDATE SET failures = failures + 1",
-        )
-        .bind(now)
-        .execute(&mut *tx)
-        .await?;
-        let requeued = sqlx::query(
-            "UPDATE tiles SET state = 'queued', failures = failures + 1,
-                              last_error = 'lease lost: worker ' || COALESCE(worker, '?') || ' stopped answering',
-                              lease = NULL, worker = NULL, lease_expires = NULL
+        let expired: Vec<(String, i64, Option<String>, i64)> = sqlx::query_as(
+            "SELECT job_id, idx, worker, lease_expires FROM tiles
              WHERE state = 'leased' AND lease_expires < ?1
                AND EXISTS (SELECT 1 FROM jobs
-                           WHERE id = tiles.job_id AND state IN ('queued', 'running'))",
+                           WHERE id = tiles.job_id AND state IN ('queued', 'running'))
+             ORDER BY job_id, worker, lease_expires, idx",
         )
         .bind(now)
-        .execute(&mut *tx)
-        .await?
-        .rows_affected();
-        if requeued > 0 {
+        .fetch_all(&mut *tx)
+        .await?;
+        let mut i = 0;
+        while i < expired.len() {
+            let (job, worker) = (&expired[i].0, &expired[i].2);
+            let group = expired[i..]
+                .iter()
+                .take_while(|t| &t.0 == job && &t.2 == worker)
+                .count();
+            let mut stall_until: i64 = match worker {
+                Some(w) => sqlx::query_scalar(
+                    "SELECT stall_until FROM keep_away WHERE job_id = ?1 AND worker = ?2",
+                )
+                .bind(job)
+                .bind(w)
+                .fetch_optional(&mut *tx)
+                .await?
+                .unwrap_or(0),
+                None => 0,
+            };
+            let mut strikes = 0i64;
+            for (_, idx, _, expires) in &expired[i..i + group] {
+                // A lease with no worker name (none is stored so) is its own stall.
+                let charged = worker.is_none() || *expires >= stall_until;
+                if charged {
+                    strikes += 1;
+                    stall_until = expires.saturating_add(keep.stall_ms);
+                }
+                sqlx::query(
+                    "UPDATE tiles SET state = 'queued', failures = failures + ?3,
+                         last_error = CASE WHEN ?3 = 1
+                             THEN 'lease lost: worker ' || COALESCE(worker, '?')
+                                  || ' stopped answering'
+                             ELSE last_error END,
+                         lease = NULL, worker = NULL, lease_expires = NULL
+                     WHERE job_id = ?1 AND idx = ?2",
+                )
+                .bind(job)
+                .bind(idx)
+                .bind(i64::from(charged))
+                .execute(&mut *tx)
+                .await?;
+            }
+            if let Some(w) = worker {
+                sqlx::query(
+                    "INSERT INTO keep_away (job_id, worker, failures, until, stall_until)
+                     VALUES (?1, ?2, ?3, 0, ?4)
+                     ON CONFLICT (job_id, worker) DO UPDATE
+                     SET failures = failures + ?3, stall_until = ?4",
+                )
+                .bind(job)
+                .bind(w)
+                .bind(strikes)
+                .bind(stall_until)
+                .execute(&mut *tx)
+                .await?;
+            }
+            i += group;
+        }
+        if !expired.is_empty() {
             Self::apply_keep_away(&mut tx, now, keep).await?;
             Self::fail_exhausted(&mut tx, now, max_attempts).await?;
         }
         tx.commit().await?;
-        Ok(requeued)
+        Ok(expired.len() as u64)
     }
 
     async fn apply_keep_away(

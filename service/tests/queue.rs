@@ -31,6 +31,7 @@ impl Drop for Db {
 const KEEP: KeepAway = KeepAway {
     after: 2,
     for_ms: 60_000,
+    stall_ms: 500,
 };
 
 async fn job(q: &Queue, id: &str, w: u32, h: u32, tile: u32) -> Vec<Rect> {
@@ -255,6 +256,75 @@ async fn failing_tiles_move_to_other_workers_then_fail_the_job() {
         "{why}"
     );
     assert!(q.claim("c", 40, 1_000, max).await.expect("claim").is_none());
+}
+
+/// A worker's two leases (the tile it renders, the one it holds ahead) run out a renewal
+/// period apart and are reaped in two passes: still one stall, one strike, and only the
+/// first tile charged. Counted twice, a lone worker was kept away and its job failed, and
+/// the held tile, never begun, ran out of attempts with the next worker's loss.
+#[tokio::test]
+async fn a_stall_reaped_in_two_passes_is_one_strike_and_one_failure() {
+    let db = Db::new("stall-passes");
+    let q = Queue::open(&db.url()).await.expect("open");
+    job(&q, "j", 16, 8, 8).await; // tiles 0 and 1
+    let max = 2;
+    let a = q
+        .claim("w", 0, 1_000, max)
+        .await
+        .expect("claim")
+        .expect("0");
+    let b = q
+        .claim("w", 300, 1_000, max)
+        .await
+        .expect("claim")
+        .expect("1");
+    assert_eq!((a.idx, b.idx), (0, 1));
+    assert_eq!(q.reap(1_100, max, KEEP).await.expect("reap"), 1);
+    assert_eq!(q.reap(1_400, max, KEEP).await.expect("reap"), 1);
+    // Tile 0 is rendered by another worker; tile 1's next holder is lost too: its first
+    // charged failure, so the job goes on.
+    let c = q
+        .claim("v", 1_500, 1_000, max)
+        .await
+        .expect("claim")
+        .expect("0");
+    assert_eq!(c.idx, 0);
+    q.complete("j", c.idx, &c.lease, c.rect(), &pixels(c.rect()))
+        .await
+        .expect("complete");
+    let d = q
+        .claim("v", 1_600, 1_000, max)
+        .await
+        .expect("claim")
+        .expect("1");
+    assert_eq!(d.idx, 1);
+    assert_eq!(q.reap(2_700, max, KEEP).await.expect("reap"), 1);
+    assert_eq!(
+        q.job("j").await.expect("read").expect("job").state,
+        "running"
+    );
+    // And `w`, with one strike of two, may take it.
+    let e = q.claim("w", 2_800, 1_000, max).await.expect("claim");
+    assert_eq!(e.map(|e| e.idx), Some(1), "one stall kept `w` away");
+    // A second stall of `w`, past the first's window, is a second strike: kept away (with
+    // one attempt more allowed, so that the job itself goes on).
+    assert_eq!(q.reap(3_900, max + 1, KEEP).await.expect("reap"), 1);
+    assert_eq!(
+        q.job("j").await.expect("read").expect("job").state,
+        "running"
+    );
+    assert!(
+        q.claim("w", 4_000, 1_000, max + 1)
+            .await
+            .expect("claim")
+            .is_none()
+    );
+    assert!(
+        q.claim("v", 4_000, 1_000, max + 1)
+            .await
+            .expect("claim")
+            .is_some()
+    );
 }
 
 #[tokio::test]
