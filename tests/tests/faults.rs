@@ -777,3 +777,35 @@ fn a_stop_does_not_wait_for_unfinished_requests() {
     );
     drop((half, upload));
 }
+
+/// A worker stopped while the service is down exits once its grace period is over, giving
+/// up the tile it could not post: it retried the post for four leases (two minutes by
+/// default) whatever `--grace-secs` said, past any service manager's patience.
+#[test]
+fn a_worker_stops_within_its_grace_while_the_service_is_down() {
+    let dir = TempDir::new("stop-offline");
+    let mut svc = Service::start(&dir, &["--local-workers", "0"]);
+    // One tile of a second or two: the eye inside a mirrored sphere.
+    let scene = "[GLOBALS]\nwidth = 96\nheight = 96\nsampler = jitter\nsamples = 3\n\
+                 max_depth = 64\n[/GLOBALS]\n[CAMERA]\neye = <0, 0, 0>\nlook_at = <0, 0, -1>\n\
+                 [/CAMERA]\n[LIGHT]\nposition = <0, 1, 0>\n[/LIGHT]\n\
+                 [OBJECT]\ntype = sphere\nradius = 50\nmirror = 0.9\n[/OBJECT]\n";
+    let id = svc.submit(scene, "?tile=96")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    let mut worker = Worker::start(&svc.url, "w", &["--grace-secs", "10"]);
+    wait_until("the tile to be claimed", Duration::from_secs(60), || {
+        svc.get_json(&format!("/jobs/{id}"))["state"] == "running"
+    });
+    svc.kill();
+    let start = Instant::now();
+    let status = worker.terminate();
+    assert!(status.success(), "{status:?}");
+    // Its grace and one back-off step at most; not four leases (120 s).
+    assert!(
+        start.elapsed() < Duration::from_secs(40),
+        "{:?}",
+        start.elapsed()
+    );
+}

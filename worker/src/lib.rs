@@ -14,8 +14,8 @@ pub mod client;
 pub mod protocol;
 
 use std::future::Future;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
 use bytes::Bytes;
@@ -137,6 +137,8 @@ struct Shared {
     tiles: AtomicU64,
     released: AtomicU64,
     failed: AtomicU64,
+    /// When the stop began: what is still held is given up `cfg.grace` after it.
+    stopping_since: OnceLock<Instant>,
 }
 
 const CACHE_SCENES: usize = 4;
@@ -162,10 +164,6 @@ pub async fn run_sharing(
     }
     let client = Client::new(&cfg.server, cfg.token.clone())?;
     let (stop_tx, stop_rx) = watch::channel(false);
-    tokio::spawn(async move {
-        shutdown.await;
-        let _ = stop_tx.send(true);
-    });
     info!(
         name = %cfg.name, server = %cfg.server, threads = cfg.threads,
         "worker started"
@@ -176,7 +174,18 @@ pub async fn run_sharing(
         tiles: AtomicU64::new(0),
         released: AtomicU64::new(0),
         failed: AtomicU64::new(0),
+        stopping_since: OnceLock::new(),
         cfg,
+    });
+    let stopping = shared.clone();
+    tokio::spawn(async move {
+        shutdown.await;
+        stopping.stopping_since.get_or_init(Instant::now);
+        info!(
+            grace_secs = stopping.cfg.grace.as_secs(),
+            "stopping: finishing the tiles being rendered, giving back the rest"
+        );
+        let _ = stop_tx.send(true);
     });
     let mut slots = Vec::new();
     for i in 0..shared.cfg.threads {
@@ -355,12 +364,15 @@ impl Ticket {
     /// Gives the tile back to the service: the render thread skips it if not yet started.
     async fn release(self, shared: &Shared) -> Result<(), ClientError> {
         self.cancel.store(true, Ordering::Relaxed);
-        shared.released.fetch_add(1, Ordering::Relaxed);
-        shared
-            .client
-            .release(&self.claim)
-            .await
-            .or_else(ignore_transient)
+        // Counted once the service has it back: a give-back that could not reach it is not
+        // one (the tile returns when its lease runs out).
+        match shared.client.release(&self.claim).await {
+            Ok(()) => {
+                shared.released.fetch_add(1, Ordering::Relaxed);
+                Ok(())
+            }
+            Err(e) => ignore_transient(e),
+        }
     }
 }
 
@@ -741,8 +753,14 @@ async fn work(
     } else {
         None
     };
-    pipe.start_post(tokio::spawn(post(shared.clone(), c, blob, ride)))
-        .await
+    pipe.start_post(tokio::spawn(post(
+        shared.clone(),
+        c,
+        blob,
+        ride,
+        stop.clone(),
+    )))
+    .await
 }
 
 /// The claim a post may carry: the post's answer, or nothing (the post failed, was refused,
@@ -780,8 +798,9 @@ async fn post(
     c: Claim,
     blob: Bytes,
     mut ride: Option<Ride>,
+    mut stop: watch::Receiver<bool>,
 ) -> Result<(), ClientError> {
-    let give_up_at = Instant::now() + Duration::from_millis(c.lease_ms.max(1000) * 4);
+    let mut give_up_at = Instant::now() + Duration::from_millis(c.lease_ms.max(1000) * 4);
     let mut rng = seed();
     let mut streak = 0;
     loop {
@@ -808,8 +827,18 @@ async fn post(
             }
             Err(e) if e.is_transient() && Instant::now() < give_up_at => {
                 streak += 1;
-                // The stop flag is ignored here: finishing a rendered tile is worth the wait.
-                tokio::time::sleep(backoff(streak, Duration::from_secs(2), &mut rng)).await;
+                // A rendered tile is worth waiting for, but once the worker is stopping only
+                // for the grace period: the service may be down for longer than a service
+                // manager waits (a stop took 4 leases, two minutes, whatever `--grace-secs`).
+                let pause = tokio::time::sleep(backoff(streak, Duration::from_secs(2), &mut rng));
+                tokio::select! {
+                    () = pause => {}
+                    _ = stop.wait_for(|s| *s) => {}
+                }
+                if *stop.borrow() {
+                    give_up_at = give_up_at
+                        .min(*shared.stopping_since.get_or_init(Instant::now) + shared.cfg.grace);
+                }
             }
             Err(e) if e.is_transient() => {
                 warn!(job = %c.job, tile = c.idx, "could not post the tile: {e}");
