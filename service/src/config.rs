@@ -91,11 +91,15 @@ pub struct Config {
     /// Largest request body for POST /jobs (scene plus textures), in bytes.
     #[arg(long, env = "TESSERA_MAX_BODY_BYTES", default_value_t = 64 << 20)]
     pub max_body_bytes: usize,
-    /// Largest image, width × height pixels.
-    #[arg(long, env = "TESSERA_MAX_PIXELS", default_value_t = 7680 * 4320 * 2)]
+    /// Largest image, width × height pixels. The limits below go up to the workers' own
+    /// (the tracer's defaults, which `tessera-worker` applies), not past them: a job the
+    /// service accepted and no worker would build failed a second later.
+    #[arg(long, env = "TESSERA_MAX_PIXELS", default_value_t = 7680 * 4320 * 2,
+          value_parser = clap::value_parser!(u64).range(1..=268_435_456))]
     pub max_pixels: u64,
     /// Largest image width or height.
-    #[arg(long, env = "TESSERA_MAX_DIMENSION", default_value_t = 16_384)]
+    #[arg(long, env = "TESSERA_MAX_DIMENSION", default_value_t = 16_384,
+          value_parser = clap::value_parser!(u32).range(1..=32_768))]
     pub max_dimension: u32,
     /// Most tiles in one job. A job's tiles are stored in the one transaction that holds the
     /// queue's only writer, so no claim or result of another job is stored meanwhile (about
@@ -105,17 +109,21 @@ pub struct Config {
           value_parser = clap::value_parser!(u64).range(1..))]
     pub max_tiles: u64,
     /// Most objects in a scene, CSG children included.
-    #[arg(long, env = "TESSERA_MAX_OBJECTS", default_value_t = 100_000)]
+    #[arg(long, env = "TESSERA_MAX_OBJECTS", default_value_t = 100_000,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1_000_000))]
     pub max_objects: usize,
     /// Deepest CSG nesting.
-    #[arg(long, env = "TESSERA_MAX_CSG_DEPTH", default_value_t = 32)]
+    #[arg(long, env = "TESSERA_MAX_CSG_DEPTH", default_value_t = 32,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=64))]
     pub max_csg_depth: usize,
     /// Most texture files per scene.
-    #[arg(long, env = "TESSERA_MAX_TEXTURES", default_value_t = 32)]
+    #[arg(long, env = "TESSERA_MAX_TEXTURES", default_value_t = 32,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(0..=256))]
     pub max_textures: usize,
     /// Largest texture, width × height texels (checked from the image's header, before
     /// decoding).
-    #[arg(long, env = "TESSERA_MAX_TEXTURE_PIXELS", default_value_t = 16 << 20)]
+    #[arg(long, env = "TESSERA_MAX_TEXTURE_PIXELS", default_value_t = 16 << 20,
+          value_parser = clap::value_parser!(u64).range(1..=64 << 20))]
     pub max_texture_pixels: u64,
     /// Seconds a connection may stay silent (no byte either way) before it is closed: a
     /// stalled client held its connection, and the body it had sent, for ever. Keep it
@@ -125,7 +133,8 @@ pub struct Config {
     pub idle_timeout_secs: u64,
     /// Most texels of all of a job's textures together (each texel is held while the scene
     /// is checked and rendered: 3 bytes).
-    #[arg(long, env = "TESSERA_MAX_SCENE_TEXTURE_PIXELS", default_value_t = 32 << 20)]
+    #[arg(long, env = "TESSERA_MAX_SCENE_TEXTURE_PIXELS", default_value_t = 32 << 20,
+          value_parser = clap::value_parser!(u64).range(1..=128 << 20))]
     pub max_scene_texture_pixels: u64,
 }
 

@@ -36,11 +36,7 @@ pub struct LeaseParam {
 }
 
 fn worker_name(name: &str) -> Result<&str, ApiError> {
-    if name.is_empty() || name.len() > 200 || name.chars().any(char::is_control) {
-        return Err(ApiError::bad_request(
-            "worker name must be 1 to 200 printable characters",
-        ));
-    }
+    tessera_worker::protocol::check_worker_name(name).map_err(ApiError::bad_request)?;
     Ok(name)
 }
 

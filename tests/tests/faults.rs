@@ -475,6 +475,14 @@ fn service_flags_out_of_range_are_usage_errors() {
         ("--lease-ms", "99", "100.."),
         ("--max-attempts", "0", "1.."),
         ("--max-tiles", "0", "1.."),
+        // Scene limits go up to the workers' own, which would refuse more.
+        ("--max-csg-depth", "65", "1..=64"),
+        ("--max-objects", "1000001", "1..=1000000"),
+        ("--max-textures", "257", "0..=256"),
+        ("--max-dimension", "32769", "1..=32768"),
+        ("--max-pixels", "268435457", "1..=268435456"),
+        ("--max-texture-pixels", "67108865", "1..=67108864"),
+        ("--max-scene-texture-pixels", "134217729", "1..=134217728"),
     ] {
         let out = std::process::Command::new(SERVICE)
             .args([flag, value, "--local-workers", "0", "--database", &db])
@@ -484,6 +492,24 @@ fn service_flags_out_of_range_are_usage_errors() {
         assert_eq!(out.status.code(), Some(2), "{flag} {value}: {stderr}");
         assert!(
             stderr.contains(flag) && stderr.contains(range),
+            "{flag} {value}: {stderr}"
+        );
+    }
+    // The worker's: a name the service would refuse, and an idle pause of nothing (a
+    // tight polling loop), both found at start, before any service is reached.
+    for (flag, value, says) in [
+        ("--name", "", "1 to 200 bytes"),
+        ("--name", &"n".repeat(201), "1 to 200 bytes"),
+        ("--idle-max-ms", "0", "25.."),
+    ] {
+        let out = std::process::Command::new(WORKER)
+            .args([flag, value, "--server", "http://127.0.0.1:1"])
+            .output()
+            .expect("runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{flag} {value}: {stderr}");
+        assert!(
+            stderr.contains(flag) && stderr.contains(says),
             "{flag} {value}: {stderr}"
         );
     }

@@ -25,10 +25,12 @@ struct Args {
     #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true)]
     token: Option<String>,
     /// This worker's name in the service's lists (default: host-pid-random).
-    #[arg(long, env = "TESSERA_WORKER_NAME")]
+    #[arg(long, env = "TESSERA_WORKER_NAME", value_parser = worker_name)]
     name: Option<String>,
-    /// Longest pause between claims when idle, in milliseconds.
-    #[arg(long, env = "TESSERA_IDLE_MAX_MS", default_value_t = 1000)]
+    /// Longest pause between claims when idle, in milliseconds (at least 25, the first
+    /// pause: below it an idle worker polled in a tight loop).
+    #[arg(long, env = "TESSERA_IDLE_MAX_MS", default_value_t = 1000,
+          value_parser = clap::value_parser!(u64).range(25..))]
     idle_max_ms: u64,
     /// Seconds to keep rendering held tiles after SIGINT/SIGTERM before giving them back.
     #[arg(long, env = "TESSERA_GRACE_SECS", default_value_t = 30)]
@@ -36,6 +38,10 @@ struct Args {
     /// Benchmarking only: skip tracing and post black tiles (measures the queue).
     #[arg(long, hide = true)]
     noop: bool,
+}
+
+fn worker_name(name: &str) -> Result<String, String> {
+    crate::protocol::check_worker_name(name).map(|()| name.to_string())
 }
 
 /// The program: parses flags, runs the worker until SIGINT/SIGTERM, reports errors.
@@ -55,7 +61,7 @@ pub fn main() -> ExitCode {
     }
     cfg.token = args.token.filter(|t| !t.is_empty());
     cfg.name = args.name.unwrap_or_else(default_name);
-    cfg.idle_max = Duration::from_millis(args.idle_max_ms.max(1));
+    cfg.idle_max = Duration::from_millis(args.idle_max_ms);
     cfg.grace = Duration::from_secs(args.grace_secs);
     cfg.noop = args.noop;
     let runtime = match tokio::runtime::Runtime::new() {

@@ -15,7 +15,9 @@ use crate::protocol::{Accepted, Claim, ClaimRequest, FailRequest, JobSpec, Renew
 pub enum ClientError {
     #[error("bad service URL `{0}`: expected http://HOST:PORT (or https://…)")]
     BadUrl(String),
-    #[error("cannot reach the service: {0}")]
+    /// Shown with its causes: reqwest's own message is "error sending request for url"
+    /// whether the connection was refused, the name did not resolve or TLS failed.
+    #[error("cannot reach the service: {}", with_causes(.0))]
     Unreachable(#[source] reqwest::Error),
     #[error("the service refused this worker's token (401); check --token")]
     Unauthorized,
@@ -31,6 +33,22 @@ pub enum ClientError {
         #[source]
         source: reqwest::Error,
     },
+}
+
+/// An error's message followed by those of its sources, `: `-separated, each once (a
+/// source's message often repeats its cause's).
+fn with_causes(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut out = e.to_string();
+    let mut next = e.source();
+    while let Some(cause) = next {
+        let text = cause.to_string();
+        if !out.contains(&text) {
+            out.push_str(": ");
+            out.push_str(&text);
+        }
+        next = cause.source();
+    }
+    out
 }
 
 impl ClientError {
