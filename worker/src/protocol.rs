@@ -141,6 +141,21 @@ pub fn split_tile(blob: &[u8]) -> Result<(Rect, &[u8]), BlobError> {
     Ok((got, pixels))
 }
 
+/// The longest worker name, in bytes.
+pub const MAX_WORKER_NAME: usize = 200;
+
+/// A worker name as the service takes it: 1 to [`MAX_WORKER_NAME`] bytes, no control
+/// characters. `tessera-worker` checks its `--name` by it at start (a name the service would
+/// refuse was found only once the service answered, and retried for ever while it did not).
+pub fn check_worker_name(name: &str) -> Result<(), String> {
+    if name.is_empty() || name.len() > MAX_WORKER_NAME || name.chars().any(char::is_control) {
+        return Err(format!(
+            "a worker name is 1 to {MAX_WORKER_NAME} bytes of printable characters"
+        ));
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -164,19 +179,4 @@ mod tests {
         assert_eq!(decode_tile(&bad, r), Err(BlobError::BadMagic));
         assert_eq!(decode_tile(&blob[..3], r), Err(BlobError::BadMagic));
     }
-}
-
-/// The longest worker name, in bytes.
-pub const MAX_WORKER_NAME: usize = 200;
-
-/// A worker name as the service takes it: 1 to [`MAX_WORKER_NAME`] bytes, no control
-/// characters. `tessera-worker` checks its `--name` by it at start (a name the service would
-/// refuse was found only once the service answered, and retried for ever while it did not).
-pub fn check_worker_name(name: &str) -> Result<(), String> {
-    if name.is_empty() || name.len() > MAX_WORKER_NAME || name.chars().any(char::is_control) {
-        return Err(format!(
-            "a worker name is 1 to {MAX_WORKER_NAME} bytes of printable characters"
-        ));
-    }
-    Ok(())
 }
