@@ -528,6 +528,27 @@ pub fn check_asset_name(name: &str) -> Result<(), ApiError> {
     Ok(())
 }
 
+/// A scene's texture name as the upload it stands for: `/`-separated, `.` and empty
+/// segments dropped and `..` resolved, as `tessera-render` resolves it beside the scene
+/// (`./globe.png` and `maps/../globe.png` are `globe.png`). `None` for a name that leaves
+/// the scene's folder or is no relative name (a leading `/`, a `\`, control characters).
+fn texture_key(name: &str) -> Option<String> {
+    if name.starts_with('/') || name.contains('\\') || name.chars().any(char::is_control) {
+        return None;
+    }
+    let mut parts: Vec<&str> = Vec::new();
+    for seg in name.split('/') {
+        match seg {
+            "" | "." => {}
+            ".." => {
+                parts.pop()?;
+            }
+            s => parts.push(s),
+        }
+    }
+    (!parts.is_empty()).then(|| parts.join("/"))
+}
+
 fn scene_error(e: &SceneError) -> ApiError {
     let first = e.first();
     let all: Vec<Value> = e
@@ -580,24 +601,24 @@ async fn validate(
             .map(|(n, _)| n.to_string())
             .collect();
         for (n, pos) in desc.texture_names() {
-            if check_asset_name(n).is_err() {
-                return Err(ApiError::bad_request(format!(
-                    "{}:{}: texture `{n}` must be the name of an uploaded asset, not a path",
-                    pos.line, pos.column
-                ))
-                .with("line", pos.line)
-                .with("column", pos.column));
+            if texture_key(n).is_none() {
+                let message = format!(
+                    "texture `{n}` must name a file beside the scene or below it: no leading \
+                     `/`, no `..` above the scene's folder, no `\\`"
+                );
+                return Err(scene_error(&SceneError::single(pos, message)));
             }
         }
-        // Each texture the scene names gets the upload of that name or, failing that, the
-        // one upload whose name is its file name (`textures/globe.png` ← `globe.png`: many
-        // clients send only file names).
+        // Each texture the scene names gets the upload of that name or, failing that, of its
+        // name with `.` and `..` resolved (`./globe.png`), or the one upload whose name is its
+        // file name (`textures/globe.png` ← `globe.png`: many clients send only file names).
         let mut kept: Uploads = Vec::new();
         for n in &used {
-            let base = n.rsplit('/').next().unwrap_or(n);
+            let key = texture_key(n).unwrap_or_default();
+            let base = key.rsplit('/').next().unwrap_or(&key);
             let found = uploads
                 .iter()
-                .find(|(u, _)| u == n)
+                .find(|(u, _)| u == n || *u == key)
                 .or_else(|| uploads.iter().find(|(u, _)| u == base));
             if let Some((_, bytes)) = found {
                 kept.push((n.clone(), bytes.clone()));
@@ -675,7 +696,9 @@ fn check_tile_count(width: u32, height: u32, tile: u32, max_tiles: u64) -> Resul
 
 #[cfg(test)]
 mod tests {
-    use super::{MAX_TILE, MIN_TILE, check_asset_name, check_tile_count, percent_decode};
+    use super::{
+        MAX_TILE, MIN_TILE, check_asset_name, check_tile_count, percent_decode, texture_key,
+    };
 
     /// Over many sizes and caps: a job is refused exactly when the tiler would make more
     /// tiles than the cap (counted by the tiler itself), and the edge it suggests is the
@@ -770,6 +793,31 @@ mod tests {
         }
         for good in ["globe.png", "textures/globe.png", "a b.ppm"] {
             assert!(check_asset_name(good).is_ok(), "{good:?}");
+        }
+    }
+
+    #[test]
+    fn texture_names_resolve_like_paths_beside_the_scene() {
+        for (name, key) in [
+            ("globe.png", "globe.png"),
+            ("./globe.png", "globe.png"),
+            ("maps/../globe.png", "globe.png"),
+            ("maps//./globe.png", "maps/globe.png"),
+            ("a/b/../../c/d.png", "c/d.png"),
+        ] {
+            assert_eq!(texture_key(name).as_deref(), Some(key), "{name:?}");
+        }
+        for bad in [
+            "",
+            ".",
+            "/etc/passwd",
+            "../x.png",
+            "a/../../b",
+            "a\\b",
+            "x\u{0}",
+            "a/..",
+        ] {
+            assert_eq!(texture_key(bad), None, "{bad:?}");
         }
     }
 }

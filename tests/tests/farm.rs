@@ -119,6 +119,37 @@ fn multipart_scene_with_textures_matches_tessera_render() {
     assert_eq!(svc.wait_finished(id, JOB_TIME)["state"], "done");
     assert!(svc.image(id) == local_png(&examples().join("textures.ray"), None, None));
 
+    // A texture named through `.` and `..` is the same upload (here sent under its file name
+    // alone), as `tessera-render` reads the same file beside the scene.
+    let odd = std::fs::read_to_string(examples().join("textures.ray"))
+        .expect("scene")
+        .replace("textures/globe.png", "./textures/../textures/globe.png");
+    assert!(odd.contains("./textures/../textures/globe.png"));
+    let odd_path = dir.path().join("odd.ray");
+    std::fs::write(&odd_path, &odd).expect("write");
+    std::fs::create_dir_all(dir.path().join("textures")).expect("dir");
+    for f in ["globe.png", "tile.ppm"] {
+        std::fs::copy(tex.join(f), dir.path().join("textures").join(f)).expect("copy");
+    }
+    let form = reqwest::blocking::multipart::Form::new()
+        .text("scene", odd)
+        .file("globe.png", tex.join("globe.png"))
+        .expect("texture")
+        .file("textures/tile.ppm", tex.join("tile.ppm"))
+        .expect("texture");
+    let r = client()
+        .post(format!("{}/jobs", svc.url))
+        .multipart(form)
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 201, "{}", r.text().unwrap_or_default());
+    let odd_id = r.json::<Value>().expect("json")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    assert_eq!(svc.wait_finished(&odd_id, JOB_TIME)["state"], "done");
+    assert!(svc.image(&odd_id) == local_png(&odd_path, None, None));
+
     // Both local workers rendered tiles of the job, yet its scene (and its textures) was
     // fetched and built once: they share one cache of built scenes.
     let workers = svc.get_json("/workers");
@@ -211,9 +242,16 @@ fn bad_requests_get_json_errors_and_store_nothing() {
         "{e}"
     );
 
-    // A texture named by path: refused before any file system could be involved.
-    let r = post("[OBJECT]\ntype = sphere\nradius = 1\ntexture = ../../etc/passwd\n[/OBJECT]\n");
-    assert_eq!(r.status(), 400);
+    // A texture named by a path out of the scene's folder: refused before any file system
+    // could be involved, as a scene error (line, column, the list of errors).
+    for path in ["../../etc/passwd", "/etc/passwd", "a/../../b.png"] {
+        let r = post(&format!(
+            "[OBJECT]\ntype = sphere\nradius = 1\ntexture = {path}\n[/OBJECT]\n"
+        ));
+        let e = refused(r, "beside the scene or below it");
+        assert_eq!(line_col(&e), (Some(4), Some(11)), "{e}");
+        assert!(e["errors"].is_array(), "{e}");
+    }
 
     // Empty body, bad tile size, not UTF-8.
     assert_eq!(post("").status(), 400);
