@@ -26,98 +26,125 @@ pub(crate) enum Item {
 /// character was refused.
 pub(crate) const MAX_LINE_BYTES: usize = 64 * 1024;
 
-/// Splits `source` into items. Lines that are neither blank, a comment, a tag nor an entry
-/// become diagnostics; lexing carries on so that every such line is reported.
-pub(crate) fn lex(source: &str) -> (Vec<Item>, Found) {
-    let mut items = Vec::new();
-    let mut errors = Found::default();
-    for (index, raw) in source.lines().enumerate() {
-        let line = u32::try_from(index + 1).unwrap_or(u32::MAX);
-        if raw.len() > MAX_LINE_BYTES {
-            errors.push(Diagnostic::new(
-                Pos::new(line, 1),
-                format!(
-                    "a line of {} bytes: a scene's lines are a tag or one `key = value` \
-                     (at most {MAX_LINE_BYTES} bytes)",
-                    raw.len()
-                ),
-            ));
-            items.push(Item::Broken);
-            continue;
-        }
-        let chars: Vec<char> = raw.chars().collect();
-        let end = comment_start(&chars);
-        let text = &chars[..end];
-        let Some(first) = text.iter().position(|c| !c.is_whitespace()) else {
-            continue;
-        };
-        let last = text
-            .iter()
-            .rposition(|c| !c.is_whitespace())
-            .unwrap_or(first);
-        let body = &text[first..=last];
-        let col = |i: usize| u32::try_from(i + 1).unwrap_or(u32::MAX);
-        let pos = Pos::new(line, col(first));
+/// Reads a scene line by line, as the parser asks for the next item: the file is never
+/// held as a list of items (a 56 MB file of 7,000,000 short lines took 700 MB as one before
+/// its first block was read), and the parser may stop reading where a limit is passed.
+pub(crate) struct Lexer<'a> {
+    lines: std::iter::Enumerate<std::str::Lines<'a>>,
+}
 
-        if body[0] == '[' {
-            match lex_tag(body) {
-                Ok((name, close)) => items.push(Item::Tag { name, close, pos }),
-                Err(msg) => {
-                    errors.push(Diagnostic::new(pos, msg));
-                    items.push(Item::Broken);
-                }
+impl<'a> Lexer<'a> {
+    pub(crate) fn new(source: &'a str) -> Self {
+        Lexer {
+            lines: source.lines().enumerate(),
+        }
+    }
+
+    /// The next item. Lines that are neither blank, a comment, a tag nor an entry become
+    /// diagnostics (and a [`Item::Broken`]), so that every such line is reported.
+    pub(crate) fn next(&mut self, errors: &mut Found) -> Option<Item> {
+        for (index, raw) in self.lines.by_ref() {
+            if let Some(item) = lex_line(index, raw, errors) {
+                return Some(item);
             }
-            continue;
         }
-        let Some(eq) = body.iter().position(|&c| c == '=') else {
-            errors.push(Diagnostic::new(
-                pos,
-                "expected `key = value` or a tag such as [OBJECT]",
-            ));
-            items.push(Item::Broken);
-            continue;
-        };
-        let key: String = body[..eq]
-            .iter()
-            .collect::<String>()
-            .trim()
-            .to_ascii_lowercase();
-        if key.is_empty() {
-            errors.push(Diagnostic::new(pos, "expected a key before `=`"));
-            items.push(Item::Broken);
-            continue;
-        }
-        if let Some(bad) = key
-            .chars()
-            .find(|c| !(c.is_ascii_alphanumeric() || *c == '_'))
-        {
-            errors.push(Diagnostic::new(
-                pos,
-                format!(
-                    "a key is letters, digits and `_`; found `{bad}` in `{}`",
-                    shorten(&key)
-                ),
-            ));
-            items.push(Item::Broken);
-            continue;
-        }
-        let rest = &body[eq + 1..];
-        let value_offset = rest.iter().position(|c| !c.is_whitespace());
-        let (value, value_pos) = match value_offset {
-            Some(off) => (
-                rest[off..].iter().collect::<String>(),
-                Pos::new(line, col(first + eq + 1 + off)),
-            ),
-            None => (String::new(), Pos::new(line, col(first + eq + 1))),
-        };
-        items.push(Item::Entry {
-            key,
-            key_pos: pos,
-            value,
-            value_pos,
-        });
+        None
+    }
+}
+
+/// Every item of `source`, with its diagnostics (the tests' view of the lexer).
+#[cfg(test)]
+pub(crate) fn lex(source: &str) -> (Vec<Item>, Found) {
+    let mut errors = Found::default();
+    let mut lexer = Lexer::new(source);
+    let mut items = Vec::new();
+    while let Some(item) = lexer.next(&mut errors) {
+        items.push(item);
     }
     (items, errors)
+}
+
+/// The item of line `index` (0-based), `None` for a blank or comment line.
+fn lex_line(index: usize, raw: &str, errors: &mut Found) -> Option<Item> {
+    let line = u32::try_from(index + 1).unwrap_or(u32::MAX);
+    if raw.len() > MAX_LINE_BYTES {
+        errors.push(Diagnostic::new(
+            Pos::new(line, 1),
+            format!(
+                "a line of {} bytes: a scene's lines are a tag or one `key = value` \
+                 (at most {MAX_LINE_BYTES} bytes)",
+                raw.len()
+            ),
+        ));
+        return Some(Item::Broken);
+    }
+    let chars: Vec<char> = raw.chars().collect();
+    let end = comment_start(&chars);
+    let text = &chars[..end];
+    let Some(first) = text.iter().position(|c| !c.is_whitespace()) else {
+        return None;
+    };
+    let last = text
+        .iter()
+        .rposition(|c| !c.is_whitespace())
+        .unwrap_or(first);
+    let body = &text[first..=last];
+    let col = |i: usize| u32::try_from(i + 1).unwrap_or(u32::MAX);
+    let pos = Pos::new(line, col(first));
+
+    if body[0] == '[' {
+        return Some(match lex_tag(body) {
+            Ok((name, close)) => Item::Tag { name, close, pos },
+            Err(msg) => {
+                errors.push(Diagnostic::new(pos, msg));
+                Item::Broken
+            }
+        });
+    }
+    let Some(eq) = body.iter().position(|&c| c == '=') else {
+        errors.push(Diagnostic::new(
+            pos,
+            "expected `key = value` or a tag such as [OBJECT]",
+        ));
+        return Some(Item::Broken);
+    };
+    let key: String = body[..eq]
+        .iter()
+        .collect::<String>()
+        .trim()
+        .to_ascii_lowercase();
+    if key.is_empty() {
+        errors.push(Diagnostic::new(pos, "expected a key before `=`"));
+        return Some(Item::Broken);
+    }
+    if let Some(bad) = key
+        .chars()
+        .find(|c| !(c.is_ascii_alphanumeric() || *c == '_'))
+    {
+        errors.push(Diagnostic::new(
+            pos,
+            format!(
+                "a key is letters, digits and `_`; found `{bad}` in `{}`",
+                shorten(&key)
+            ),
+        ));
+        return Some(Item::Broken);
+    }
+    let rest = &body[eq + 1..];
+    let value_offset = rest.iter().position(|c| !c.is_whitespace());
+    let (value, value_pos) = match value_offset {
+        Some(off) => (
+            rest[off..].iter().collect::<String>(),
+            Pos::new(line, col(first + eq + 1 + off)),
+        ),
+        None => (String::new(), Pos::new(line, col(first + eq + 1))),
+    };
+    Some(Item::Entry {
+        key,
+        key_pos: pos,
+        value,
+        value_pos,
+    })
 }
 
 /// Index where a `#` comment starts (outside double quotes), or the line length.

@@ -8,7 +8,7 @@ use std::collections::{HashMap, HashSet};
 
 use glam::DVec3;
 
-use super::lex::{Item, lex};
+use super::lex::{Item, Lexer};
 use super::{
     CameraDesc, CsgDesc, CsgOp, Light, Limits, MaterialDesc, Node, ObjectDesc, SceneDesc,
     TextureRef,
@@ -71,11 +71,11 @@ pub fn parse(source: &str, limits: &Limits) -> Result<SceneDesc, SceneError> {
     // A byte-order mark (Windows editors write one) is not part of the text: columns on the
     // first line count from after it, as an editor shows them.
     let source = source.strip_prefix('\u{feff}').unwrap_or(source);
-    let (items, mut errors) = lex(source);
+    let mut errors = Found::default();
     // `[rayfile]`, the CSG levels and the `[OBJECT]` inside the deepest, and room for a few
     // levels more, which the CSG check then reports as such.
     let root = build_tree(
-        items,
+        Lexer::new(source),
         &mut errors,
         limits.max_csg_depth + 8,
         limits.max_objects,
@@ -160,7 +160,12 @@ pub const MAX_BLOCK_ENTRIES: usize = 4_096;
 /// and ends the reading there. Everything that walks the tree (the checks, and dropping it)
 /// recurses once per level, so an unbounded nesting (100,000 `[CSG]` tags: 600 KB) would
 /// overflow the stack and abort the process, the service's included.
-fn build_tree(items: Vec<Item>, errors: &mut Found, max_depth: usize, max_objects: usize) -> Block {
+fn build_tree(
+    mut items: Lexer<'_>,
+    errors: &mut Found,
+    max_depth: usize,
+    max_objects: usize,
+) -> Block {
     let mut object_tags = 0usize;
     let mut stack: Vec<Block> = vec![Block::new(String::new(), Pos::new(1, 1))];
     // Unknown opening tags' names, whose closers are then not reported again.
@@ -170,7 +175,7 @@ fn build_tree(items: Vec<Item>, errors: &mut Found, max_depth: usize, max_object
     let mut stopped = false;
     // Where `[/rayfile]` closed the wrapper, until something after it has been reported.
     let mut rayfile_closed: Option<Pos> = None;
-    for item in items {
+    while let Some(item) = items.next(errors) {
         if let (Some(closed), Item::Tag { pos, .. } | Item::Entry { key_pos: pos, .. }) =
             (rayfile_closed, &item)
         {
