@@ -221,9 +221,17 @@ pub async fn fail(
         .await?;
     if ok {
         state.work.notify_waiters();
-        // The tile may have been out of attempts, failing its job.
+        // The tile may have been out of attempts, failing its job: then it is not requeued,
+        // and the answer says so (it said `requeued` either way).
         state.ended.notify_waiters();
-        Ok(ok_json(serde_json::json!({ "requeued": true })))
+        let job_failed = state
+            .queue
+            .job(&id)
+            .await?
+            .is_some_and(|j| j.state == "failed");
+        Ok(ok_json(
+            serde_json::json!({ "requeued": !job_failed, "job_failed": job_failed }),
+        ))
     } else {
         Err(ApiError::conflict("this lease is no longer current"))
     }

@@ -835,3 +835,35 @@ fn a_worker_stops_within_its_grace_while_the_service_is_down() {
         start.elapsed()
     );
 }
+
+/// A reported failure says what became of the tile: requeued, or, when it was the tile's
+/// last attempt, its job failed (the answer said `requeued` either way).
+#[test]
+fn a_reported_failure_says_whether_it_failed_the_job() {
+    let dir = TempDir::new("fail-answer");
+    let svc = Service::start(&dir, &["--local-workers", "0", "--max-attempts", "2"]);
+    let id = svc.submit(&read("thesis.ray"), "?tile=64")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    let http = client();
+    let mut answers = Vec::new();
+    for worker in ["a", "b"] {
+        let c: Value = svc.claim(worker).json().expect("claim");
+        assert_eq!(c["idx"], 0, "{c}");
+        let r = http
+            .post(format!(
+                "{}/worker/jobs/{id}/tiles/0/fail?lease={}",
+                svc.url,
+                c["lease"].as_str().expect("lease")
+            ))
+            .json(&json!({ "worker": worker, "reason": "boom" }))
+            .send()
+            .expect("answer");
+        assert_eq!(r.status(), 200);
+        answers.push(r.json::<Value>().expect("json"));
+    }
+    assert_eq!(answers[0], json!({ "requeued": true, "job_failed": false }));
+    assert_eq!(answers[1], json!({ "requeued": false, "job_failed": true }));
+    assert_eq!(svc.get_json(&format!("/jobs/{id}"))["state"], "failed");
+}
