@@ -432,7 +432,16 @@ async fn read_multipart(
         // An asset is named by its part's name, as the scene names it; a part with no
         // name (or the generic `asset`) goes by its file name.
         let name = if field_name.is_empty() || field_name == "asset" {
-            fname.unwrap_or_default()
+            match fname.filter(|f| !f.is_empty()) {
+                Some(f) => f,
+                None => {
+                    return Err(ApiError::bad_request(format!(
+                        "the part `{field_name}` has no file name to name the asset by: send \
+                         the file (curl -F asset=@globe.png) or name the part as the scene \
+                         names the texture (-F globe.png=<globe.png)"
+                    )));
+                }
+            }
         } else {
             field_name
         };

@@ -282,6 +282,12 @@ fn bad_requests_get_json_errors_and_store_nothing() {
         .text("scene", read("thesis.ray"))
         .text("scene", read("checker.ray"));
     refused(post_form(two), "twice");
+    // An asset part with nothing to name it by says so (it read "`` is not a valid asset
+    // name").
+    let unnamed = reqwest::blocking::multipart::Form::new()
+        .text("scene", read("thesis.ray"))
+        .text("asset", "bytes");
+    refused(post_form(unnamed), "has no file name");
     // An empty scene part is named as such, with the multipart way to send one.
     let empty = reqwest::blocking::multipart::Form::new().text("scene", "");
     refused(post_form(empty), "curl -F scene=@");
