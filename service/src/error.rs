@@ -67,9 +67,17 @@ impl IntoResponse for ApiError {
     }
 }
 
-/// JSON 404 for unknown routes.
-pub async fn no_route() -> ApiError {
-    ApiError::new(StatusCode::NOT_FOUND, "no such route; see /")
+/// JSON 404 for unknown routes; a path with a trailing `/` (`POST /jobs/`) is told the
+/// route without it.
+pub async fn no_route(uri: axum::http::Uri) -> ApiError {
+    let path = uri.path();
+    let message = match path.strip_suffix('/') {
+        Some(bare) if !bare.is_empty() => {
+            format!("no such route; did you mean {bare} (without the trailing `/`)? see /")
+        }
+        _ => "no such route; see /".to_string(),
+    };
+    ApiError::new(StatusCode::NOT_FOUND, message)
 }
 
 /// JSON 405 for known routes with the wrong method.

@@ -316,6 +316,15 @@ fn bad_requests_get_json_errors_and_store_nothing() {
     assert!(r.json::<Value>().expect("json")["error"].is_string());
     assert_eq!(svc.get("/jobs/does-not-exist/image.png").status(), 404);
     assert_eq!(svc.get("/nothing-here").status(), 404);
+    let r = svc.get("/jobs/");
+    assert_eq!(r.status(), 404);
+    let e: Value = r.json().expect("json");
+    assert!(
+        e["error"]
+            .as_str()
+            .is_some_and(|m| m.contains("did you mean /jobs")),
+        "{e}"
+    );
 
     // An image before the job is done: 409 saying how far it is. (Its name is as long as
     // a name may be.)

@@ -81,9 +81,8 @@ fn lex_line(index: usize, raw: &str, errors: &mut Found) -> Option<Item> {
     let chars: Vec<char> = raw.chars().collect();
     let end = comment_start(&chars);
     let text = &chars[..end];
-    let Some(first) = text.iter().position(|c| !c.is_whitespace()) else {
-        return None;
-    };
+    // A blank or comment line is no item.
+    let first = text.iter().position(|c| !c.is_whitespace())?;
     let last = text
         .iter()
         .rposition(|c| !c.is_whitespace())
