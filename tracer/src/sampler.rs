@@ -87,7 +87,9 @@ impl Sampler {
         let threshold = threshold
             .or(own_threshold)
             .unwrap_or(Self::DEFAULT_THRESHOLD);
-        let out = match name.unwrap_or(self.name()) {
+        // Case-insensitive, as the scene's own `sampler = Jitter` is.
+        let name = name.map(str::to_ascii_lowercase);
+        let out = match name.as_deref().unwrap_or(self.name()) {
             "center" => Sampler::Center,
             "thesis" => Sampler::Thesis,
             "grid" => Sampler::Grid { n },
@@ -911,6 +913,11 @@ mod tests {
         );
         assert_eq!(
             s.with_overrides(Some("jitter"), None, None, 32),
+            Ok(Sampler::Jitter { n: 6 })
+        );
+        // Any case, as in a scene.
+        assert_eq!(
+            s.with_overrides(Some("JITTER"), None, None, 32),
             Ok(Sampler::Jitter { n: 6 })
         );
         assert_eq!(

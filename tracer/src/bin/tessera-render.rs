@@ -58,7 +58,8 @@ struct Args {
     threads: Option<u16>,
 
     /// Override the scene's sampler: center, thesis, grid, jitter or adaptive.
-    #[arg(long, value_parser = ["center", "thesis", "grid", "jitter", "adaptive"])]
+    #[arg(long, ignore_case = true,
+          value_parser = ["center", "thesis", "grid", "jitter", "adaptive"])]
     sampler: Option<String>,
 
     /// Samples per axis for grid, jitter and adaptive (N × N per pixel at most).
