@@ -867,3 +867,50 @@ fn a_reported_failure_says_whether_it_failed_the_job() {
     assert_eq!(answers[1], json!({ "requeued": false, "job_failed": true }));
     assert_eq!(svc.get_json(&format!("/jobs/{id}"))["state"], "failed");
 }
+
+/// A second SIGTERM while a worker is stopping gracefully ends it at once (status 130),
+/// instead of leaving it to finish its tile for up to its grace period.
+#[test]
+fn a_second_signal_stops_a_worker_at_once() {
+    use std::io::BufRead;
+    let dir = TempDir::new("second-signal");
+    let svc = Service::start(&dir, &["--local-workers", "0"]);
+    let slow = "[GLOBALS]\nwidth = 1024\nheight = 1024\nsampler = jitter\nsamples = 32\n\
+                max_depth = 64\n[/GLOBALS]\n[CAMERA]\neye = <0, 0, 0>\nlook_at = <0, 0, -1>\n\
+                [/CAMERA]\n[LIGHT]\nposition = <0, 1, 0>\n[/LIGHT]\n\
+                [OBJECT]\ntype = sphere\nradius = 50\nmirror = 0.9\n[/OBJECT]\n";
+    let id = svc.submit(slow, "?tile=1024")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    let mut worker = std::process::Command::new(WORKER)
+        .args([
+            "--server",
+            &svc.url,
+            "--threads",
+            "1",
+            "--grace-secs",
+            "600",
+        ])
+        .env("RUST_LOG", "info")
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .expect("worker starts");
+    let mut log = std::io::BufReader::new(worker.stderr.take().expect("stderr")).lines();
+    wait_until("the tile to be claimed", Duration::from_secs(60), || {
+        svc.get_json(&format!("/jobs/{id}"))["state"] == "running"
+    });
+    common::signal(&worker, "TERM");
+    // The first is taken (the worker says so) before the second is sent.
+    assert!(
+        log.by_ref()
+            .map_while(Result::ok)
+            .any(|line| line.contains("stopping:")),
+        "the worker's log ended without the stop"
+    );
+    common::signal(&worker, "TERM");
+    let status = common::wait_exit(&mut worker, Duration::from_secs(60));
+    let _ = worker.kill();
+    assert_eq!(status.and_then(|s| s.code()), Some(130), "{status:?}");
+}

@@ -83,8 +83,19 @@ pub fn main() -> ExitCode {
     }
 }
 
-/// SIGINT or SIGTERM.
+/// SIGINT or SIGTERM. A second one, while the graceful stop is under way, ends the process
+/// at once (exit status 130), as a second Ctrl-C does in most programs: what it held comes
+/// back to the queue when its leases run out.
 pub async fn shutdown_signal() {
+    one_signal().await;
+    tokio::spawn(async {
+        one_signal().await;
+        tracing::warn!("a second signal: stopping now, without finishing or giving back tiles");
+        std::process::exit(130);
+    });
+}
+
+async fn one_signal() {
     let ctrl_c = async {
         let _ = tokio::signal::ctrl_c().await;
     };
