@@ -102,12 +102,16 @@ fn multipart_scene_with_textures_matches_tessera_render() {
         .expect("texture")
         .file("textures/tile.ppm", tex.join("tile.ppm"))
         .expect("texture");
-    let r = client()
-        .post(format!("{}/jobs", svc.url))
-        .multipart(form)
-        .send()
-        .expect("answer");
-    assert_eq!(r.status(), 201, "{}", r.text().unwrap_or_default());
+    let submit = |form: reqwest::blocking::multipart::Form| {
+        let r = client()
+            .post(format!("{}/jobs", svc.url))
+            .multipart(form)
+            .send()
+            .expect("answer");
+        assert_eq!(r.status(), 201, "{}", r.text().unwrap_or_default());
+        r
+    };
+    let r = submit(form);
     let location = r.headers()["location"].to_str().expect("ascii").to_string();
     let job: Value = r.json().expect("json");
     assert_eq!(
@@ -137,13 +141,7 @@ fn multipart_scene_with_textures_matches_tessera_render() {
         .expect("texture")
         .file("textures/tile.ppm", tex.join("tile.ppm"))
         .expect("texture");
-    let r = client()
-        .post(format!("{}/jobs", svc.url))
-        .multipart(form)
-        .send()
-        .expect("answer");
-    assert_eq!(r.status(), 201, "{}", r.text().unwrap_or_default());
-    let odd_id = r.json::<Value>().expect("json")["id"]
+    let odd_id = submit(form).json::<Value>().expect("json")["id"]
         .as_str()
         .expect("id")
         .to_string();

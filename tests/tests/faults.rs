@@ -22,6 +22,24 @@ fn free_addr() -> String {
     l.local_addr().expect("addr").to_string()
 }
 
+/// A `size`² scene whose every sample is slow: the eye inside a mirrored sphere, each sample
+/// bouncing 64 times with a shadow ray each time.
+fn mirror_cave(size: u32, samples: u32) -> String {
+    format!(
+        "[GLOBALS]\nwidth = {size}\nheight = {size}\nsampler = jitter\nsamples = {samples}\n\
+         max_depth = 64\n[/GLOBALS]\n[CAMERA]\neye = <0, 0, 0>\nlook_at = <0, 0, -1>\n\
+         [/CAMERA]\n[LIGHT]\nposition = <0, 1, 0>\n[/LIGHT]\n\
+         [OBJECT]\ntype = sphere\nradius = 50\nmirror = 0.9\n[/OBJECT]\n"
+    )
+}
+
+/// Waits until a worker has claimed a tile of job `id` (the job is running).
+fn wait_claimed(svc: &Service, id: &str) {
+    wait_until("a tile to be claimed", Duration::from_secs(60), || {
+        svc.get_json(&format!("/jobs/{id}"))["state"] == "running"
+    });
+}
+
 fn tiles_done(svc: &Service, id: &str) -> u64 {
     svc.get_json(&format!("/jobs/{id}"))["tiles_done"]
         .as_u64()
@@ -752,18 +770,13 @@ fn a_paused_service_extends_leases_instead_of_reaping_them() {
 fn a_cancelled_jobs_tile_stops_rendering() {
     let dir = TempDir::new("cancel-tile");
     let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "600"]);
-    // The eye inside a mirrored sphere: every sample bounces 64 times, with a shadow ray
-    // each time; a billion samples in the one tile.
-    let slow = "[GLOBALS]\nwidth = 1024\nheight = 1024\nsampler = jitter\nsamples = 32\n\
-                max_depth = 64\n[/GLOBALS]\n[CAMERA]\neye = <0, 0, 0>\nlook_at = <0, 0, -1>\n\
-                [/CAMERA]\n[LIGHT]\nposition = <0, 1, 0>\n[/LIGHT]\n\
-                [OBJECT]\ntype = sphere\nradius = 50\nmirror = 0.9\n[/OBJECT]\n";
-    let job = svc.submit(slow, "?tile=1024");
-    let id = job["id"].as_str().expect("id").to_string();
+    // A billion slow samples in the one tile.
+    let id = svc.submit(&mirror_cave(1024, 32), "?tile=1024")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
     let _worker = Worker::start(&svc.url, "w", &[]);
-    wait_until("the tile to be claimed", Duration::from_secs(60), || {
-        svc.get_json(&format!("/jobs/{id}"))["state"] == "running"
-    });
+    wait_claimed(&svc, &id);
     let r = client()
         .delete(format!("{}/jobs/{id}", svc.url))
         .send()
@@ -811,19 +824,13 @@ fn a_stop_does_not_wait_for_unfinished_requests() {
 fn a_worker_stops_within_its_grace_while_the_service_is_down() {
     let dir = TempDir::new("stop-offline");
     let mut svc = Service::start(&dir, &["--local-workers", "0"]);
-    // One tile of a second or two: the eye inside a mirrored sphere.
-    let scene = "[GLOBALS]\nwidth = 96\nheight = 96\nsampler = jitter\nsamples = 3\n\
-                 max_depth = 64\n[/GLOBALS]\n[CAMERA]\neye = <0, 0, 0>\nlook_at = <0, 0, -1>\n\
-                 [/CAMERA]\n[LIGHT]\nposition = <0, 1, 0>\n[/LIGHT]\n\
-                 [OBJECT]\ntype = sphere\nradius = 50\nmirror = 0.9\n[/OBJECT]\n";
-    let id = svc.submit(scene, "?tile=96")["id"]
+    // One tile of a second or two.
+    let id = svc.submit(&mirror_cave(96, 3), "?tile=96")["id"]
         .as_str()
         .expect("id")
         .to_string();
     let mut worker = Worker::start(&svc.url, "w", &["--grace-secs", "10"]);
-    wait_until("the tile to be claimed", Duration::from_secs(60), || {
-        svc.get_json(&format!("/jobs/{id}"))["state"] == "running"
-    });
+    wait_claimed(&svc, &id);
     svc.kill();
     let start = Instant::now();
     let status = worker.terminate();
@@ -875,11 +882,7 @@ fn a_second_signal_stops_a_worker_at_once() {
     use std::io::BufRead;
     let dir = TempDir::new("second-signal");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
-    let slow = "[GLOBALS]\nwidth = 1024\nheight = 1024\nsampler = jitter\nsamples = 32\n\
-                max_depth = 64\n[/GLOBALS]\n[CAMERA]\neye = <0, 0, 0>\nlook_at = <0, 0, -1>\n\
-                [/CAMERA]\n[LIGHT]\nposition = <0, 1, 0>\n[/LIGHT]\n\
-                [OBJECT]\ntype = sphere\nradius = 50\nmirror = 0.9\n[/OBJECT]\n";
-    let id = svc.submit(slow, "?tile=1024")["id"]
+    let id = svc.submit(&mirror_cave(1024, 32), "?tile=1024")["id"]
         .as_str()
         .expect("id")
         .to_string();
@@ -898,9 +901,7 @@ fn a_second_signal_stops_a_worker_at_once() {
         .spawn()
         .expect("worker starts");
     let mut log = std::io::BufReader::new(worker.stderr.take().expect("stderr")).lines();
-    wait_until("the tile to be claimed", Duration::from_secs(60), || {
-        svc.get_json(&format!("/jobs/{id}"))["state"] == "running"
-    });
+    wait_claimed(&svc, &id);
     common::signal(&worker, "TERM");
     // The first is taken (the worker says so) before the second is sent.
     assert!(
