@@ -829,12 +829,26 @@ fn a_worker_stops_within_its_grace_while_the_service_is_down() {
         .as_str()
         .expect("id")
         .to_string();
-    let mut worker = Worker::start(&svc.url, "w", &["--grace-secs", "10"]);
+    let log_path = dir.path().join("worker.log");
+    let mut worker = std::process::Command::new(WORKER)
+        .args(["--server", &svc.url, "--threads", "1", "--grace-secs", "10"])
+        .env("RUST_LOG", "tessera_worker=debug")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(&log_path).expect("log file"))
+        .spawn()
+        .expect("worker starts");
     wait_claimed(&svc, &id);
     svc.kill();
     let start = Instant::now();
-    let status = worker.terminate();
-    assert!(status.success(), "{status:?}");
+    common::signal(&worker, "TERM");
+    let status = common::wait_exit(&mut worker, Duration::from_secs(60));
+    let _ = worker.kill();
+    assert!(status.is_some_and(|s| s.success()), "{status:?}");
+    // Retried with its back-off, stopping or not: a retry loop that ignored the pause once
+    // stopping sent thousands of posts in the grace period.
+    let log = std::fs::read_to_string(&log_path).expect("log");
+    let retries = log.matches("retrying in").count();
+    assert!((1..60).contains(&retries), "{retries} retries:\n{log}");
     // Its grace and one back-off step at most; not four leases (120 s).
     assert!(
         start.elapsed() < Duration::from_secs(40),

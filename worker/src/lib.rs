@@ -830,10 +830,16 @@ async fn post(
                 // A rendered tile is worth waiting for, but once the worker is stopping only
                 // for the grace period: the service may be down for longer than a service
                 // manager waits (a stop took 4 leases, two minutes, whatever `--grace-secs`).
-                let pause = tokio::time::sleep(backoff(streak, Duration::from_secs(2), &mut rng));
-                tokio::select! {
-                    () = pause => {}
-                    _ = stop.wait_for(|s| *s) => {}
+                let pause = backoff(streak, Duration::from_secs(2), &mut rng);
+                debug!(job = %c.job, tile = c.idx, "posting failed ({e}); retrying in {pause:?}");
+                if *stop.borrow() {
+                    // Already stopping: `wait_for` would return at once, every time.
+                    tokio::time::sleep(pause).await;
+                } else {
+                    tokio::select! {
+                        () = tokio::time::sleep(pause) => {}
+                        _ = stop.wait_for(|s| *s) => {}
+                    }
                 }
                 if *stop.borrow() {
                     give_up_at = give_up_at
