@@ -628,7 +628,36 @@ fn the_reading_stops_at_the_object_and_block_limits() {
     assert_eq!(errs.len(), 1, "{errs:?}");
     assert_eq!(errs[0].0, 13);
 
+    // Blocks of any kind count: 30 lights where 2 are allowed stop at the 25th block (twice
+    // the objects, the lights and 16), not at the end of the file.
+    let limits = Limits {
+        max_objects: 3,
+        max_lights: 2,
+        ..Limits::default()
+    };
+    let light = "[LIGHT]\nposition = <0, 1, 0>\n[/LIGHT]\n";
+    let errs = errors_with(&light.repeat(30), &limits);
+    let stop = errs
+        .iter()
+        .find(|e| e.2.contains("more than 24 blocks"))
+        .unwrap_or_else(|| panic!("{errs:?}"));
+    assert_eq!((stop.0, stop.1), (73, 1));
+    assert!(errs.iter().all(|e| e.0 <= 73), "{errs:?}");
+
     let max = tessera_tracer::scene::MAX_BLOCK_ENTRIES;
+    // A `[rayfile]` inside a block adds its lines to the block's all at once: the next line
+    // is past the cap all the same.
+    let src = format!(
+        "[OBJECT]\ntype = sphere\n{}[RAYFILE]\n{}[/RAYFILE]\nscale = 1\n[/OBJECT]\n",
+        "scale = 1\n".repeat(max - 10),
+        "scale = 1\n".repeat(20)
+    );
+    let errs = errors(&src);
+    assert!(
+        errs.iter().any(|e| e.0 as usize == max + 15
+            && e.2.contains(&format!("more than {max} lines in [OBJECT]"))),
+        "{errs:?}"
+    );
     let chain = |n: usize| {
         format!(
             "[OBJECT]\ntype = sphere\n{}[/OBJECT]\n",

@@ -79,6 +79,13 @@ pub fn parse(source: &str, limits: &Limits) -> Result<SceneDesc, SceneError> {
         &mut errors,
         limits.max_csg_depth + 8,
         limits.max_objects,
+        // A [CSG] holds two objects at least, so a file within the limits has fewer blocks
+        // than this; past it, [LIGHT] or [CSG] blocks alone would fill the tree.
+        limits
+            .max_objects
+            .saturating_mul(2)
+            .saturating_add(limits.max_lights)
+            .saturating_add(16),
     );
     let mut p = Parser {
         errors,
@@ -152,7 +159,8 @@ pub const MAX_BLOCK_ENTRIES: usize = 4_096;
 ///
 /// The tree holds the whole file before it is read for meaning, some hundreds of bytes an
 /// entry, so what it may hold is bounded here, where the file is read: past `max_objects`
-/// `[OBJECT]` tags (2,000,000 spheres, 62 MB, took 2 GB to be refused as too many) or
+/// `[OBJECT]` tags (2,000,000 spheres, 62 MB, took 2 GB to be refused as too many),
+/// `max_blocks` blocks of any kind (as many `[LIGHT]` or `[CSG]` blocks took as much) or
 /// [`MAX_BLOCK_ENTRIES`] lines in one block (7,000,000 `scale = 1` lines on one sphere took
 /// 1.4 GB, and were accepted), the reading stops with that error.
 ///
@@ -165,8 +173,10 @@ fn build_tree(
     errors: &mut Found,
     max_depth: usize,
     max_objects: usize,
+    max_blocks: usize,
 ) -> Block {
     let mut object_tags = 0usize;
+    let mut blocks = 0usize;
     let mut stack: Vec<Block> = vec![Block::new(String::new(), Pos::new(1, 1))];
     // Unknown opening tags' names, whose closers are then not reported again.
     let mut unknown_names: HashSet<String> = HashSet::new();
@@ -217,10 +227,24 @@ fn build_tree(
                 stopped = true;
                 break;
             }
+            Item::Tag {
+                close: false, pos, ..
+            } if blocks >= max_blocks => {
+                errors.push(Diagnostic::new(
+                    pos,
+                    format!(
+                        "more than {max_blocks} blocks, more than a scene within the limits \
+                         can have; the rest of the file is not read"
+                    ),
+                ));
+                stopped = true;
+                break;
+            }
+            // `>=`: a `[rayfile]` wrapper's entries join its parent's all at once.
             Item::Entry { key_pos, .. }
                 if stack
                     .last()
-                    .is_some_and(|b| b.entries.len() == MAX_BLOCK_ENTRIES) =>
+                    .is_some_and(|b| b.entries.len() >= MAX_BLOCK_ENTRIES) =>
             {
                 let block = stack.last().map_or(String::new(), Block::display);
                 errors.push(Diagnostic::new(
@@ -246,6 +270,7 @@ fn build_tree(
                 if name == "object" {
                     object_tags += 1;
                 }
+                blocks += 1;
                 let known = TAGS.contains(&name.as_str());
                 if known {
                     end_unknown(&mut stack);
