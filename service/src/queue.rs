@@ -595,6 +595,8 @@ impl Queue {
     }
 
     /// Extends a lease that is still current; returns its worker's name, `None` if stale.
+    /// `rendering`: the worker says it is rendering the tile, not holding it ahead (kept
+    /// until the tile is handed out again; see [`Queue::reap`]).
     pub async fn renew(
         &self,
         job: &str,
@@ -602,9 +604,10 @@ impl Queue {
         lease: &str,
         now: i64,
         lease_ms: u64,
+        rendering: bool,
     ) -> Result<Option<String>> {
         let worker: Option<Option<String>> = sqlx::query_scalar(
-            "UPDATE tiles SET lease_expires = ?4
+            "UPDATE tiles SET lease_expires = ?4, rendering = MAX(rendering, ?5)
              WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'
                AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))
              RETURNING worker",
@@ -613,6 +616,7 @@ impl Queue {
         .bind(i64::from(idx))
         .bind(lease)
         .bind(now.saturating_add(lease_ms as i64))
+        .bind(i64::from(rendering))
         // To the statement's end, not its first row: SQLite commits an autocommit statement
         // when it finishes, and a commit that fails (a full disk) must be this call's error,
         // not lost in a reset after the row was taken (the claim was answered with a lease
@@ -780,16 +784,17 @@ impl Queue {
     /// nothing wrong.
     ///
     /// A worker's leases on one job that run out within `keep.stall_ms` of each other are
-    /// one stall, in this pass or across passes: one strike towards keeping the worker away,
-    /// and one failure charged to the tile whose lease ran out first, the one it was
-    /// rendering (it renews the tile it holds ahead with it, and that one was claimed
-    /// later). The tiles it held ahead go back to the queue uncharged. Counted once a tile,
-    /// one pause or crash of a lone worker was two strikes, enough to fail its job, and tiles
-    /// never begun ran out of attempts.
+    /// one stall, in this pass or across passes: one strike towards keeping the worker away.
+    /// A failure is charged to each tile it said it was rendering (a renewal with
+    /// `rendering`), one per thread of a worker of many; the tiles it held ahead go back to
+    /// the queue uncharged. A worker that stalled before renewing anything said nothing:
+    /// then the tile whose lease ran out first is charged (its held-ahead tiles were claimed
+    /// later). Counted once a tile, one pause or crash of a lone worker was two strikes,
+    /// enough to fail its job, and tiles never begun ran out of attempts.
     pub async fn reap(&self, now: i64, max_attempts: u32, keep: KeepAway) -> Result<u64> {
         let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
-        let expired: Vec<(String, i64, Option<String>, i64)> = sqlx::query_as(
-            "SELECT job_id, idx, worker, lease_expires FROM tiles
+        let expired: Vec<(String, i64, Option<String>, i64, bool)> = sqlx::query_as(
+            "SELECT job_id, idx, worker, lease_expires, rendering FROM tiles
              WHERE state = 'leased' AND lease_expires < ?1
                AND EXISTS (SELECT 1 FROM jobs
                            WHERE id = tiles.job_id AND state IN ('queued', 'running'))
@@ -817,13 +822,23 @@ impl Queue {
                 None => 0,
             };
             let mut strikes = 0i64;
-            for (_, idx, _, expires) in &expired[i..i + group] {
+            let tiles = &expired[i..i + group];
+            for (k, (_, idx, _, expires, rendering)) in tiles.iter().enumerate() {
                 // A lease with no worker name (none is stored so) is its own stall.
-                let charged = worker.is_none() || *expires >= stall_until;
-                if charged {
+                let opens = worker.is_none() || *expires >= stall_until;
+                if opens {
                     strikes += 1;
                     stall_until = expires.saturating_add(keep.stall_ms);
                 }
+                // Charged: a tile the worker said it was rendering; or, when it said so of
+                // none of this stall's tiles (it stopped before its first renewal), the one
+                // whose lease ran out first.
+                let charged = *rendering
+                    || (opens
+                        && !tiles[k..]
+                            .iter()
+                            .take_while(|t| t.3 < stall_until)
+                            .any(|t| t.4));
                 sqlx::query(
                     "UPDATE tiles SET state = 'queued', failures = failures + ?3,
                          last_error = CASE WHEN ?3 = 1

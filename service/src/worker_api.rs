@@ -119,14 +119,30 @@ pub async fn asset(
         .ok_or_else(|| ApiError::not_found(format_args!("asset `{name}` in job `{id}`")))
 }
 
+/// `POST /worker/jobs/{id}/tiles/{idx}/renew?lease=L[&rendering=true]`.
+#[derive(Debug, Deserialize)]
+pub struct RenewParams {
+    pub lease: String,
+    /// The worker is rendering the tile, not holding it ahead (see `Queue::reap`).
+    #[serde(default)]
+    pub rendering: bool,
+}
+
 pub async fn renew(
     State(state): State<AppState>,
     Path((id, idx)): Path<(String, u32)>,
-    Query(q): Query<LeaseParam>,
+    Query(q): Query<RenewParams>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     match state
         .queue
-        .renew(&id, idx, &q.lease, now_ms(), state.cfg.lease_ms)
+        .renew(
+            &id,
+            idx,
+            &q.lease,
+            now_ms(),
+            state.cfg.lease_ms,
+            q.rendering,
+        )
         .await?
     {
         Some(worker) => {

@@ -144,7 +144,7 @@ async fn stale_and_repeated_results_change_nothing() {
         .expect("complete");
     assert!(matches!(late, Completion::Stale(_)), "{late:?}");
     assert!(
-        q.renew("j", first.idx, &first.lease, 1_000, 100)
+        q.renew("j", first.idx, &first.lease, 1_000, 100, true)
             .await
             .expect("renew")
             .is_none()
@@ -281,6 +281,8 @@ async fn a_stall_reaped_in_two_passes_is_one_strike_and_one_failure() {
     assert_eq!((a.idx, b.idx), (0, 1));
     assert_eq!(q.reap(1_100, max, KEEP).await.expect("reap"), 1);
     assert_eq!(q.reap(1_400, max, KEEP).await.expect("reap"), 1);
+    // Nothing was renewed as rendering: the first to run out is charged.
+    assert_eq!(failures(&db, "j").await, vec![1, 0]);
     // Tile 0 is rendered by another worker; tile 1's next holder is lost too: its first
     // charged failure, so the job goes on.
     let c = q
@@ -321,6 +323,64 @@ async fn a_stall_reaped_in_two_passes_is_one_strike_and_one_failure() {
     );
     assert!(
         q.claim("v", 4_000, 1_000, max + 1)
+            .await
+            .expect("claim")
+            .is_some()
+    );
+}
+
+/// Each tile's failures, read from the database beside the queue.
+async fn failures(db: &Db, job: &str) -> Vec<i64> {
+    let pool = sqlx::SqlitePool::connect(&db.url()).await.expect("open");
+    let rows: Vec<(i64,)> =
+        sqlx::query_as("SELECT failures FROM tiles WHERE job_id = ?1 ORDER BY idx")
+            .bind(job)
+            .fetch_all(&pool)
+            .await
+            .expect("read");
+    pool.close().await;
+    rows.into_iter().map(|(f,)| f).collect()
+}
+
+/// A worker of two threads stalls holding four tiles: the two it said it was rendering
+/// are charged a failure each, the two it held ahead none, and the worker one strike. (Only
+/// the first to run out was charged: a tile that crashes workers of many threads went
+/// uncharged most of the time.)
+#[tokio::test]
+async fn a_stall_charges_the_tiles_being_rendered() {
+    let db = Db::new("stall-threads");
+    let q = Queue::open(&db.url()).await.expect("open");
+    job(&q, "j", 48, 8, 8).await; // tiles 0 to 5
+    let max = 3;
+    let mut held = Vec::new();
+    for t in [0, 10, 20, 30] {
+        held.push(
+            q.claim("w", t, 1_000, max)
+                .await
+                .expect("claim")
+                .expect("tile"),
+        );
+    }
+    // Thread A renders tile 0 with tile 2 ahead; thread B tile 1 with tile 3 ahead. The
+    // renewals come at different moments: B's rendering tile runs out after A's held one.
+    for (c, t, rendering) in [
+        (0, 300, true),
+        (2, 300, false),
+        (1, 350, true),
+        (3, 350, false),
+    ] {
+        let c = &held[c];
+        let renewed = q
+            .renew("j", c.idx, &c.lease, t, 1_000, rendering)
+            .await
+            .expect("renew");
+        assert!(renewed.is_some());
+    }
+    assert_eq!(q.reap(1_400, max, KEEP).await.expect("reap"), 4);
+    assert_eq!(failures(&db, "j").await, vec![1, 1, 0, 0, 0, 0]);
+    // One strike of two: `w` may go on.
+    assert!(
+        q.claim("w", 1_500, 1_000, max)
             .await
             .expect("claim")
             .is_some()

@@ -208,12 +208,16 @@ impl Client {
         self.url(&segs, Some(&c.lease))
     }
 
-    /// Extends the lease; `Ok(false)` when it is no longer ours.
-    pub async fn renew(&self, c: &Claim) -> Result<bool> {
+    /// Extends the tile's lease; `false` when it is no longer this worker's. `rendering`
+    /// says the tile is being rendered rather than held ahead: should the worker stall, the
+    /// service charges a failure to the tiles it was rendering only.
+    pub async fn renew(&self, c: &Claim, rendering: bool) -> Result<bool> {
         let what = "renew lease";
-        let resp = self
-            .send(self.http.post(self.tile_url(c, Some("renew"))))
-            .await?;
+        let mut url = self.tile_url(c, Some("renew"));
+        if rendering {
+            url.query_pairs_mut().append_pair("rendering", "true");
+        }
+        let resp = self.send(self.http.post(url)).await?;
         match resp.status() {
             StatusCode::OK => {
                 let _: Renewed = resp

@@ -686,7 +686,7 @@ async fn work(
                 }
             }
             _ = ticker.tick() => {
-                match client.renew(&c).await {
+                match client.renew(&c, true).await {
                     Ok(true) => {}
                     Ok(false) => {
                         debug!(job = %c.job, tile = c.idx, "lease lost; dropping the tile");
@@ -698,7 +698,7 @@ async fn work(
                     Err(e) => return Err(e),
                 }
                 if let Some(queued) = &pipe.queued {
-                    match client.renew(&queued.claim).await {
+                    match client.renew(&queued.claim, false).await {
                         Ok(true) => {}
                         Ok(false) => {
                             if let Some(lost) = pipe.queued.take() {
