@@ -929,3 +929,36 @@ fn a_second_signal_stops_a_worker_at_once() {
     let _ = worker.kill();
     assert_eq!(status.and_then(|s| s.code()), Some(130), "{status:?}");
 }
+
+/// A worker's closing count of tiles given back counts only those the service took back:
+/// with the service gone, the give-back of the tile still rendering at the end of the grace
+/// period fails, and it said `released=1` all the same.
+#[test]
+fn only_tiles_the_service_took_back_count_as_released() {
+    let dir = TempDir::new("released");
+    let mut svc = Service::start(&dir, &["--local-workers", "0"]);
+    let id = svc.submit(&mirror_cave(1024, 32), "?tile=1024")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    let log_path = dir.path().join("worker.log");
+    let mut worker = std::process::Command::new(WORKER)
+        .args(["--server", &svc.url, "--threads", "1", "--grace-secs", "1"])
+        .env("RUST_LOG", "tessera_worker=info")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(&log_path).expect("log file"))
+        .spawn()
+        .expect("worker starts");
+    wait_claimed(&svc, &id);
+    svc.kill();
+    common::signal(&worker, "TERM");
+    let status = common::wait_exit(&mut worker, Duration::from_secs(60));
+    let _ = worker.kill();
+    assert!(status.is_some_and(|s| s.success()), "{status:?}");
+    let log = std::fs::read_to_string(&log_path).expect("log");
+    let last = log
+        .lines()
+        .find(|l| l.contains("worker stopped"))
+        .unwrap_or_else(|| panic!("no closing line:\n{log}"));
+    assert!(last.contains("released=0"), "{last}");
+}

@@ -281,13 +281,15 @@ impl Client {
     }
 
     /// Gives the tile back unrendered, without counting it as a failure (shutdown).
-    pub async fn release(&self, c: &Claim) -> Result<()> {
+    /// `Ok(false)`: the lease was no longer this worker's, so there was nothing to give.
+    pub async fn release(&self, c: &Claim) -> Result<bool> {
         let what = "release tile";
         let resp = self
             .send(self.http.post(self.tile_url(c, Some("release"))))
             .await?;
         match resp.status() {
-            StatusCode::OK | StatusCode::CONFLICT | StatusCode::NOT_FOUND => Ok(()),
+            StatusCode::OK => Ok(true),
+            StatusCode::CONFLICT | StatusCode::NOT_FOUND => Ok(false),
             _ => Err(Self::fail_status(what, resp).await),
         }
     }

@@ -366,13 +366,7 @@ impl Ticket {
         self.cancel.store(true, Ordering::Relaxed);
         // Counted once the service has it back: a give-back that could not reach it is not
         // one (the tile returns when its lease runs out).
-        match shared.client.release(&self.claim).await {
-            Ok(()) => {
-                shared.released.fetch_add(1, Ordering::Relaxed);
-                Ok(())
-            }
-            Err(e) => ignore_transient(e),
-        }
+        give_back(shared, &self.claim).await
     }
 }
 
@@ -544,8 +538,7 @@ async fn drain(shared: &Shared, mut pipe: Pipeline) -> Result<(), ClientError> {
         }
     }
     if let Some(Ok(Some(c))) = &pipe.next {
-        shared.released.fetch_add(1, Ordering::Relaxed);
-        shared.client.release(c).await.or_else(ignore_transient)?;
+        give_back(shared, c).await?;
     }
     posted
 }
@@ -691,6 +684,14 @@ async fn work(
                     Ok(false) => {
                         debug!(job = %c.job, tile = c.idx, "lease lost; dropping the tile");
                         t.cancel.store(true, Ordering::Relaxed);
+                        // The tile held ahead is most likely of the same (cancelled) job: ask
+                        // now, not a renewal period from now, before it starts rendering.
+                        if let Some(queued) = &pipe.queued
+                            && let Ok(false) = client.renew(&queued.claim, false).await
+                            && let Some(lost) = pipe.queued.take()
+                        {
+                            lost.cancel.store(true, Ordering::Relaxed);
+                        }
                         return Ok(());
                     }
                     // Unreachable: keep rendering; the service extends leases when it restarts.
@@ -852,6 +853,20 @@ async fn post(
             }
             Err(e) => return Err(e),
         }
+    }
+}
+
+/// Gives a tile back, counting it in `released` only if the service took it back (not if
+/// it was unreachable, or the lease was no longer this worker's).
+async fn give_back(shared: &Shared, c: &Claim) -> Result<(), ClientError> {
+    match shared.client.release(c).await {
+        Ok(taken) => {
+            if taken {
+                shared.released.fetch_add(1, Ordering::Relaxed);
+            }
+            Ok(())
+        }
+        Err(e) => ignore_transient(e),
     }
 }
 
