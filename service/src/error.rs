@@ -67,17 +67,32 @@ impl IntoResponse for ApiError {
     }
 }
 
-/// JSON 404 for unknown routes; a path with a trailing `/` (`POST /jobs/`) is told the
-/// route without it.
+/// JSON 404 for unknown routes; a user route written with a trailing `/` (`POST /jobs/`)
+/// is told the route without it.
 pub async fn no_route(uri: axum::http::Uri) -> ApiError {
-    let path = uri.path();
-    let message = match path.strip_suffix('/') {
-        Some(bare) if !bare.is_empty() => {
+    let message = match uri
+        .path()
+        .strip_suffix('/')
+        .filter(|bare| is_user_route(bare))
+    {
+        Some(bare) => {
             format!("no such route; did you mean {bare} (without the trailing `/`)? see /")
         }
-        _ => "no such route; see /".to_string(),
+        None => "no such route; see /".to_string(),
     };
     ApiError::new(StatusCode::NOT_FOUND, message)
+}
+
+/// Whether `path` is one of the user routes (`/jobs`, `/jobs/{id}`, `/jobs/{id}/image.png`,
+/// `/healthz`, `/workers`).
+fn is_user_route(path: &str) -> bool {
+    let segs: Vec<&str> = path.split('/').skip(1).collect();
+    match segs.as_slice() {
+        ["jobs" | "healthz" | "workers"] => true,
+        ["jobs", id] => !id.is_empty(),
+        ["jobs", id, "image.png"] => !id.is_empty(),
+        _ => false,
+    }
 }
 
 /// JSON 405 for known routes with the wrong method.

@@ -323,6 +323,11 @@ fn bad_requests_get_json_errors_and_store_nothing() {
             .is_some_and(|m| m.contains("did you mean /jobs")),
         "{e}"
     );
+    // Only routes that exist are suggested.
+    for path in ["/nothing/", "//", "/jobs/a/b/"] {
+        let e: Value = svc.get(path).json().expect("json");
+        assert_eq!(e["error"], "no such route; see /", "{path}");
+    }
 
     // An image before the job is done: 409 saying how far it is. (Its name is as long as
     // a name may be.)

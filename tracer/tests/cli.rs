@@ -293,6 +293,28 @@ fn an_output_that_cannot_be_written_fails_before_the_render() {
     }
     assert!(!fresh.exists());
     assert_eq!(std::fs::read(&kept).expect("kept"), b"old image");
+    // A link to a file not yet there is written through, as it was before the check.
+    #[cfg(unix)]
+    {
+        let target = dir.join("target.png");
+        let link = dir.join("link.png");
+        let _ = std::fs::remove_file(&target);
+        let _ = std::fs::remove_file(&link);
+        std::os::unix::fs::symlink(&target, &link).expect("symlink");
+        let out = bin()
+            .arg(examples().join("thesis.ray"))
+            .arg("-o")
+            .arg(&link)
+            .args(["-q", "--threads", "1"])
+            .output()
+            .expect("runs");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(image::open(&target).is_ok());
+    }
 }
 
 /// A scene path that never ends (`/dev/zero`) is read up to the cap and refused, instead of
