@@ -151,9 +151,11 @@ pub const MAX_BLOCK_ENTRIES: usize = 4_096;
 /// A misspelt tag is one mistake and gets one error. An unknown opening tag (`[OBJCET]`)
 /// opens a block that the next known tag ends, silently: an opening one (the block was
 /// likely never meant to hold it), or a closing one that matches nothing open (most likely
-/// the closer of the misspelt opener, `[/OBJECT]`); the unknown name's own closer is then
-/// ignored wherever it comes. An unknown closing tag (`[/OBJCET]`) whose nearest known name
-/// is the innermost open block's closes that block. Without these rules, one typo produced
+/// the closer of the misspelt opener, `[/OBJECT]`); the unknown name's own closer, and the
+/// closer of the known tag it was taken for (`[CSGG]`'s `[/CSG]`), are then not reported
+/// wherever they come. An unknown closing tag (`[/OBJCET]`) whose nearest known name is the
+/// innermost open block's is reported and closes that block, even if the same misspelling
+/// opened an unknown block before. Without these rules, one typo produced
 /// three more errors, one of them asking for `[/OBJCET]` and one blaming the next, correct
 /// block.
 ///
@@ -180,6 +182,9 @@ fn build_tree(
     let mut stack: Vec<Block> = vec![Block::new(String::new(), Pos::new(1, 1))];
     // Unknown opening tags' names, whose closers are then not reported again.
     let mut unknown_names: HashSet<String> = HashSet::new();
+    // The known tags those unknown openers were taken for (`[CSGG]`: `csg`), whose closers
+    // (`[/CSG]`) are then not reported as closing nothing.
+    let mut unknown_hints: HashSet<&str> = HashSet::new();
     let mut seen_rayfile = false;
     let mut seen_anything = false;
     let mut stopped = false;
@@ -277,7 +282,11 @@ fn build_tree(
                 }
                 let parent = stack.last().map(|b| b.name.as_str()).unwrap_or("");
                 if !known {
-                    let hint = match closest(&name, TAGS.iter().copied()) {
+                    let suggestion = closest(&name, TAGS.iter().copied());
+                    if let Some(s) = suggestion {
+                        unknown_hints.insert(s);
+                    }
+                    let hint = match suggestion {
                         Some(s) => format!("; did you mean [{}]?", s.to_ascii_uppercase()),
                         None => {
                             "; expected [GLOBALS], [CAMERA], [LIGHT], [OBJECT] or [CSG]".to_string()
@@ -329,8 +338,9 @@ fn build_tree(
                 let open_at = stack.iter().skip(1).rposition(|b| b.name == name);
                 let Some(depth) = open_at else {
                     let top = stack.len() - 1;
+                    let hint = closest(&name, TAGS.iter().copied());
                     if TAGS.contains(&name.as_str()) {
-                        if !end_unknown(&mut stack) {
+                        if !end_unknown(&mut stack) && !unknown_hints.contains(name.as_str()) {
                             errors.push(Diagnostic::new(
                                 pos,
                                 format!(
@@ -339,8 +349,11 @@ fn build_tree(
                                 ),
                             ));
                         }
-                    } else if !unknown_names.contains(&name) {
-                        let hint = closest(&name, TAGS.iter().copied());
+                    } else if (top > 0 && hint == Some(stack[top].name.as_str()))
+                        || !unknown_names.contains(&name)
+                    {
+                        // A misspelt closer is reported even if the same misspelling opened
+                        // an unknown block earlier, when it may close the innermost block.
                         errors.push(Diagnostic::new(
                             pos,
                             match hint {
