@@ -471,29 +471,6 @@ fn a_misspelt_tag_is_one_error() {
     let at: Vec<(u32, u32)> = errs.iter().map(|e| (e.0, e.1)).collect();
     assert_eq!(at, vec![(1, 1), (7, 1)], "{errs:?}");
     assert!(errs[1].2.contains("unknown tag [/OBJCET]"), "{errs:?}");
-    // A misspelt container: its children are read as top-level blocks, and its real
-    // closer (`[/CSG]`, `[/RAYFILE]`) is not reported again as closing nothing.
-    let obj = "[OBJECT]\ntype = sphere\n[/OBJECT]\n";
-    one_error(
-        &format!("[CSGG]\nop = union\n{obj}{obj}[/CSG]\n"),
-        1,
-        1,
-        &["unknown tag [CSGG]", "did you mean [CSG]"],
-    );
-    one_error(
-        &format!("[RAYFLE]\n{cube}[/RAYFILE]\n"),
-        1,
-        1,
-        &["unknown tag [RAYFLE]"],
-    );
-    // The same misspelling twice, once opening and once closing a real block: two errors,
-    // each at its typo (the second was silently skipped, and the next block blamed).
-    let errs = errors(&format!(
-        "[OBJCET]\n{sphere}[/OBJECT]\n[OBJECT]\ntype = cube\n[/OBJCET]\n{cube}"
-    ));
-    let at: Vec<(u32, u32)> = errs.iter().map(|e| (e.0, e.1)).collect();
-    assert_eq!(at, vec![(1, 1), (7, 1)], "{errs:?}");
-    assert!(errs[1].2.contains("unknown tag [/OBJCET]"), "{errs:?}");
     // A closer nobody opened and that misspells nothing still says so.
     one_error(&format!("{cube}[/OBJECT]\n"), 4, 1, &["closes nothing"]);
 }
