@@ -166,9 +166,21 @@ pub async fn get_job(
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DeleteParams {
-    /// Remove an ended job and everything stored for it, instead of cancelling.
-    #[serde(default)]
+    /// Remove an ended job and everything stored for it, instead of cancelling: `true` or
+    /// `1` (`false`, `0` or absent: cancel).
+    #[serde(default, deserialize_with = "flag")]
     pub purge: bool,
+}
+
+/// A query flag: `true`/`1` or `false`/`0`.
+fn flag<'de, D: serde::Deserializer<'de>>(d: D) -> Result<bool, D::Error> {
+    match String::deserialize(d)?.as_str() {
+        "true" | "1" => Ok(true),
+        "false" | "0" => Ok(false),
+        other => Err(serde::de::Error::custom(format!(
+            "`{other}` is not a flag: expected true, false, 1 or 0"
+        ))),
+    }
 }
 
 /// `DELETE /jobs/{id}` cancels a queued or running job (`200` with the job). It is

@@ -366,7 +366,12 @@ fn bad_requests_get_json_errors_and_store_nothing() {
     // Purging an ended (here: cancelled) job removes it; an active one must be cancelled
     // first.
     let r = http
-        .delete(format!("{}/jobs/{id}?purge=true", svc.url))
+        .delete(format!("{}/jobs/{id}?purge=maybe", svc.url))
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 400);
+    let r = http
+        .delete(format!("{}/jobs/{id}?purge=1", svc.url))
         .send()
         .expect("answer");
     assert_eq!(r.status(), 204);
