@@ -822,39 +822,15 @@ fn a_stop_does_not_wait_for_unfinished_requests() {
 /// default) whatever `--grace-secs` said, past any service manager's patience.
 #[test]
 fn a_worker_stops_within_its_grace_while_the_service_is_down() {
-    let dir = TempDir::new("stop-offline");
-    let mut svc = Service::start(&dir, &["--local-workers", "0"]);
     // One tile of a second or two.
-    let id = svc.submit(&mirror_cave(96, 3), "?tile=96")["id"]
-        .as_str()
-        .expect("id")
-        .to_string();
-    let log_path = dir.path().join("worker.log");
-    let mut worker = std::process::Command::new(WORKER)
-        .args(["--server", &svc.url, "--threads", "1", "--grace-secs", "10"])
-        .env("RUST_LOG", "tessera_worker=debug")
-        .stdout(std::process::Stdio::null())
-        .stderr(std::fs::File::create(&log_path).expect("log file"))
-        .spawn()
-        .expect("worker starts");
-    wait_claimed(&svc, &id);
-    svc.kill();
-    let start = Instant::now();
-    common::signal(&worker, "TERM");
-    let status = common::wait_exit(&mut worker, Duration::from_secs(60));
-    let _ = worker.kill();
-    assert!(status.is_some_and(|s| s.success()), "{status:?}");
+    let (log, took) =
+        stop_worker_with_the_service_gone("stop-offline", &mirror_cave(96, 3), 96, 10, "debug");
     // Retried with its back-off, stopping or not: a retry loop that ignored the pause once
     // stopping sent thousands of posts in the grace period.
-    let log = std::fs::read_to_string(&log_path).expect("log");
     let retries = log.matches("retrying in").count();
     assert!((1..60).contains(&retries), "{retries} retries:\n{log}");
     // Its grace and one back-off step at most; not four leases (120 s).
-    assert!(
-        start.elapsed() < Duration::from_secs(40),
-        "{:?}",
-        start.elapsed()
-    );
+    assert!(took < Duration::from_secs(40), "{took:?}");
 }
 
 /// A reported failure says what became of the tile: requeued, or, when it was the tile's
@@ -935,30 +911,55 @@ fn a_second_signal_stops_a_worker_at_once() {
 /// period fails, and it said `released=1` all the same.
 #[test]
 fn only_tiles_the_service_took_back_count_as_released() {
-    let dir = TempDir::new("released");
+    let (log, _) =
+        stop_worker_with_the_service_gone("released", &mirror_cave(1024, 32), 1024, 1, "info");
+    let last = log
+        .lines()
+        .find(|l| l.contains("worker stopped"))
+        .unwrap_or_else(|| panic!("no closing line:\n{log}"));
+    assert!(last.contains("released=0"), "{last}");
+}
+
+/// Submits `scene` as one tile of edge `tile`, starts a one-thread worker with `grace`
+/// seconds of grace logging at `level`, kills the service once the tile is claimed, stops
+/// the worker with SIGTERM and checks it exits cleanly; returns its log and how long the
+/// stop took.
+fn stop_worker_with_the_service_gone(
+    tag: &str,
+    scene: &str,
+    tile: u32,
+    grace: u32,
+    level: &str,
+) -> (String, Duration) {
+    let dir = TempDir::new(tag);
     let mut svc = Service::start(&dir, &["--local-workers", "0"]);
-    let id = svc.submit(&mirror_cave(1024, 32), "?tile=1024")["id"]
+    let id = svc.submit(scene, &format!("?tile={tile}"))["id"]
         .as_str()
         .expect("id")
         .to_string();
     let log_path = dir.path().join("worker.log");
+    let grace = grace.to_string();
     let mut worker = std::process::Command::new(WORKER)
-        .args(["--server", &svc.url, "--threads", "1", "--grace-secs", "1"])
-        .env("RUST_LOG", "tessera_worker=info")
+        .args([
+            "--server",
+            &svc.url,
+            "--threads",
+            "1",
+            "--grace-secs",
+            &grace,
+        ])
+        .env("RUST_LOG", format!("tessera_worker={level}"))
         .stdout(std::process::Stdio::null())
         .stderr(std::fs::File::create(&log_path).expect("log file"))
         .spawn()
         .expect("worker starts");
     wait_claimed(&svc, &id);
     svc.kill();
+    let start = Instant::now();
     common::signal(&worker, "TERM");
     let status = common::wait_exit(&mut worker, Duration::from_secs(60));
+    let took = start.elapsed();
     let _ = worker.kill();
     assert!(status.is_some_and(|s| s.success()), "{status:?}");
-    let log = std::fs::read_to_string(&log_path).expect("log");
-    let last = log
-        .lines()
-        .find(|l| l.contains("worker stopped"))
-        .unwrap_or_else(|| panic!("no closing line:\n{log}"));
-    assert!(last.contains("released=0"), "{last}");
+    (std::fs::read_to_string(&log_path).expect("log"), took)
 }
