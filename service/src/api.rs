@@ -173,7 +173,7 @@ pub struct DeleteParams {
 }
 
 /// A query flag: `true`/`1` or `false`/`0`.
-fn flag<'de, D: serde::Deserializer<'de>>(d: D) -> Result<bool, D::Error> {
+pub(crate) fn flag<'de, D: serde::Deserializer<'de>>(d: D) -> Result<bool, D::Error> {
     match String::deserialize(d)?.as_str() {
         "true" | "1" => Ok(true),
         "false" | "0" => Ok(false),

@@ -538,7 +538,7 @@ impl Queue {
         let lease = uuid::Uuid::new_v4().simple().to_string();
         let row = sqlx::query(
             "UPDATE tiles SET state = 'leased', attempt = attempt + 1, lease = ?2, worker = ?1,
-                              lease_expires = ?3
+                              lease_expires = ?3, rendering = 0
              WHERE rowid = (
                  SELECT t.rowid FROM tiles t
                  WHERE t.job_id = (
@@ -735,7 +735,7 @@ impl Queue {
         let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
         let r = sqlx::query(
             "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL,
-                              failures = failures + 1, last_error = ?4
+                              rendering = 0, failures = failures + 1, last_error = ?4
              WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'
                AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
         )
@@ -766,7 +766,8 @@ impl Queue {
     /// Gives a tile back unrendered (a worker shutting down): no failure is counted.
     pub async fn release(&self, job: &str, idx: u32, lease: &str) -> Result<bool> {
         let r = sqlx::query(
-            "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL
+            "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL,
+                              rendering = 0
              WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'
                AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
         )
@@ -845,7 +846,7 @@ impl Queue {
                              THEN 'lease lost: worker ' || COALESCE(worker, '?')
                                   || ' stopped answering'
                              ELSE last_error END,
-                         lease = NULL, worker = NULL, lease_expires = NULL
+                         lease = NULL, worker = NULL, lease_expires = NULL, rendering = 0
                      WHERE job_id = ?1 AND idx = ?2",
                 )
                 .bind(job)

@@ -124,7 +124,7 @@ pub async fn asset(
 pub struct RenewParams {
     pub lease: String,
     /// The worker is rendering the tile, not holding it ahead (see `Queue::reap`).
-    #[serde(default)]
+    #[serde(default, deserialize_with = "crate::api::flag")]
     pub rendering: bool,
 }
 

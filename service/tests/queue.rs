@@ -387,6 +387,41 @@ async fn a_stall_charges_the_tiles_being_rendered() {
     );
 }
 
+/// The `rendering` flag is the holder's, not the tile's: a tile renewed as rendering, given
+/// back and claimed again to be held ahead is not charged when its new holder stalls, and
+/// the tile that holder renders is (the flag had stayed, charging the held tile and
+/// sparing the rendered one).
+#[tokio::test]
+async fn the_rendering_flag_does_not_pass_to_the_next_holder() {
+    let db = Db::new("flag-reset");
+    let q = Queue::open(&db.url()).await.expect("open");
+    job(&q, "j", 32, 8, 8).await; // tiles 0 to 3
+    let max = 4;
+    let a0 = q
+        .claim("a", 0, 1_000, max)
+        .await
+        .expect("claim")
+        .expect("0");
+    let b1 = q
+        .claim("b", 10, 1_000, max)
+        .await
+        .expect("claim")
+        .expect("1");
+    assert_eq!((a0.idx, b1.idx), (0, 1));
+    let renewed = q.renew("j", 0, &a0.lease, 300, 1_000, true).await;
+    assert!(renewed.expect("renew").is_some());
+    assert!(q.release("j", 0, &a0.lease).await.expect("release"));
+    // `b` renders tile 1 and holds tile 0 ahead, then stalls before renewing either.
+    let b0 = q
+        .claim("b", 410, 1_000, max)
+        .await
+        .expect("claim")
+        .expect("0");
+    assert_eq!(b0.idx, 0);
+    assert_eq!(q.reap(1_500, max, KEEP).await.expect("reap"), 2);
+    assert_eq!(failures(&db, "j").await, vec![0, 1, 0, 0]);
+}
+
 #[tokio::test]
 async fn lost_leases_count_as_failures() {
     let db = Db::new("lost");

@@ -963,3 +963,31 @@ fn stop_worker_with_the_service_gone(
     assert!(status.is_some_and(|s| s.success()), "{status:?}");
     (std::fs::read_to_string(&log_path).expect("log"), took)
 }
+
+/// A renewal says whether the tile is rendering as a flag, `true`/`1` or `false`/`0`, as
+/// `?purge=` does; anything else is refused.
+#[test]
+fn a_renewal_takes_rendering_as_a_flag() {
+    let dir = TempDir::new("renew-flag");
+    let svc = Service::start(&dir, &["--local-workers", "0"]);
+    let id = svc.submit(&read("thesis.ray"), "?tile=64")["id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+    let c: Value = svc.claim("w").json().expect("claim");
+    let lease = c["lease"].as_str().expect("lease");
+    let renew = |flag: &str| {
+        client()
+            .post(format!(
+                "{}/worker/jobs/{id}/tiles/{}/renew?lease={lease}{flag}",
+                svc.url, c["idx"]
+            ))
+            .send()
+            .expect("answer")
+            .status()
+    };
+    for ok in ["", "&rendering=true", "&rendering=1", "&rendering=0"] {
+        assert_eq!(renew(ok), 200, "{ok}");
+    }
+    assert_eq!(renew("&rendering=yes"), 400);
+}

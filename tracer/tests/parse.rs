@@ -471,6 +471,17 @@ fn a_misspelt_tag_is_one_error() {
     let at: Vec<(u32, u32)> = errs.iter().map(|e| (e.0, e.1)).collect();
     assert_eq!(at, vec![(1, 1), (7, 1)], "{errs:?}");
     assert!(errs[1].2.contains("unknown tag [/OBJCET]"), "{errs:?}");
+    // A misspelling silences one closer, not every later one: a stray [/OBJECT] after the
+    // misspelt block was closed by its own closer, or after its hint was used once, is still
+    // reported.
+    for src in [
+        format!("[OBJCET]\n{sphere}[/OBJCET]\n{cube}[/OBJECT]\n"),
+        format!("[CSGG]\nop = union\n{obj}{obj}[/CSG]\n[/CSG]\n"),
+    ] {
+        let errs = errors(&src);
+        assert_eq!(errs.len(), 2, "{src}: {errs:?}");
+        assert!(errs[1].2.contains("closes nothing"), "{errs:?}");
+    }
     // A closer nobody opened and that misspells nothing still says so.
     one_error(&format!("{cube}[/OBJECT]\n"), 4, 1, &["closes nothing"]);
 }

@@ -97,7 +97,11 @@ pub async fn shutdown_signal() {
 
 async fn one_signal() {
     let ctrl_c = async {
-        let _ = tokio::signal::ctrl_c().await;
+        // A handler that could not be installed is no signal (the second listener would
+        // otherwise end the process right after the first).
+        if tokio::signal::ctrl_c().await.is_err() {
+            std::future::pending::<()>().await;
+        }
     };
     #[cfg(unix)]
     let term = async {

@@ -121,6 +121,8 @@ struct Block {
     /// An unknown tag's block, already reported: its contents are not read, and the next
     /// known tag ends it without another error (see `build_tree`).
     unknown: bool,
+    /// For an unknown tag's block, the known tag it was likely meant to be.
+    hint: Option<&'static str>,
 }
 
 impl Block {
@@ -132,6 +134,7 @@ impl Block {
             children: Vec::new(),
             broken: false,
             unknown: false,
+            hint: None,
         }
     }
 
@@ -184,7 +187,8 @@ fn build_tree(
     let mut unknown_names: HashSet<String> = HashSet::new();
     // The known tags those unknown openers were taken for (`[CSGG]`: `csg`), whose closers
     // (`[/CSG]`) are then not reported as closing nothing.
-    let mut unknown_hints: HashSet<&str> = HashSet::new();
+    // Counted: each stands for one closer still to come, and silences one.
+    let mut unknown_hints: HashMap<&'static str, usize> = HashMap::new();
     let mut seen_rayfile = false;
     let mut seen_anything = false;
     let mut stopped = false;
@@ -284,7 +288,7 @@ fn build_tree(
                 if !known {
                     let suggestion = closest(&name, TAGS.iter().copied());
                     if let Some(s) = suggestion {
-                        unknown_hints.insert(s);
+                        *unknown_hints.entry(s).or_default() += 1;
                     }
                     let hint = match suggestion {
                         Some(s) => format!("; did you mean [{}]?", s.to_ascii_uppercase()),
@@ -328,6 +332,9 @@ fn build_tree(
                 seen_anything = true;
                 let mut block = Block::new(name, pos);
                 block.unknown = !known;
+                if !known {
+                    block.hint = closest(&block.name, TAGS.iter().copied());
+                }
                 stack.push(block);
             }
             Item::Tag {
@@ -340,7 +347,16 @@ fn build_tree(
                     let top = stack.len() - 1;
                     let hint = closest(&name, TAGS.iter().copied());
                     if TAGS.contains(&name.as_str()) {
-                        if !end_unknown(&mut stack) && !unknown_hints.contains(name.as_str()) {
+                        // The closer of a misspelt opener: of the one still open, or of one
+                        // a known tag has ended since. Each silences one closer, not all.
+                        let silenced = match end_unknown(&mut stack) {
+                            Some(hint) => {
+                                forget_one(&mut unknown_hints, hint);
+                                true
+                            }
+                            None => forget_one(&mut unknown_hints, Some(name.as_str())),
+                        };
+                        if !silenced {
                             errors.push(Diagnostic::new(
                                 pos,
                                 format!(
@@ -385,6 +401,10 @@ fn build_tree(
                     if let Some(parent) = stack.last_mut() {
                         parent.broken = true;
                     }
+                }
+                // An unknown block closed by its own closer: its hint has had its closer.
+                if let Some(top) = stack.last().filter(|b| b.unknown) {
+                    forget_one(&mut unknown_hints, top.hint);
                 }
                 close_top(&mut stack, &mut rayfile_closed, pos);
             }
@@ -437,19 +457,30 @@ fn close_top(stack: &mut Vec<Block>, rayfile_closed: &mut Option<Pos>, pos: Pos)
 }
 
 /// Ends the innermost block if it is an unknown tag's (reported when it opened); its parent
-/// is marked broken, since what the block swallowed may have been the parent's. Returns
-/// whether there was one.
-fn end_unknown(stack: &mut Vec<Block>) -> bool {
+/// is marked broken, since what the block swallowed may have been the parent's. Returns the
+/// ended block's hint (`Some`) if there was one.
+fn end_unknown(stack: &mut Vec<Block>) -> Option<Option<&'static str>> {
     if stack.len() < 2 || !stack[stack.len() - 1].unknown {
-        return false;
+        return None;
     }
-    if let Some(open) = stack.pop() {
-        attach(stack, open);
-    }
+    let open = stack.pop()?;
+    let hint = open.hint;
+    attach(stack, open);
     if let Some(parent) = stack.last_mut() {
         parent.broken = true;
     }
-    true
+    Some(hint)
+}
+
+/// Takes one pending closer of `hint` off the count; whether there was one.
+fn forget_one(pending: &mut HashMap<&'static str, usize>, hint: Option<&str>) -> bool {
+    match hint.and_then(|h| pending.get_mut(h)) {
+        Some(n) if *n > 0 => {
+            *n -= 1;
+            true
+        }
+        _ => false,
+    }
 }
 
 /// Adds a finished block to its parent; a `[rayfile]` wrapper is dissolved into it.
