@@ -396,10 +396,7 @@ fn a_killed_workers_tile_is_handed_out_again() {
     let dir = TempDir::new("killed");
     let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "500"]);
     let scene = read("thesis.ray");
-    let id = svc.submit(&scene, "?tile=64")["id"]
-        .as_str()
-        .expect("id")
-        .to_string();
+    let id = svc.submit_id(&scene, "?tile=64");
     let http = client();
 
     // A worker that claims a tile and dies before posting it: the test holds its lease.
@@ -642,14 +639,7 @@ fn jobs_are_listed_newest_first_a_page_at_a_time() {
     let dir = TempDir::new("pages");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
     let scene = "[GLOBALS]\nwidth = 8\nheight = 8\n[/GLOBALS]\n";
-    let submitted: Vec<String> = (0..5)
-        .map(|_| {
-            svc.submit(scene, "")["id"]
-                .as_str()
-                .expect("id")
-                .to_string()
-        })
-        .collect();
+    let submitted: Vec<String> = (0..5).map(|_| svc.submit_id(scene, "")).collect();
     let ids = |page: &Value| -> Vec<String> {
         page.as_array()
             .expect("a list")

@@ -53,14 +53,8 @@ fn jobs_survive_service_restarts_and_workers_ride_through() {
     let args = ["--local-workers", "0", "--lease-ms", "2000"];
     let mut svc = Service::start_on(&dir, &addr, &args);
     let url = svc.url.clone();
-    let small = svc.submit(&read("checker.ray"), "")["id"]
-        .as_str()
-        .expect("id")
-        .to_string();
-    let big = svc.submit(&read("thesis.ray"), "?tile=16")["id"]
-        .as_str()
-        .expect("id")
-        .to_string();
+    let small = svc.submit_id(&read("checker.ray"), "");
+    let big = svc.submit_id(&read("thesis.ray"), "?tile=16");
     let _w1 = Worker::start(&url, "w1", &[]);
     let _w2 = Worker::start(&url, "w2", &[]);
     assert_eq!(svc.wait_finished(&small, JOB_TIME)["state"], "done");
@@ -105,10 +99,7 @@ fn chaos_killed_workers_and_a_restarted_service_still_give_the_exact_image() {
     ];
     let mut svc = Service::start_on(&dir, &addr, &args);
     let url = svc.url.clone();
-    let id = svc.submit(&read("mirrors.ray"), "?tile=16")["id"]
-        .as_str()
-        .expect("id")
-        .to_string();
+    let id = svc.submit_id(&read("mirrors.ray"), "?tile=16");
     let total = svc.get_json(&format!("/jobs/{id}"))["tiles_total"]
         .as_u64()
         .unwrap_or(0);
@@ -537,10 +528,7 @@ fn service_flags_out_of_range_are_usage_errors() {
 fn tile_blobs_are_checked_before_they_are_stored() {
     let dir = TempDir::new("blobs");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
-    let id = svc.submit(&read("checker.ray"), "?tile=32")["id"]
-        .as_str()
-        .expect("id")
-        .to_string();
+    let id = svc.submit_id(&read("checker.ray"), "?tile=32");
     let http = client();
     let c: Value = svc.claim("t").json().expect("claim");
     let u = |k: &str| c[k].as_u64().expect("number") as u32;
@@ -709,10 +697,7 @@ fn silent_connections_are_closed() {
     assert!(answer.starts_with("HTTP/1.1 201"), "{answer}");
 
     // A wait shorter than the timeout but longer than most of it, on a job no worker takes.
-    let id = svc.submit(&scene, "")["id"]
-        .as_str()
-        .expect("id")
-        .to_string();
+    let id = svc.submit_id(&scene, "");
     let started = Instant::now();
     let job = svc.get_json(&format!("/jobs/{id}?wait=1"));
     assert_eq!(job["state"], "queued");
@@ -727,10 +712,7 @@ fn silent_connections_are_closed() {
 fn a_paused_service_extends_leases_instead_of_reaping_them() {
     let dir = TempDir::new("paused");
     let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "1000"]);
-    let id = svc.submit(&read("thesis.ray"), "?tile=64")["id"]
-        .as_str()
-        .expect("id")
-        .to_string();
+    let id = svc.submit_id(&read("thesis.ray"), "?tile=64");
     let c: Value = svc.claim("w").json().expect("claim");
     let pid = svc.pid().to_string();
     let signal = |sig: &str| {
@@ -771,10 +753,7 @@ fn a_cancelled_jobs_tile_stops_rendering() {
     let dir = TempDir::new("cancel-tile");
     let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "600"]);
     // A billion slow samples in the one tile.
-    let id = svc.submit(&mirror_cave(1024, 32), "?tile=1024")["id"]
-        .as_str()
-        .expect("id")
-        .to_string();
+    let id = svc.submit_id(&mirror_cave(1024, 32), "?tile=1024");
     let _worker = Worker::start(&svc.url, "w", &[]);
     wait_claimed(&svc, &id);
     let r = client()
@@ -839,10 +818,7 @@ fn a_worker_stops_within_its_grace_while_the_service_is_down() {
 fn a_reported_failure_says_whether_it_failed_the_job() {
     let dir = TempDir::new("fail-answer");
     let svc = Service::start(&dir, &["--local-workers", "0", "--max-attempts", "2"]);
-    let id = svc.submit(&read("thesis.ray"), "?tile=64")["id"]
-        .as_str()
-        .expect("id")
-        .to_string();
+    let id = svc.submit_id(&read("thesis.ray"), "?tile=64");
     let http = client();
     let mut answers = Vec::new();
     for worker in ["a", "b"] {
@@ -872,10 +848,7 @@ fn a_second_signal_stops_a_worker_at_once() {
     use std::io::BufRead;
     let dir = TempDir::new("second-signal");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
-    let id = svc.submit(&mirror_cave(1024, 32), "?tile=1024")["id"]
-        .as_str()
-        .expect("id")
-        .to_string();
+    let id = svc.submit_id(&mirror_cave(1024, 32), "?tile=1024");
     let mut worker = std::process::Command::new(WORKER)
         .args([
             "--server",
@@ -933,10 +906,7 @@ fn stop_worker_with_the_service_gone(
 ) -> (String, Duration) {
     let dir = TempDir::new(tag);
     let mut svc = Service::start(&dir, &["--local-workers", "0"]);
-    let id = svc.submit(scene, &format!("?tile={tile}"))["id"]
-        .as_str()
-        .expect("id")
-        .to_string();
+    let id = svc.submit_id(scene, &format!("?tile={tile}"));
     let log_path = dir.path().join("worker.log");
     let grace = grace.to_string();
     let mut worker = std::process::Command::new(WORKER)
@@ -970,10 +940,7 @@ fn stop_worker_with_the_service_gone(
 fn a_renewal_takes_rendering_as_a_flag() {
     let dir = TempDir::new("renew-flag");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
-    let id = svc.submit(&read("thesis.ray"), "?tile=64")["id"]
-        .as_str()
-        .expect("id")
-        .to_string();
+    let id = svc.submit_id(&read("thesis.ray"), "?tile=64");
     let c: Value = svc.claim("w").json().expect("claim");
     let lease = c["lease"].as_str().expect("lease");
     let renew = |flag: &str| {

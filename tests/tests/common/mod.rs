@@ -182,6 +182,14 @@ impl Service {
         body
     }
 
+    /// Submits a raw scene (panics unless the answer is 201) and returns the job's id.
+    pub fn submit_id(&self, scene: &str, query: &str) -> String {
+        self.submit(scene, query)["id"]
+            .as_str()
+            .expect("a job id")
+            .to_string()
+    }
+
     /// Waits (`GET /jobs/{id}?wait=`, a few seconds per request) until the job is no
     /// longer queued or running.
     pub fn wait_finished(&self, id: &str, within: Duration) -> Value {
