@@ -493,15 +493,10 @@ fn service_flags_out_of_range_are_usage_errors() {
         ("--max-texture-pixels", "67108865", "1..=67108864"),
         ("--max-scene-texture-pixels", "134217729", "1..=134217728"),
     ] {
-        let out = std::process::Command::new(SERVICE)
-            .args([flag, value, "--local-workers", "0", "--database", &db])
-            .output()
-            .expect("runs");
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{flag} {value}: {stderr}");
-        assert!(
-            stderr.contains(flag) && stderr.contains(range),
-            "{flag} {value}: {stderr}"
+        usage_error(
+            SERVICE,
+            &[flag, value, "--local-workers", "0", "--database", &db],
+            range,
         );
     }
     // The worker's: a name the service would refuse, and an idle pause of nothing (a
@@ -511,17 +506,28 @@ fn service_flags_out_of_range_are_usage_errors() {
         ("--name", &"n".repeat(201), "1 to 200 bytes"),
         ("--idle-max-ms", "0", "25.."),
     ] {
-        let out = std::process::Command::new(WORKER)
-            .args([flag, value, "--server", "http://127.0.0.1:1"])
-            .output()
-            .expect("runs");
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{flag} {value}: {stderr}");
-        assert!(
-            stderr.contains(flag) && stderr.contains(says),
-            "{flag} {value}: {stderr}"
+        usage_error(
+            WORKER,
+            &[flag, value, "--server", "http://127.0.0.1:1"],
+            says,
         );
     }
+}
+
+/// Runs `program` with `args`, whose first is a flag given a value out of its range: clap's
+/// usage error (status 2) naming the flag and saying `says`.
+#[track_caller]
+fn usage_error(program: &str, args: &[&str], says: &str) {
+    let out = std::process::Command::new(program)
+        .args(args)
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+    assert!(
+        stderr.contains(args[0]) && stderr.contains(says),
+        "{args:?}: {stderr}"
+    );
 }
 
 #[test]
