@@ -885,6 +885,15 @@ fn a_second_signal_stops_a_worker_at_once() {
     assert_eq!(status.and_then(|s| s.code()), Some(130), "{status:?}");
 }
 
+/// A worker stopped while the service is frozen (it takes the post and never answers) exits
+/// at the end of its grace period: the post waited for the client's two-minute timeout.
+#[test]
+fn a_worker_stops_within_its_grace_while_the_service_is_frozen() {
+    let (log, took) =
+        stop_worker_with_the_service_out("stop-frozen", &mirror_cave(96, 3), 96, 5, "info", true);
+    assert!(took < Duration::from_secs(40), "{took:?}\n{log}");
+}
+
 /// A worker's closing count of tiles given back counts only those the service took back:
 /// with the service gone, the give-back of the tile still rendering at the end of the grace
 /// period fails, and it said `released=1` all the same.
@@ -910,6 +919,19 @@ fn stop_worker_with_the_service_gone(
     grace: u32,
     level: &str,
 ) -> (String, Duration) {
+    stop_worker_with_the_service_out(tag, scene, tile, grace, level, false)
+}
+
+/// As `stop_worker_with_the_service_gone`, the service killed or, with `freeze`, stopped
+/// (SIGSTOP: it takes connections and never answers).
+fn stop_worker_with_the_service_out(
+    tag: &str,
+    scene: &str,
+    tile: u32,
+    grace: u32,
+    level: &str,
+    freeze: bool,
+) -> (String, Duration) {
     let dir = TempDir::new(tag);
     let mut svc = Service::start(&dir, &["--local-workers", "0"]);
     let id = svc.submit_id(scene, &format!("?tile={tile}"));
@@ -930,7 +952,14 @@ fn stop_worker_with_the_service_gone(
         .spawn()
         .expect("worker starts");
     wait_claimed(&svc, &id);
-    svc.kill();
+    if freeze {
+        let stopped = std::process::Command::new("kill")
+            .args(["-STOP", &svc.pid().to_string()])
+            .status();
+        assert!(stopped.is_ok_and(|s| s.success()));
+    } else {
+        svc.kill();
+    }
     let start = Instant::now();
     common::signal(&worker, "TERM");
     let status = common::wait_exit(&mut worker, Duration::from_secs(60));

@@ -806,7 +806,15 @@ async fn post(
     let mut streak = 0;
     loop {
         let next = ride.is_some().then_some(shared.cfg.name.as_str());
-        let answer = shared.client.post_tile(&c, blob.clone(), next).await;
+        // A service that takes the request and never answers (frozen, not down) held a
+        // stopping worker for the client's two-minute timeout: the grace period ends it.
+        let answer = tokio::select! {
+            answer = shared.client.post_tile(&c, blob.clone(), next) => answer,
+            () = grace_over(&shared, stop.clone()) => {
+                warn!(job = %c.job, tile = c.idx, "stopping: no answer to the post; giving the tile up");
+                return Ok(());
+            }
+        };
         if let Some(tx) = ride.take() {
             let claim = match &answer {
                 Ok(Posted::Accepted { next, .. }) => next.clone(),
@@ -856,10 +864,29 @@ async fn post(
     }
 }
 
+/// The longest a give-back (always while stopping) waits for the service's answer.
+const GIVE_BACK_WAIT: Duration = Duration::from_secs(2);
+
+/// Completes once the worker is stopping and its grace period is over.
+async fn grace_over(shared: &Shared, mut stop: watch::Receiver<bool>) {
+    if stop.wait_for(|s| *s).await.is_err() {
+        // The stop can no longer come.
+        std::future::pending::<()>().await;
+    }
+    let since = *shared.stopping_since.get_or_init(Instant::now);
+    tokio::time::sleep_until((since + shared.cfg.grace).into()).await;
+}
+
 /// Gives a tile back, counting it in `released` only if the service took it back (not if
 /// it was unreachable, or the lease was no longer this worker's).
 async fn give_back(shared: &Shared, c: &Claim) -> Result<(), ClientError> {
-    match shared.client.release(c).await {
+    // Given back while stopping: a service that does not answer (frozen) is not waited for
+    // past `GIVE_BACK_WAIT`; the tile comes back when its lease runs out.
+    let Ok(answer) = tokio::time::timeout(GIVE_BACK_WAIT, shared.client.release(c)).await else {
+        warn!(job = %c.job, tile = c.idx, "no answer to the give-back; the lease will run out");
+        return Ok(());
+    };
+    match answer {
         Ok(taken) => {
             if taken {
                 shared.released.fetch_add(1, Ordering::Relaxed);
