@@ -143,14 +143,14 @@ impl Block {
     }
 }
 
-/// Nests items into blocks by their tags, reporting unknown, misplaced, unmatched and
-/// unclosed tags. The returned root holds the top-level blocks (a `[rayfile]` wrapper is
-/// unwrapped) and any entries written outside every block.
-///
 /// Most `key = value` lines one block may hold: far more than any block's keys, and room for
 /// a long chain of transforms.
 pub const MAX_BLOCK_ENTRIES: usize = 4_096;
 
+/// Nests items into blocks by their tags, reporting unknown, misplaced, unmatched and
+/// unclosed tags. The returned root holds the top-level blocks (a `[rayfile]` wrapper is
+/// unwrapped) and any entries written outside every block.
+///
 /// A misspelt tag is one mistake and gets one error. An unknown opening tag (`[OBJCET]`)
 /// opens a block that the next known tag ends, silently: an opening one (the block was
 /// likely never meant to hold it), or a closing one that matches nothing open (most likely
@@ -158,9 +158,8 @@ pub const MAX_BLOCK_ENTRIES: usize = 4_096;
 /// closer of the known tag it was taken for (`[CSGG]`'s `[/CSG]`), are then not reported
 /// wherever they come. An unknown closing tag (`[/OBJCET]`) whose nearest known name is the
 /// innermost open block's is reported and closes that block, even if the same misspelling
-/// opened an unknown block before. Without these rules, one typo produced
-/// three more errors, one of them asking for `[/OBJCET]` and one blaming the next, correct
-/// block.
+/// opened an unknown block before. Without these rules, one typo produced three more
+/// errors, one of them asking for `[/OBJCET]` and one blaming the next, correct block.
 ///
 /// The tree holds the whole file before it is read for meaning, some hundreds of bytes an
 /// entry, so what it may hold is bounded here, where the file is read: past `max_objects`
@@ -186,8 +185,8 @@ fn build_tree(
     // Unknown opening tags' names, whose closers are then not reported again.
     let mut unknown_names: HashSet<String> = HashSet::new();
     // The known tags those unknown openers were taken for (`[CSGG]`: `csg`), whose closers
-    // (`[/CSG]`) are then not reported as closing nothing.
-    // Counted: each stands for one closer still to come, and silences one.
+    // (`[/CSG]`) are then not reported as closing nothing: counted, each standing for one
+    // closer still to come and silencing one.
     let mut unknown_hints: HashMap<&'static str, usize> = HashMap::new();
     let mut seen_rayfile = false;
     let mut seen_anything = false;
