@@ -189,7 +189,7 @@ pub struct Queue {
     wal: Option<Arc<WalKeeper>>,
 }
 
-/// Tile and image bytes written between two background checkpoints (see [`WalKeeper`]).
+/// Tile and image bytes written between two background checkpoints (see `WalKeeper`).
 pub const CHECKPOINT_EVERY_BYTES: u64 = 48 << 20;
 
 /// WAL pages (of 4 KB) after which the writer checkpoints by itself, should the background

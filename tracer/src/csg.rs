@@ -30,7 +30,7 @@
 //!
 //! **Many children.** A union or a difference with many children (a union of thousands of
 //! spheres, a block with hundreds of holes) keeps a [`Bvh`] over its children's boxes
-//! ([`ChildIndex`]): a ray evaluates only the children whose boxes its line meets, found in
+//! (`ChildIndex`): a ray evaluates only the children whose boxes its line meets, found in
 //! about `log n` box tests instead of `n`, and a point is tested only against the children
 //! whose boxes hold it. The index only *finds* the children the plain loop would evaluate
 //! (every child whose box the line meets); they are then evaluated in the order written,
@@ -235,7 +235,7 @@ impl Csg {
         csg
     }
 
-    /// Gives this node a [`ChildIndex`] when it has at least `min` children to index (a
+    /// Gives this node a `ChildIndex` when it has at least `min` children to index (a
     /// union's children, a difference's cutters), and takes it away otherwise; then the
     /// same for every CSG below. `usize::MAX` removes every index: the plain loop that
     /// tests and benchmarks compare against.

@@ -30,7 +30,7 @@ fn half_disc_integral(x: f64, r: f64) -> f64 {
 /// Along x, the disc's chord is `[cy − h(x), cy + h(x)]` with `h = √(r² − (x − cx)²)`;
 /// the covered length is that chord clipped to `[y0, y1]`. Between the x positions where
 /// `h` crosses `|y0 − cy|` or `|y1 − cy|`, the clipped length is one of `y1 − y0`, `h − y0'`,
-/// `y1' + h` or `2h`, each integrable exactly through [`half_disc_integral`].
+/// `y1' + h` or `2h`, each integrable exactly through `half_disc_integral`.
 pub fn disc_coverage(c: DVec2, r: f64, min: DVec2, max: DVec2) -> f64 {
     let (a, b) = ((min.x - c.x).max(-r), (max.x - c.x).min(r));
     let (lo, hi) = (min.y - c.y, max.y - c.y);

@@ -8,7 +8,7 @@
 //! the formula. Encoding is then exact round-to-nearest of the sRGB curve, identical on every
 //! machine. To find `k` without a binary search over the 255 thresholds (eight dependent
 //! comparisons per channel, which were about a fifth of the time of a one-ray-per-pixel
-//! render), `[0, 1)` is cut into [`BUCKETS`] equal buckets; [`FIRST`] holds the code at each
+//! render), `[0, 1)` is cut into `BUCKETS` equal buckets; `FIRST` holds the code at each
 //! bucket's lower end, and since no bucket holds more than one threshold (the thresholds are
 //! at least 3.0e-4 apart, a bucket 2.4e-4 wide; a test checks it), one comparison finishes
 //! the job. The answer is the same count of thresholds at or below `x`, exactly.

@@ -438,7 +438,7 @@ pub struct Scene {
 pub const BVH_MIN_PRIMS: usize = 8;
 
 /// ... or when testing every bounded prim costs at least as much as testing
-/// [`BVH_MIN_PRIMS`] similarity spheres ([`prim_cost`] units: such a sphere 1, another
+/// [`BVH_MIN_PRIMS`] similarity spheres (`prim_cost` units: such a sphere 1, another
 /// object 2, a CSG tree 2 per child it may evaluate, see [`Csg::cost`]). A few expensive
 /// solids gain from a BVH long before eight do: measured with callgrind on
 /// `tessera-bench tracer` scenes, four general shapes

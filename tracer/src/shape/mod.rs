@@ -10,7 +10,7 @@
 //! A hit is reported as a [`LocalHit`]: the parameter, the point *projected back onto the
 //! surface* (so its error is the small, shape-specific bound in `p_err`, not the error of
 //! `o + t·d`), and the outward normal. Placing shapes in the world is
-//! [`crate::transform`]'s job; choosing colours is [`crate::material`]'s.
+//! [`crate::transform`]'s job; choosing colours is [`crate::world::Material`]'s.
 //!
 //! Adding a shape means adding a variant here and a module implementing the same functions;
 //! the scene parser maps the `type` keyword to the variant.
