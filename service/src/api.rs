@@ -56,10 +56,23 @@ pub async fn page() -> Html<&'static str> {
     Html(include_str!("page.html"))
 }
 
+/// `200` when the database answers a read and takes a write (a row rewritten within
+/// [`HEALTH_WRITE_WITHIN`]), `503` naming what failed otherwise: it was `200` while every
+/// submission and result failed on a full disk.
 pub async fn healthz(State(state): State<AppState>) -> Result<Json<Value>, ApiError> {
     state.queue.ping().await?;
+    if let Err(e) = state.queue.probe_write(now_ms(), HEALTH_WRITE_WITHIN).await {
+        tracing::error!("health check: {e}");
+        return Err(ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            format!("the database does not take writes: {e}"),
+        ));
+    }
     Ok(Json(json!({ "status": "ok" })))
 }
+
+/// How long the health check's write may wait for the database.
+pub const HEALTH_WRITE_WITHIN: Duration = Duration::from_secs(2);
 
 /// Workers heard from in the last ten minutes.
 pub async fn workers(State(state): State<AppState>) -> Json<Value> {

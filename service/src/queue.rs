@@ -39,6 +39,8 @@ pub enum QueueError {
     Url { url: String, reason: String },
     #[error("cannot open the database `{url}`: {source} (its folder must exist and be writable)")]
     Open { url: String, source: sqlx::Error },
+    #[error("the database took no write within {0:?}")]
+    WriteTimeout(Duration),
 }
 
 type Result<T> = std::result::Result<T, QueueError>;
@@ -399,6 +401,21 @@ impl Queue {
     pub async fn ping(&self) -> Result<()> {
         sqlx::query("SELECT 1").execute(&self.pool).await?;
         Ok(())
+    }
+
+    /// Rewrites the health row on the writing connection: whether the database takes a
+    /// write now, within `within` (the writer may be behind a lock held elsewhere).
+    pub async fn probe_write(&self, now: i64, within: Duration) -> Result<()> {
+        let write = sqlx::query(
+            "INSERT INTO health (id, checked_at) VALUES (1, ?1)
+             ON CONFLICT (id) DO UPDATE SET checked_at = excluded.checked_at",
+        )
+        .bind(now)
+        .execute(&self.writer);
+        match tokio::time::timeout(within, write).await {
+            Ok(done) => done.map(|_| ()).map_err(QueueError::from),
+            Err(_) => Err(QueueError::WriteTimeout(within)),
+        }
     }
 
     /// Stores a job, its tiles and its assets in one transaction.

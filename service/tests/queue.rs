@@ -815,3 +815,32 @@ async fn one_stall_is_one_strike() {
     let c = q.claim("w", 6_000, 1_000, 4).await.expect("claim");
     assert!(c.is_some(), "one stall kept the worker away");
 }
+
+/// The health check's write: it succeeds on a database that takes writes, and fails (in the
+/// time it is given) while another connection holds the database's write lock, then
+/// succeeds again once the lock is gone. The check only read, and so answered `200` while
+/// every write failed.
+#[tokio::test]
+async fn the_write_probe_fails_while_writes_cannot_happen() {
+    use sqlx::Connection;
+    let db = Db::new("probe");
+    let q = Queue::open(&db.url()).await.expect("open");
+    let quick = std::time::Duration::from_millis(300);
+    q.probe_write(1, quick).await.expect("writable");
+    let mut other = sqlx::SqliteConnection::connect(&db.url())
+        .await
+        .expect("second connection");
+    sqlx::query("BEGIN EXCLUSIVE")
+        .execute(&mut other)
+        .await
+        .expect("lock");
+    let refused = q.probe_write(2, quick).await;
+    assert!(refused.is_err(), "{refused:?}");
+    sqlx::query("COMMIT")
+        .execute(&mut other)
+        .await
+        .expect("unlock");
+    q.probe_write(3, std::time::Duration::from_secs(20))
+        .await
+        .expect("writable again");
+}
