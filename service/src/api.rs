@@ -629,33 +629,25 @@ async fn validate(
             .sampler
             .with_overrides(sampler.as_deref(), samples, threshold, limits.max_samples)
             .map_err(ApiError::bad_request)?;
-        let used: Vec<String> = desc
-            .texture_names()
-            .iter()
-            .map(|(n, _)| n.to_string())
-            .collect();
+        // Each texture the scene names gets the upload of that name or, failing that, of its
+        // name with `.` and `..` resolved (`./globe.png`), or the one upload whose name is its
+        // file name (`textures/globe.png` ← `globe.png`: many clients send only file names).
+        let mut kept: Uploads = Vec::new();
         for (n, pos) in desc.texture_names() {
-            if texture_key(n).is_none() {
+            let Some(key) = texture_key(n) else {
                 let message = format!(
                     "texture `{n}` must name a file beside the scene or below it: no leading \
                      `/`, no `..` above the scene's folder, no `\\`"
                 );
                 return Err(scene_error(&SceneError::single(pos, message)));
-            }
-        }
-        // Each texture the scene names gets the upload of that name or, failing that, of its
-        // name with `.` and `..` resolved (`./globe.png`), or the one upload whose name is its
-        // file name (`textures/globe.png` ← `globe.png`: many clients send only file names).
-        let mut kept: Uploads = Vec::new();
-        for n in &used {
-            let key = texture_key(n).unwrap_or_default();
+            };
             let base = key.rsplit('/').next().unwrap_or(&key);
             let found = uploads
                 .iter()
                 .find(|(u, _)| u == n || *u == key)
                 .or_else(|| uploads.iter().find(|(u, _)| u == base));
             if let Some((_, bytes)) = found {
-                kept.push((n.clone(), bytes.clone()));
+                kept.push((n.to_string(), bytes.clone()));
             }
         }
         let mut assets = MemoryAssets::new();

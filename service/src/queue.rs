@@ -162,6 +162,17 @@ const BAND_SQL: &str = "SELECT t.x, t.w, t.h, p.rgb FROM tiles t
      JOIN tile_pixels p ON p.job_id = t.job_id AND p.idx = t.idx
      WHERE t.job_id = ?1 AND t.y = ?2 ORDER BY t.idx";
 
+/// A leased tile whose lease ran out, as [`Queue::reap`] reads it.
+#[derive(Debug, sqlx::FromRow)]
+struct Expired {
+    job_id: String,
+    idx: i64,
+    worker: Option<String>,
+    lease_expires: i64,
+    /// Its holder said it was rendering it (see [`Queue::renew`]).
+    rendering: bool,
+}
+
 /// What [`Queue::cancel`] found.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Cancel {
@@ -752,7 +763,7 @@ impl Queue {
         let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
         let r = sqlx::query(
             "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL,
-                              rendering = 0, failures = failures + 1, last_error = ?4
+                              failures = failures + 1, last_error = ?4
              WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'
                AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
         )
@@ -783,8 +794,7 @@ impl Queue {
     /// Gives a tile back unrendered (a worker shutting down): no failure is counted.
     pub async fn release(&self, job: &str, idx: u32, lease: &str) -> Result<bool> {
         let r = sqlx::query(
-            "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL,
-                              rendering = 0
+            "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL
              WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'
                AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
         )
@@ -811,7 +821,7 @@ impl Queue {
     /// enough to fail its job, and tiles never begun ran out of attempts.
     pub async fn reap(&self, now: i64, max_attempts: u32, keep: KeepAway) -> Result<u64> {
         let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
-        let expired: Vec<(String, i64, Option<String>, i64, bool)> = sqlx::query_as(
+        let expired: Vec<Expired> = sqlx::query_as(
             "SELECT job_id, idx, worker, lease_expires, rendering FROM tiles
              WHERE state = 'leased' AND lease_expires < ?1
                AND EXISTS (SELECT 1 FROM jobs
@@ -821,13 +831,9 @@ impl Queue {
         .bind(now)
         .fetch_all(&mut *tx)
         .await?;
-        let mut i = 0;
-        while i < expired.len() {
-            let (job, worker) = (&expired[i].0, &expired[i].2);
-            let group = expired[i..]
-                .iter()
-                .take_while(|t| &t.0 == job && &t.2 == worker)
-                .count();
+        // One worker's expired leases on one job, in the order they ran out.
+        for tiles in expired.chunk_by(|a, b| a.job_id == b.job_id && a.worker == b.worker) {
+            let (job, worker) = (&tiles[0].job_id, &tiles[0].worker);
             let mut stall_until: i64 = match worker {
                 Some(w) => sqlx::query_scalar(
                     "SELECT stall_until FROM keep_away WHERE job_id = ?1 AND worker = ?2",
@@ -840,34 +846,33 @@ impl Queue {
                 None => 0,
             };
             let mut strikes = 0i64;
-            let tiles = &expired[i..i + group];
-            for (k, (_, idx, _, expires, rendering)) in tiles.iter().enumerate() {
+            for (k, t) in tiles.iter().enumerate() {
                 // A lease with no worker name (none is stored so) is its own stall.
-                let opens = worker.is_none() || *expires >= stall_until;
+                let opens = worker.is_none() || t.lease_expires >= stall_until;
                 if opens {
                     strikes += 1;
-                    stall_until = expires.saturating_add(keep.stall_ms);
+                    stall_until = t.lease_expires.saturating_add(keep.stall_ms);
                 }
                 // Charged: a tile the worker said it was rendering; or, when it said so of
                 // none of this stall's tiles (it stopped before its first renewal), the one
                 // whose lease ran out first.
-                let charged = *rendering
+                let charged = t.rendering
                     || (opens
                         && !tiles[k..]
                             .iter()
-                            .take_while(|t| t.3 < stall_until)
-                            .any(|t| t.4));
+                            .take_while(|u| u.lease_expires < stall_until)
+                            .any(|u| u.rendering));
                 sqlx::query(
                     "UPDATE tiles SET state = 'queued', failures = failures + ?3,
                          last_error = CASE WHEN ?3 = 1
                              THEN 'lease lost: worker ' || COALESCE(worker, '?')
                                   || ' stopped answering'
                              ELSE last_error END,
-                         lease = NULL, worker = NULL, lease_expires = NULL, rendering = 0
+                         lease = NULL, worker = NULL, lease_expires = NULL
                      WHERE job_id = ?1 AND idx = ?2",
                 )
                 .bind(job)
-                .bind(idx)
+                .bind(t.idx)
                 .bind(i64::from(charged))
                 .execute(&mut *tx)
                 .await?;
@@ -886,7 +891,6 @@ impl Queue {
                 .execute(&mut *tx)
                 .await?;
             }
-            i += group;
         }
         if !expired.is_empty() {
             Self::apply_keep_away(&mut tx, now, keep).await?;

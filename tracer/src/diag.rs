@@ -127,11 +127,6 @@ impl Found {
         self.pushed
     }
 
-    #[cfg(test)]
-    pub(crate) fn is_empty(&self) -> bool {
-        self.pushed == 0
-    }
-
     /// The error these diagnostics make; `None` if there are none.
     pub(crate) fn into_error(self) -> Option<SceneError> {
         (!self.kept.is_empty()).then(|| SceneError::with_dropped(self.kept, self.dropped))

@@ -798,23 +798,36 @@ async fn post(
     shared: Arc<Shared>,
     c: Claim,
     blob: Bytes,
-    mut ride: Option<Ride>,
-    mut stop: watch::Receiver<bool>,
+    ride: Option<Ride>,
+    stop: watch::Receiver<bool>,
 ) -> Result<(), ClientError> {
-    let mut give_up_at = Instant::now() + Duration::from_millis(c.lease_ms.max(1000) * 4);
+    // A rendered tile is worth waiting for, but once the worker is stopping only for the
+    // grace period: the service may be down, or frozen (it takes the request and never
+    // answers), for longer than a service manager waits; a stop took four leases or the
+    // client's two-minute timeout, whatever `--grace-secs` said.
+    tokio::select! {
+        posted = post_retrying(&shared, &c, blob, ride) => posted,
+        () = grace_over(&shared, stop) => {
+            warn!(job = %c.job, tile = c.idx, "stopping: the tile could not be posted in time; giving it up");
+            Ok(())
+        }
+    }
+}
+
+/// Posts the tile, retrying with back-off for up to four leases while the service cannot
+/// be reached.
+async fn post_retrying(
+    shared: &Shared,
+    c: &Claim,
+    blob: Bytes,
+    mut ride: Option<Ride>,
+) -> Result<(), ClientError> {
+    let give_up_at = Instant::now() + Duration::from_millis(c.lease_ms.max(1000) * 4);
     let mut rng = seed();
     let mut streak = 0;
     loop {
         let next = ride.is_some().then_some(shared.cfg.name.as_str());
-        // A service that takes the request and never answers (frozen, not down) held a
-        // stopping worker for the client's two-minute timeout: the grace period ends it.
-        let answer = tokio::select! {
-            answer = shared.client.post_tile(&c, blob.clone(), next) => answer,
-            () = grace_over(&shared, stop.clone()) => {
-                warn!(job = %c.job, tile = c.idx, "stopping: no answer to the post; giving the tile up");
-                return Ok(());
-            }
-        };
+        let answer = shared.client.post_tile(c, blob.clone(), next).await;
         if let Some(tx) = ride.take() {
             let claim = match &answer {
                 Ok(Posted::Accepted { next, .. }) => next.clone(),
@@ -836,24 +849,9 @@ async fn post(
             }
             Err(e) if e.is_transient() && Instant::now() < give_up_at => {
                 streak += 1;
-                // A rendered tile is worth waiting for, but once the worker is stopping only
-                // for the grace period: the service may be down for longer than a service
-                // manager waits (a stop took 4 leases, two minutes, whatever `--grace-secs`).
                 let pause = backoff(streak, Duration::from_secs(2), &mut rng);
                 debug!(job = %c.job, tile = c.idx, "posting failed ({e}); retrying in {pause:?}");
-                if *stop.borrow() {
-                    // Already stopping: `wait_for` would return at once, every time.
-                    tokio::time::sleep(pause).await;
-                } else {
-                    tokio::select! {
-                        () = tokio::time::sleep(pause) => {}
-                        _ = stop.wait_for(|s| *s) => {}
-                    }
-                }
-                if *stop.borrow() {
-                    give_up_at = give_up_at
-                        .min(*shared.stopping_since.get_or_init(Instant::now) + shared.cfg.grace);
-                }
+                tokio::time::sleep(pause).await;
             }
             Err(e) if e.is_transient() => {
                 warn!(job = %c.job, tile = c.idx, "could not post the tile: {e}");

@@ -72,21 +72,7 @@ pub fn parse(source: &str, limits: &Limits) -> Result<SceneDesc, SceneError> {
     // first line count from after it, as an editor shows them.
     let source = source.strip_prefix('\u{feff}').unwrap_or(source);
     let mut errors = Found::default();
-    // `[rayfile]`, the CSG levels and the `[OBJECT]` inside the deepest, and room for a few
-    // levels more, which the CSG check then reports as such.
-    let root = build_tree(
-        Lexer::new(source),
-        &mut errors,
-        limits.max_csg_depth + 8,
-        limits.max_objects,
-        // A [CSG] holds two objects at least, so a file within the limits has fewer blocks
-        // than this; past it, [LIGHT] or [CSG] blocks alone would fill the tree.
-        limits
-            .max_objects
-            .saturating_mul(2)
-            .saturating_add(limits.max_lights)
-            .saturating_add(16),
-    );
+    let root = build_tree(Lexer::new(source), &mut errors, Caps::of(limits));
     let mut p = Parser {
         errors,
         limits,
@@ -147,6 +133,77 @@ impl Block {
 /// a long chain of transforms.
 pub const MAX_BLOCK_ENTRIES: usize = 4_096;
 
+/// Where the reading of a file stops (see `build_tree`), from the scene's limits.
+struct Caps {
+    /// Blocks open at once.
+    depth: usize,
+    /// `[OBJECT]` tags.
+    objects: usize,
+    /// Blocks of any kind.
+    blocks: usize,
+}
+
+impl Caps {
+    fn of(limits: &Limits) -> Caps {
+        Caps {
+            // `[rayfile]`, the CSG levels and the `[OBJECT]` inside the deepest, and room for
+            // a few levels more, which the CSG check then reports as such.
+            depth: limits.max_csg_depth + 8,
+            objects: limits.max_objects,
+            // A [CSG] holds two objects at least, so a file within the limits has fewer
+            // blocks than this; past it, [LIGHT] or [CSG] blocks alone would fill the tree.
+            blocks: limits
+                .max_objects
+                .saturating_mul(2)
+                .saturating_add(limits.max_lights)
+                .saturating_add(16),
+        }
+    }
+}
+
+/// The error that ends the reading at `item`, if it passes one of `caps` (`object_tags` and
+/// `blocks` opened so far).
+fn limit_passed(
+    item: &Item,
+    stack: &[Block],
+    object_tags: usize,
+    blocks: usize,
+    caps: &Caps,
+) -> Option<Diagnostic> {
+    let message = match item {
+        Item::Tag { close: false, .. } if stack.len() > caps.depth => {
+            format!("blocks nested more than {} deep", caps.depth)
+        }
+        Item::Tag {
+            name, close: false, ..
+        } if name == "object" && object_tags == caps.objects => {
+            format!("too many objects: the limit is {}", caps.objects)
+        }
+        Item::Tag { close: false, .. } if blocks >= caps.blocks => format!(
+            "more than {} blocks, more than a scene within the limits can have",
+            caps.blocks
+        ),
+        // `>=`: a `[rayfile]` wrapper's entries join its parent's all at once.
+        Item::Entry { .. } if stack.last()?.entries.len() >= MAX_BLOCK_ENTRIES => {
+            let block = match stack {
+                [_root] => "no block".to_string(),
+                _ => stack.last()?.display(),
+            };
+            format!("more than {MAX_BLOCK_ENTRIES} lines in {block}")
+        }
+        _ => return None,
+    };
+    let pos = match item {
+        Item::Tag { pos, .. } => *pos,
+        Item::Entry { key_pos, .. } => *key_pos,
+        Item::Broken => return None,
+    };
+    Some(Diagnostic::new(
+        pos,
+        format!("{message}; the rest of the file is not read"),
+    ))
+}
+
 /// Nests items into blocks by their tags, reporting unknown, misplaced, unmatched and
 /// unclosed tags. The returned root holds the top-level blocks (a `[rayfile]` wrapper is
 /// unwrapped) and any entries written outside every block.
@@ -162,23 +219,17 @@ pub const MAX_BLOCK_ENTRIES: usize = 4_096;
 /// errors, one of them asking for `[/OBJCET]` and one blaming the next, correct block.
 ///
 /// The tree holds the whole file before it is read for meaning, some hundreds of bytes an
-/// entry, so what it may hold is bounded here, where the file is read: past `max_objects`
+/// entry, so what it may hold is bounded here, where the file is read: past `caps.objects`
 /// `[OBJECT]` tags (2,000,000 spheres, 62 MB, took 2 GB to be refused as too many),
-/// `max_blocks` blocks of any kind (as many `[LIGHT]` or `[CSG]` blocks took as much) or
+/// `caps.blocks` blocks of any kind (as many `[LIGHT]` or `[CSG]` blocks took as much) or
 /// [`MAX_BLOCK_ENTRIES`] lines in one block (7,000,000 `scale = 1` lines on one sphere took
 /// 1.4 GB, and were accepted), the reading stops with that error.
 ///
-/// At most `max_depth` blocks are open at once: a tag that would open one more is an error
+/// At most `caps.depth` blocks are open at once: a tag that would open one more is an error
 /// and ends the reading there. Everything that walks the tree (the checks, and dropping it)
 /// recurses once per level, so an unbounded nesting (100,000 `[CSG]` tags: 600 KB) would
 /// overflow the stack and abort the process, the service's included.
-fn build_tree(
-    mut items: Lexer<'_>,
-    errors: &mut Found,
-    max_depth: usize,
-    max_objects: usize,
-    max_blocks: usize,
-) -> Block {
+fn build_tree(mut items: Lexer<'_>, errors: &mut Found, caps: Caps) -> Block {
     let mut object_tags = 0usize;
     let mut blocks = 0usize;
     let mut stack: Vec<Block> = vec![Block::new(String::new(), Pos::new(1, 1))];
@@ -206,70 +257,12 @@ fn build_tree(
             ));
             rayfile_closed = None;
         }
+        if let Some(stop) = limit_passed(&item, &stack, object_tags, blocks, &caps) {
+            errors.push(stop);
+            stopped = true;
+            break;
+        }
         match item {
-            Item::Tag {
-                close: false, pos, ..
-            } if stack.len() > max_depth => {
-                errors.push(Diagnostic::new(
-                    pos,
-                    format!(
-                        "blocks nested more than {max_depth} deep; the rest of the file is \
-                         not read"
-                    ),
-                ));
-                stopped = true;
-                break;
-            }
-            Item::Tag {
-                ref name,
-                close: false,
-                pos,
-            } if name == "object" && object_tags == max_objects => {
-                errors.push(Diagnostic::new(
-                    pos,
-                    format!(
-                        "too many objects: the limit is {max_objects}; the rest of the file is \
-                         not read"
-                    ),
-                ));
-                stopped = true;
-                break;
-            }
-            Item::Tag {
-                close: false, pos, ..
-            } if blocks >= max_blocks => {
-                errors.push(Diagnostic::new(
-                    pos,
-                    format!(
-                        "more than {max_blocks} blocks, more than a scene within the limits \
-                         can have; the rest of the file is not read"
-                    ),
-                ));
-                stopped = true;
-                break;
-            }
-            // `>=`: a `[rayfile]` wrapper's entries join its parent's all at once.
-            Item::Entry { key_pos, .. }
-                if stack
-                    .last()
-                    .is_some_and(|b| b.entries.len() >= MAX_BLOCK_ENTRIES) =>
-            {
-                let block = stack.last().map_or(String::new(), Block::display);
-                errors.push(Diagnostic::new(
-                    key_pos,
-                    format!(
-                        "more than {MAX_BLOCK_ENTRIES} lines in {}; the rest of the file is \
-                         not read",
-                        if block == "[]" {
-                            "no block"
-                        } else {
-                            block.as_str()
-                        }
-                    ),
-                ));
-                stopped = true;
-                break;
-            }
             Item::Tag {
                 name,
                 close: false,
@@ -280,12 +273,14 @@ fn build_tree(
                 }
                 blocks += 1;
                 let known = TAGS.contains(&name.as_str());
-                if known {
+                let suggestion = if known {
                     end_unknown(&mut stack);
-                }
+                    None
+                } else {
+                    closest(&name, TAGS.iter().copied())
+                };
                 let parent = stack.last().map(|b| b.name.as_str()).unwrap_or("");
                 if !known {
-                    let suggestion = closest(&name, TAGS.iter().copied());
                     if let Some(s) = suggestion {
                         *unknown_hints.entry(s).or_default() += 1;
                     }
@@ -331,9 +326,7 @@ fn build_tree(
                 seen_anything = true;
                 let mut block = Block::new(name, pos);
                 block.unknown = !known;
-                if !known {
-                    block.hint = closest(&block.name, TAGS.iter().copied());
-                }
+                block.hint = suggestion;
                 stack.push(block);
             }
             Item::Tag {
@@ -345,6 +338,8 @@ fn build_tree(
                 let Some(depth) = open_at else {
                     let top = stack.len() - 1;
                     let hint = closest(&name, TAGS.iter().copied());
+                    // A misspelling of the innermost block's own closer.
+                    let closes_top = top > 0 && hint == Some(stack[top].name.as_str());
                     if TAGS.contains(&name.as_str()) {
                         // The closer of a misspelt opener: of the one still open, or of one
                         // a known tag has ended since. Each silences one closer, not all.
@@ -364,9 +359,7 @@ fn build_tree(
                                 ),
                             ));
                         }
-                    } else if (top > 0 && hint == Some(stack[top].name.as_str()))
-                        || !unknown_names.contains(&name)
-                    {
+                    } else if closes_top || !unknown_names.contains(&name) {
                         // A misspelt closer is reported even if the same misspelling opened
                         // an unknown block earlier, when it may close the innermost block.
                         errors.push(Diagnostic::new(
@@ -384,7 +377,7 @@ fn build_tree(
                             },
                         ));
                         // The innermost block's own closer, misspelt: it ends that block.
-                        if top > 0 && hint == Some(stack[top].name.as_str()) {
+                        if closes_top {
                             close_top(&mut stack, &mut rayfile_closed, pos);
                         }
                     }
