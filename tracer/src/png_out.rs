@@ -11,10 +11,23 @@ use std::sync::{Arc, Mutex, PoisonError};
 /// Why a PNG could not be written.
 #[derive(Debug, thiserror::Error)]
 pub enum PngError {
+    /// The output took no more bytes (a full disk, a closed pipe). Its cause is the message,
+    /// not a source as well: `anyhow`'s `{:#}` printed the OS error twice.
+    #[error("{0}")]
+    Write(std::io::Error),
     #[error("PNG encoding failed: {0}")]
-    Encode(#[from] png::EncodingError),
+    Encode(png::EncodingError),
     #[error("expected {expected} bytes of rows in all, got {got}")]
     Length { expected: u64, got: u64 },
+}
+
+impl From<png::EncodingError> for PngError {
+    fn from(e: png::EncodingError) -> PngError {
+        match e {
+            png::EncodingError::IoError(io) => PngError::Write(io),
+            other => PngError::Encode(other),
+        }
+    }
 }
 
 /// Streams the rows of a `width × height` RGB8 image into a PNG. The output is owned by the

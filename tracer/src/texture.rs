@@ -129,9 +129,29 @@ impl DirAssets {
     }
 }
 
+/// `name` with `.` dropped and `..` taken back against the name's own folders, before the
+/// file system sees it, as the farm resolves a scene's texture names: `maps/../globe.png` is
+/// `globe.png` whether or not `maps/` exists (or is a link elsewhere), so a scene that
+/// renders on the farm renders here too. A `..` with no folder of the name's own before it
+/// is kept (a local scene may reach outside its folder; the farm refuses that).
+fn lexical(name: &str) -> PathBuf {
+    use std::path::Component;
+    let mut parts: Vec<Component> = Vec::new();
+    for c in Path::new(name).components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir if matches!(parts.last(), Some(Component::Normal(_))) => {
+                parts.pop();
+            }
+            other => parts.push(other),
+        }
+    }
+    parts.iter().collect()
+}
+
 impl AssetSource for DirAssets {
     fn load(&self, name: &str) -> Result<Vec<u8>, TextureError> {
-        let path = self.root.join(Path::new(name));
+        let path = self.root.join(lexical(name));
         let missing = |reason: String| TextureError::Missing {
             name: name.to_string(),
             reason: format!("{}: {reason}", path.display()),

@@ -730,6 +730,37 @@ fn limits_are_enforced() {
         );
     };
     check("[GLOBALS]\nwidth = 101\n[/GLOBALS]\n", "from 1 to 100");
+    // A size refused is the one error about the size: the defaults standing in for it
+    // (640×480, over both limits here) are not reported as well, and first.
+    for src in [
+        "[GLOBALS]\nwidth = 101\nheight = 4\n[/GLOBALS]\n",
+        "[GLOBALS]\nwidth = 480\nheight = 360\n[/GLOBALS]\n",
+    ] {
+        let errs = errors_with(src, &limits);
+        assert!(
+            !errs.is_empty() && errs.iter().all(|e| e.2.contains("from 1 to 100")),
+            "{src}: {errs:?}"
+        );
+    }
+    // A default that is over the limits is named as the default, with what to set.
+    for (src, says) in [
+        (
+            "[GLOBALS]\nwidth = 50\n[/GLOBALS]\n",
+            "the default height in 50×480",
+        ),
+        (
+            "[GLOBALS]\nheight = 50\n[/GLOBALS]\n",
+            "the default width in 640×50",
+        ),
+        (
+            "[GLOBALS]\nambient = 0.1\n[/GLOBALS]\n",
+            "the default image size 640×480",
+        ),
+        ("[CAMERA]\n[/CAMERA]\n", "the default image size 640×480"),
+    ] {
+        let errs = errors_with(src, &limits);
+        assert!(errs.iter().any(|e| e.2.contains(says)), "{src}: {errs:?}");
+    }
     check(
         "[GLOBALS]\nwidth = 100\nheight = 51\n[/GLOBALS]\n",
         "the limit is 5000",

@@ -110,12 +110,22 @@ fn read_scene(path: &Path) -> Result<Vec<u8>> {
 }
 
 /// Fails now if the PNG could not be written at the end, so that a mistyped `-o` does not
-/// cost the render: a directory, a missing folder, a file that may not be written. A path
+/// cost the render: a directory, a missing folder, a file that may not be written, the
+/// scene file itself. A path
 /// that does not exist is created to prove it can be and removed again; an existing file is
 /// opened for writing, not truncated, so that it is kept if the render fails. Devices and
 /// pipes are left alone (opening a pipe waits for its reader).
-fn check_output(path: &Path) -> Result<()> {
+fn check_output(path: &Path, scene: &Path) -> Result<()> {
     let what = || format!("cannot create {}", path.display());
+    // `-o` naming the scene itself replaced the scene with its picture.
+    if let (Ok(out), Ok(input)) = (std::fs::canonicalize(path), std::fs::canonicalize(scene))
+        && out == input
+    {
+        anyhow::bail!(
+            "cannot create {}: it is the scene file being rendered",
+            path.display()
+        );
+    }
     match std::fs::metadata(path) {
         Ok(meta) if meta.is_dir() => {
             anyhow::bail!("cannot create {}: it is a directory", path.display())
@@ -156,7 +166,7 @@ fn run(args: &Args) -> Result<()> {
         )
         .map_err(anyhow::Error::msg)?;
     let dir = args.scene.parent().unwrap_or(Path::new("."));
-    check_output(&args.output)?;
+    check_output(&args.output, &args.scene)?;
     let scene = Scene::build(&desc, &DirAssets::new(dir), &TextureLimits::default())?;
 
     let mut pool = rayon::ThreadPoolBuilder::new();

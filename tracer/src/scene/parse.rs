@@ -554,6 +554,7 @@ impl Parser<'_> {
             );
         }
         let mut globals_at: Option<Pos> = None;
+        let mut size = GivenSize::default();
         let mut camera_at: Option<Pos> = None;
         for b in &root.children {
             match b.name.as_str() {
@@ -568,7 +569,7 @@ impl Parser<'_> {
                         );
                     } else {
                         globals_at = Some(b.pos);
-                        self.globals(b, &mut desc);
+                        size = self.globals(b, &mut desc);
                     }
                 }
                 "camera" => {
@@ -612,18 +613,26 @@ impl Parser<'_> {
                 ),
             );
         }
-        // The defaults (640×480) count against the limits too, when no size was given.
+        // The defaults (640×480) count against the limits too, where no size was given. A
+        // size given and refused has its own error, and the default standing in for it is
+        // not the scene's fault (it read "the default image size 640×4" for `width = 101`).
         let pixels = u64::from(desc.width) * u64::from(desc.height);
         let max_dim = self.limits.max_dimension;
-        if desc.width > max_dim
-            || desc.height > max_dim
-            || (globals_at.is_none() && pixels > self.limits.max_pixels)
+        if !size.refused
+            && ((!size.width && desc.width > max_dim)
+                || (!size.height && desc.height > max_dim)
+                || (globals_at.is_none() && pixels > self.limits.max_pixels))
         {
+            let (what, set) = match (size.width, size.height) {
+                (false, false) => ("the default image size", "`width` and `height`"),
+                (false, true) => ("the default width in", "`width`"),
+                _ => ("the default height in", "`height`"),
+            };
             self.err(
                 globals_at.unwrap_or(Pos::new(1, 1)),
                 format!(
-                    "the default image size {}×{} is over this service's limits \
-                     ({max_dim} a side, {} pixels): set `width` and `height` in [GLOBALS]",
+                    "{what} {}×{} is over this service's limits ({max_dim} a side, {} \
+                     pixels): set {set} in [GLOBALS]",
                     desc.width, desc.height, self.limits.max_pixels
                 ),
             );
@@ -696,7 +705,8 @@ impl Parser<'_> {
         )
     }
 
-    fn globals(&mut self, b: &Block, desc: &mut SceneDesc) {
+    fn globals(&mut self, b: &Block, desc: &mut SceneDesc) -> GivenSize {
+        let mut size = GivenSize::default();
         let entries = self.entries(b, GLOBAL_KEYS);
         let mut antialias: Option<(bool, Pos)> = None;
         let mut sampler: Option<(&str, Pos)> = None;
@@ -708,13 +718,18 @@ impl Parser<'_> {
             match e.key.as_str() {
                 "width" | "height" => {
                     let max = self.limits.max_dimension;
-                    if let Some(n) = self.check(v.whole(1, max)) {
-                        if e.key == "width" {
+                    if e.key == "width" {
+                        size.width = true;
+                    } else {
+                        size.height = true;
+                    }
+                    match self.check(v.whole(1, max)) {
+                        Some(n) if e.key == "width" => {
                             desc.width = n;
                             width_pos = e.value_pos;
-                        } else {
-                            desc.height = n;
                         }
+                        Some(n) => desc.height = n,
+                        None => size.refused = true,
                     }
                 }
                 "ambient" => {
@@ -769,7 +784,8 @@ impl Parser<'_> {
                 _ => {}
             }
         }
-        if u64::from(desc.width) * u64::from(desc.height) > self.limits.max_pixels {
+        if !size.refused && u64::from(desc.width) * u64::from(desc.height) > self.limits.max_pixels
+        {
             self.err(
                 width_pos,
                 format!(
@@ -782,6 +798,7 @@ impl Parser<'_> {
             );
         }
         desc.sampler = self.sampler(antialias, sampler, samples, threshold);
+        size
     }
 
     fn sampler(
@@ -1419,4 +1436,13 @@ fn parse_f64(s: &str) -> Result<f64, BadNumber> {
         return Err(BadNumber::TooLarge);
     }
     Ok(x)
+}
+
+/// Which of `width` and `height` a scene's [GLOBALS] gave, and whether either was refused:
+/// the default size is checked against the limits only where it stands for a size not given.
+#[derive(Debug, Default, Clone, Copy)]
+struct GivenSize {
+    width: bool,
+    height: bool,
+    refused: bool,
 }
