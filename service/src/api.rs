@@ -52,8 +52,15 @@ impl From<JobRow> for JobView {
     }
 }
 
-pub async fn page() -> Html<&'static str> {
-    Html(include_str!("page.html"))
+/// The web page, told this service's body limit (`--max-body-bytes`) so that it can refuse a
+/// scene and textures too large to send before sending them: the service answers `413` from
+/// the request's length and closes the connection, which a browser's `fetch` reports as a
+/// network error rather than the answer.
+pub async fn page(State(state): State<AppState>) -> Html<String> {
+    Html(include_str!("page.html").replace(
+        "__TESSERA_MAX_BODY_BYTES__",
+        &state.cfg.max_body_bytes.to_string(),
+    ))
 }
 
 /// `200` when the database answers a read and takes a write (a row rewritten within
@@ -92,6 +99,7 @@ pub async fn workers(State(state): State<AppState>) -> Json<Value> {
 /// `GET /jobs` query parameters: a page of at most `limit` jobs (default and most
 /// [`MAX_JOBS_LISTED`]), those submitted before job `before` when given.
 #[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ListParams {
     pub limit: Option<u32>,
     pub before: Option<String>,
@@ -122,15 +130,24 @@ pub async fn list_jobs(
 }
 
 /// `GET /jobs/{id}?wait=S`: with `wait`, the answer waits until the job has ended (done,
-/// failed or cancelled) or `S` seconds (at most [`MAX_JOB_WAIT_SECS`]) have passed, so a
+/// failed or cancelled) or `S` seconds (at most [`MAX_JOB_WAIT_SECS`], and less than the
+/// idle timeout) have passed, so a
 /// client learns of the end at once instead of polling.
 #[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct JobParams {
     pub wait: Option<f64>,
 }
 
 /// The longest `GET /jobs/{id}?wait=` holds a request.
 pub const MAX_JOB_WAIT_SECS: f64 = 60.0;
+
+/// The longest wait this service gives: [`MAX_JOB_WAIT_SECS`], and a second less than its
+/// idle timeout (`--idle-timeout-secs`), which would otherwise close the silent connection of
+/// a longer wait with no answer at all.
+fn max_job_wait(cfg: &crate::Config) -> f64 {
+    MAX_JOB_WAIT_SECS.min(cfg.idle_timeout_secs as f64 - 1.0)
+}
 
 /// How often a waiting request looks again without being woken: only a change made outside
 /// this process (another service on the same database) goes unannounced.
@@ -143,7 +160,7 @@ pub async fn get_job(
 ) -> Result<Json<Value>, ApiError> {
     let wait = match params.wait {
         None => 0.0,
-        Some(w) if w.is_finite() && w >= 0.0 => w.min(MAX_JOB_WAIT_SECS),
+        Some(w) if w.is_finite() && w >= 0.0 => w.min(max_job_wait(&state.cfg)),
         Some(_) => {
             return Err(ApiError::bad_request(
                 "`wait` must be a number of seconds ≥ 0",
@@ -382,6 +399,14 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
             "empty body: send the scene file (curl --data-binary @scene.ray)"
         }));
     }
+    // `curl -d @scene.ray` sends the file without its line breaks, and a scene that starts
+    // with a comment becomes one comment line: it rendered a black image without a word.
+    if !is_multipart && !source.contains('\n') && source.trim_start().starts_with('#') {
+        return Err(ApiError::bad_request(
+            "the body is one comment line, with no line breaks: `curl -d` drops a file's line \
+             breaks; send the scene file with curl --data-binary @scene.ray",
+        ));
+    }
     let tile = params.tile.or(state.cfg.tile);
     if tile.is_some_and(|t| !(MIN_TILE..=MAX_TILE).contains(&t)) {
         return Err(ApiError::bad_request(format!(
@@ -473,7 +498,9 @@ async fn read_multipart(
         check_asset_name(&name)?;
         if seen.insert(name.clone(), ()).is_some() {
             return Err(ApiError::bad_request(format!(
-                "asset `{name}` was sent twice"
+                "asset `{name}` was sent twice: for two textures of one file name in different \
+                 folders, name each part by the scene's whole texture name \
+                 (curl -F 'asset=@a/{name};filename=a/{name}' -F 'asset=@b/{name};filename=b/{name}')"
             )));
         }
         uploads.push((name, bytes.to_vec()));

@@ -47,19 +47,23 @@ pub struct Config {
     #[arg(long, env = "TESSERA_LISTEN", default_value = "127.0.0.1:8080")]
     pub listen: String,
     /// The queue's database.
-    #[arg(long, env = "TESSERA_DATABASE", default_value = "sqlite://tessera.db")]
+    #[arg(long, env = "TESSERA_DATABASE", default_value = "sqlite://tessera.db",
+          value_parser = clap::builder::NonEmptyStringValueParser::new())]
     pub database: String,
     /// Workers run inside this process, over the same HTTP protocol, one thread each: 0 to
     /// 1024 (default: one per core).
     #[arg(long, env = "TESSERA_LOCAL_WORKERS",
           value_parser = clap::value_parser!(u16).range(0..=i64::from(MAX_THREADS)))]
     pub local_workers: Option<u16>,
-    /// Bearer token the worker routes require (none: open).
-    #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true)]
+    /// Bearer token the worker routes require (none: open). An empty one is refused: it
+    /// would lock out every worker, its own local ones too.
+    #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true,
+          value_parser = clap::builder::NonEmptyStringValueParser::new())]
     pub token: Option<String>,
     /// Bearer token that job submission and deletion require (none: open, which is allowed
-    /// only on a loopback address unless --open-submit is given).
-    #[arg(long, env = "TESSERA_SUBMIT_TOKEN", hide_env_values = true)]
+    /// only on a loopback address unless --open-submit is given). An empty one is refused.
+    #[arg(long, env = "TESSERA_SUBMIT_TOKEN", hide_env_values = true,
+          value_parser = clap::builder::NonEmptyStringValueParser::new())]
     pub submit_token: Option<String>,
     /// Accept jobs from anyone even when listening beyond loopback without --submit-token.
     #[arg(long, env = "TESSERA_OPEN_SUBMIT")]

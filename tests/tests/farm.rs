@@ -253,6 +253,11 @@ fn bad_requests_get_json_errors_and_store_nothing() {
 
     // Empty body, bad tile size, not UTF-8.
     assert_eq!(post("").status(), 400);
+    // `curl -d @thesis.ray` (line breaks dropped: the whole scene one comment line) is
+    // refused with the way to send it, not rendered black.
+    let flattened = read("thesis.ray").replace(['\n', '\r'], "");
+    assert!(flattened.starts_with('#'));
+    refused(post(&flattened), "--data-binary");
     let r = http
         .post(format!("{}/jobs?tile=3", svc.url))
         .body(read("thesis.ray"))
@@ -269,6 +274,14 @@ fn bad_requests_get_json_errors_and_store_nothing() {
         let bad = typo.rsplit('&').next().and_then(|p| p.split('=').next());
         refused(r, &format!("`{}`", bad.unwrap_or_default()));
     }
+    // So are the reading routes': `limt` listed every job, `wiat` answered at once.
+    for (path, bad) in [("/jobs?limt=5", "`limt`"), ("/jobs/j?wiat=60", "`wiat`")] {
+        let r = http
+            .get(format!("{}{path}", svc.url))
+            .send()
+            .expect("answer");
+        refused(r, bad);
+    }
     let r = http
         .post(format!("{}/jobs", svc.url))
         .body(b"[GLOBALS]\nwidth = 8\xff\n".to_vec())
@@ -280,6 +293,14 @@ fn bad_requests_get_json_errors_and_store_nothing() {
         .text("scene", read("thesis.ray"))
         .text("scene", read("checker.ray"));
     refused(post_form(two), "twice");
+    // Two textures of one file name: the answer says how to send both (the page sends
+    // each by its file name, and could not).
+    let part = || reqwest::blocking::multipart::Part::bytes(vec![1u8]).file_name("wood.png");
+    let twins = reqwest::blocking::multipart::Form::new()
+        .text("scene", read("thesis.ray"))
+        .part("asset", part())
+        .part("asset", part());
+    refused(post_form(twins), "filename=a/wood.png");
     // An asset part with nothing to name it by says so (it read "`` is not a valid asset
     // name").
     let unnamed = reqwest::blocking::multipart::Form::new()

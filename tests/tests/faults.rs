@@ -492,6 +492,10 @@ fn service_flags_out_of_range_are_usage_errors() {
         ("--max-pixels", "268435457", "1..=268435456"),
         ("--max-texture-pixels", "67108865", "1..=67108864"),
         ("--max-scene-texture-pixels", "134217729", "1..=134217728"),
+        // An empty token locked out every worker (the local ones too) while the service
+        // looked healthy; an empty database path failed with "no such table: jobs".
+        ("--token", "", "a value is required"),
+        ("--submit-token", "", "a value is required"),
     ] {
         usage_error(
             SERVICE,
@@ -499,6 +503,11 @@ fn service_flags_out_of_range_are_usage_errors() {
             range,
         );
     }
+    usage_error(
+        SERVICE,
+        &["--database", "", "--local-workers", "0"],
+        "a value is required",
+    );
     // The worker's: a name the service would refuse, and an idle pause of nothing (a
     // tight polling loop), both found at start, before any service is reached.
     for (flag, value, says) in [
@@ -706,6 +715,12 @@ fn silent_connections_are_closed() {
     let id = svc.submit_id(&scene, "");
     let started = Instant::now();
     let job = svc.get_json(&format!("/jobs/{id}?wait=1"));
+    assert_eq!(job["state"], "queued");
+    assert!(started.elapsed() >= Duration::from_secs(1));
+    // A wait longer than the timeout is cut to a second less than it, and answered: it was
+    // held until the silent connection was closed, with no answer at all.
+    let started = Instant::now();
+    let job = svc.get_json(&format!("/jobs/{id}?wait=5"));
     assert_eq!(job["state"], "queued");
     assert!(started.elapsed() >= Duration::from_secs(1));
 }
