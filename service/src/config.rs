@@ -39,12 +39,22 @@ pub fn auto_tile(width: u32, height: u32, rays_per_pixel: u32) -> u32 {
     edge
 }
 
+/// `HOST:PORT` with a numeric port (`127.0.0.1:8080`, `[::]:8080`, `localhost:8080`): a
+/// value without one failed only once the service tried to listen, with exit status 1.
+fn listen_addr(s: &str) -> Result<String, String> {
+    match s.rsplit_once(':') {
+        Some((host, port)) if !host.is_empty() && port.parse::<u16>().is_ok() => Ok(s.to_string()),
+        _ => Err("expected HOST:PORT, e.g. 127.0.0.1:8080 or [::]:8080".to_string()),
+    }
+}
+
 /// The Tessera render service: HTTP API, SQLite job queue, web page, and local workers.
 #[derive(Debug, Clone, Parser)]
 #[command(name = "tessera-service", version, about)]
 pub struct Config {
     /// Address to listen on.
-    #[arg(long, env = "TESSERA_LISTEN", default_value = "127.0.0.1:8080")]
+    #[arg(long, env = "TESSERA_LISTEN", default_value = "127.0.0.1:8080",
+          value_parser = listen_addr)]
     pub listen: String,
     /// The queue's database.
     #[arg(long, env = "TESSERA_DATABASE", default_value = "sqlite://tessera.db",
@@ -75,12 +85,14 @@ pub struct Config {
               .range(i64::from(crate::api::MIN_TILE)..=i64::from(crate::api::MAX_TILE)))]
     pub tile: Option<u32>,
     /// Seconds the local workers keep rendering the tiles they hold after SIGINT/SIGTERM
-    /// before giving them back (as `tessera-worker --grace-secs`).
-    #[arg(long, env = "TESSERA_GRACE_SECS", default_value_t = 30)]
+    /// before giving them back (as `tessera-worker --grace-secs`), 0 to 86,400 (a day).
+    #[arg(long, env = "TESSERA_GRACE_SECS", default_value_t = 30,
+          value_parser = clap::value_parser!(u64).range(0..=86_400))]
     pub grace_secs: u64,
-    /// Lease length in milliseconds (at least 100); workers renew at a third of it.
+    /// Lease length in milliseconds, 100 to 86,400,000 (a day); workers renew at a third
+    /// of it.
     #[arg(long, env = "TESSERA_LEASE_MS", default_value_t = 30_000,
-          value_parser = clap::value_parser!(u64).range(MIN_LEASE_MS..))]
+          value_parser = clap::value_parser!(u64).range(MIN_LEASE_MS..=86_400_000))]
     pub lease_ms: u64,
     /// Failures (reported, or leases lost) after which a tile fails its job (at least 1).
     #[arg(long, env = "TESSERA_MAX_ATTEMPTS", default_value_t = 4,
@@ -89,8 +101,10 @@ pub struct Config {
     /// Failures of one worker on one job after which it is kept away from the job.
     #[arg(long, env = "TESSERA_KEEP_AWAY_AFTER", default_value_t = 2)]
     pub keep_away_after: u32,
-    /// How long a worker is kept away from a job it keeps failing, in seconds.
-    #[arg(long, env = "TESSERA_KEEP_AWAY_SECS", default_value_t = 300)]
+    /// How long a worker is kept away from a job it keeps failing, in seconds (at most
+    /// 604,800, a week).
+    #[arg(long, env = "TESSERA_KEEP_AWAY_SECS", default_value_t = 300,
+          value_parser = clap::value_parser!(u64).range(0..=604_800))]
     pub keep_away_secs: u64,
     /// Largest request body for POST /jobs (scene plus textures), in bytes.
     #[arg(long, env = "TESSERA_MAX_BODY_BYTES", default_value_t = 64 << 20)]
@@ -131,9 +145,10 @@ pub struct Config {
     pub max_texture_pixels: u64,
     /// Seconds a connection may stay silent (no byte either way) before it is closed: a
     /// stalled client held its connection, and the body it had sent, for ever. Keep it
-    /// above 60, the longest wait a route offers (`GET /jobs/{id}?wait=`).
+    /// above 60, the longest wait a route offers (`GET /jobs/{id}?wait=`, which is cut to a
+    /// second less than this). 1 to 86,400 (a day).
     #[arg(long, env = "TESSERA_IDLE_TIMEOUT_SECS", default_value_t = 120,
-          value_parser = clap::value_parser!(u64).range(1..))]
+          value_parser = clap::value_parser!(u64).range(1..=86_400))]
     pub idle_timeout_secs: u64,
     /// Most texels of all of a job's textures together (each texel is held while the scene
     /// is checked and rendered: 3 bytes).

@@ -496,6 +496,14 @@ fn service_flags_out_of_range_are_usage_errors() {
         // looked healthy; an empty database path failed with "no such table: jobs".
         ("--token", "", "a value is required"),
         ("--submit-token", "", "a value is required"),
+        // Values past any use overflowed the clock's arithmetic: every connection panicked
+        // (idle timeout), a lease read as expired at once (lease), a stop panicked (grace).
+        ("--lease-ms", "86400001", "100..=86400000"),
+        ("--idle-timeout-secs", "86401", "1..=86400"),
+        ("--grace-secs", "86401", "0..=86400"),
+        ("--keep-away-secs", "604801", "0..=604800"),
+        // Found only when the service tried to listen (exit 1).
+        ("--listen", "foo", "HOST:PORT"),
     ] {
         usage_error(
             SERVICE,
@@ -508,18 +516,25 @@ fn service_flags_out_of_range_are_usage_errors() {
         &["--database", "", "--local-workers", "0"],
         "a value is required",
     );
-    // The worker's: a name the service would refuse, and an idle pause of nothing (a
-    // tight polling loop), both found at start, before any service is reached.
+    // The worker's: a name the service would refuse, an idle pause of nothing (a tight
+    // polling loop) or of ages, a grace past any use, a service URL it cannot use, all
+    // found at start, before any service is reached.
     for (flag, value, says) in [
         ("--name", "", "1 to 200 bytes"),
         ("--name", &"n".repeat(201), "1 to 200 bytes"),
         ("--idle-max-ms", "0", "25.."),
+        ("--idle-max-ms", "60001", "25..=60000"),
+        ("--grace-secs", "86401", "0..=86400"),
+        // Not a URL (exit 1), or https, which this build cannot speak: it retried for ever.
+        ("--server", "notaurl", "http://HOST:PORT"),
+        ("--server", "https://127.0.0.1:1", "plain HTTP"),
     ] {
-        usage_error(
-            WORKER,
-            &[flag, value, "--server", "http://127.0.0.1:1"],
-            says,
-        );
+        let server = if flag == "--server" {
+            value
+        } else {
+            "http://127.0.0.1:1"
+        };
+        usage_error(WORKER, &[flag, value, "--server", server], says);
     }
 }
 
@@ -1007,4 +1022,101 @@ fn a_renewal_takes_rendering_as_a_flag() {
         assert_eq!(renew(ok), 200, "{ok}");
     }
     assert_eq!(renew("&rendering=yes"), 400);
+}
+
+/// A worker that cannot fetch a job's texture (the service answers `500` for it) gives each
+/// tile back and backs off, so that healthy workers get them at once: it took the job's
+/// every tile in turn, each held until its lease ran out, and gave none back. Played against
+/// a fake service that always has work, fails every asset and records every give-back.
+#[test]
+fn a_worker_that_cannot_fetch_a_texture_gives_the_tile_back() {
+    use std::io::{BufRead, BufReader, Read, Write};
+    use std::sync::{Arc, Mutex};
+
+    #[derive(Default)]
+    struct Seen {
+        claims: u32,
+        released: Vec<u32>,
+        assets: u32,
+    }
+    let seen = Arc::new(Mutex::new(Seen::default()));
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    let url = format!("http://{}", listener.local_addr().expect("addr"));
+    let scene = "[OBJECT]\ntype = sphere\ntexture = t.ppm\n[/OBJECT]\n";
+    {
+        let seen = seen.clone();
+        std::thread::spawn(move || {
+            for stream in listener.incoming() {
+                let Ok(stream) = stream else { continue };
+                let mut reader = BufReader::new(stream);
+                let mut head = String::new();
+                let mut length = 0usize;
+                loop {
+                    let mut line = String::new();
+                    if reader.read_line(&mut line).unwrap_or(0) == 0 {
+                        break;
+                    }
+                    if let Some(v) = line.to_ascii_lowercase().strip_prefix("content-length:") {
+                        length = v.trim().parse().unwrap_or(0);
+                    }
+                    if line == "\r\n" {
+                        break;
+                    }
+                    head.push_str(&line);
+                }
+                let mut body = vec![0u8; length];
+                let _ = reader.read_exact(&mut body);
+                let target = head.split_whitespace().nth(1).unwrap_or("").to_string();
+                let path = target.split('?').next().unwrap_or("").to_string();
+                let mut s = seen.lock().expect("not poisoned");
+                let (status, answer) = if path == "/worker/claim" {
+                    s.claims += 1;
+                    let claim = json!({"job": "j", "idx": s.claims - 1, "x": 0, "y": 0,
+                        "w": 4, "h": 4, "lease": format!("L{}", s.claims), "lease_ms": 60_000});
+                    ("200 OK", claim.to_string())
+                } else if path == "/worker/jobs/j" {
+                    let spec = json!({"id": "j", "scene": scene, "sampler": null,
+                        "samples": null, "threshold": null, "assets": ["t.ppm"]});
+                    ("200 OK", spec.to_string())
+                } else if path.starts_with("/worker/jobs/j/assets/") {
+                    s.assets += 1;
+                    let e = json!({"error": "internal storage error"});
+                    ("500 Internal Server Error", e.to_string())
+                } else if let Some(idx) = path
+                    .strip_prefix("/worker/jobs/j/tiles/")
+                    .and_then(|p| p.strip_suffix("/release"))
+                {
+                    s.released.push(idx.parse().unwrap_or(u32::MAX));
+                    ("200 OK", "{}".to_string())
+                } else {
+                    (
+                        "404 Not Found",
+                        json!({"error": "no such route"}).to_string(),
+                    )
+                };
+                drop(s);
+                let mut stream = reader.into_inner();
+                let _ = write!(
+                    stream,
+                    "HTTP/1.1 {status}\r\ncontent-type: application/json\r\n\
+                     content-length: {}\r\nconnection: close\r\n\r\n{answer}",
+                    answer.len()
+                );
+            }
+        });
+    }
+    let _worker = Worker::start(&url, "unlucky", &[]);
+    wait_until("three tiles given back", Duration::from_secs(30), || {
+        seen.lock().expect("not poisoned").released.len() >= 3
+    });
+    let s = seen.lock().expect("not poisoned");
+    // Each tile it took was given back, but for one being fetched or claimed right now.
+    assert!(
+        s.claims <= s.released.len() as u32 + 2,
+        "{} claims, {:?}",
+        s.claims,
+        s.released
+    );
+    assert!(s.assets >= 3);
+    assert_eq!(s.released[..3], [0, 1, 2]);
 }

@@ -14,8 +14,9 @@ use crate::{WorkerConfig, default_name, run};
 #[derive(Debug, Parser)]
 #[command(name = "tessera-worker", version, about)]
 struct Args {
-    /// The service's base URL.
-    #[arg(long, env = "TESSERA_SERVER", default_value = "http://127.0.0.1:8080")]
+    /// The service's base URL, http:// (this worker speaks plain HTTP, no TLS).
+    #[arg(long, env = "TESSERA_SERVER", default_value = "http://127.0.0.1:8080",
+          value_parser = server_url)]
     server: String,
     /// Tiles rendered at once, 1 to 1024 (default: one per core).
     #[arg(long, env = "TESSERA_THREADS",
@@ -27,17 +28,25 @@ struct Args {
     /// This worker's name in the service's lists (default: host-pid-random).
     #[arg(long, env = "TESSERA_WORKER_NAME", value_parser = worker_name)]
     name: Option<String>,
-    /// Longest pause between claims when idle, in milliseconds (at least 25, the first
-    /// pause: below it an idle worker polled in a tight loop).
+    /// Longest pause between claims when idle, in milliseconds: 25 (the first pause: below
+    /// it an idle worker polled in a tight loop) to 60,000.
     #[arg(long, env = "TESSERA_IDLE_MAX_MS", default_value_t = 1000,
-          value_parser = clap::value_parser!(u64).range(25..))]
+          value_parser = clap::value_parser!(u64).range(25..=60_000))]
     idle_max_ms: u64,
-    /// Seconds to keep rendering held tiles after SIGINT/SIGTERM before giving them back.
-    #[arg(long, env = "TESSERA_GRACE_SECS", default_value_t = 30)]
+    /// Seconds to keep rendering held tiles after SIGINT/SIGTERM before giving them back,
+    /// 0 to 86,400 (a day).
+    #[arg(long, env = "TESSERA_GRACE_SECS", default_value_t = 30,
+          value_parser = clap::value_parser!(u64).range(0..=86_400))]
     grace_secs: u64,
     /// Benchmarking only: skip tracing and post black tiles (measures the queue).
     #[arg(long, hide = true)]
     noop: bool,
+}
+
+fn server_url(url: &str) -> Result<String, String> {
+    crate::client::service_url(url)
+        .map(|_| url.to_string())
+        .map_err(|e| e.to_string())
 }
 
 fn worker_name(name: &str) -> Result<String, String> {

@@ -13,7 +13,10 @@ use crate::protocol::{Accepted, Claim, ClaimRequest, FailRequest, JobSpec, Renew
 /// Why a request to the service did not give a usable answer.
 #[derive(Debug, thiserror::Error)]
 pub enum ClientError {
-    #[error("bad service URL `{0}`: expected http://HOST:PORT (or https://…)")]
+    #[error(
+        "bad service URL `{0}`: expected http://HOST:PORT (this worker speaks plain HTTP, not \
+         TLS: reach a service behind https through a local tunnel or proxy)"
+    )]
     BadUrl(String),
     /// Shown with its causes: reqwest's own message is "error sending request for url"
     /// whether the connection was refused, the name did not resolve or TLS failed.
@@ -63,6 +66,17 @@ impl ClientError {
     }
 }
 
+/// The service's base URL, checked: `http://` with a host. This build has no TLS, so
+/// `https://` is refused here, at start, rather than failing every request for ever.
+pub fn service_url(server: &str) -> Result<Url> {
+    let bad = || ClientError::BadUrl(server.to_string());
+    let url = Url::parse(server).map_err(|_| bad())?;
+    if url.scheme() != "http" || url.cannot_be_a_base() || url.host().is_none() {
+        return Err(bad());
+    }
+    Ok(url)
+}
+
 /// What became of a posted tile.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Posted {
@@ -86,10 +100,7 @@ type Result<T> = std::result::Result<T, ClientError>;
 
 impl Client {
     pub fn new(server: &str, token: Option<String>) -> Result<Client> {
-        let mut base = Url::parse(server).map_err(|_| ClientError::BadUrl(server.to_string()))?;
-        if !matches!(base.scheme(), "http" | "https") || base.cannot_be_a_base() {
-            return Err(ClientError::BadUrl(server.to_string()));
-        }
+        let mut base = service_url(server)?;
         if !base.path().ends_with('/') {
             let p = format!("{}/", base.path());
             base.set_path(&p);

@@ -447,7 +447,7 @@ async fn slot(
 ) -> Result<(), ClientError> {
     let mut rng = seed().wrapping_add(index as u64 * 0x9E37_79B9_7F4A_7C15) | 1;
     let mut idle = 0u32;
-    let mut unreachable_since: Option<Instant> = None;
+    let mut failing_since: Option<Instant> = None;
     let mut pipe = Pipeline::default();
     let outcome = loop {
         if *stop.borrow() {
@@ -477,16 +477,20 @@ async fn slot(
         };
         match claimed {
             Ok(Some(c)) => {
-                if let Some(since) = unreachable_since.take() {
+                if let Some(since) = failing_since.take() {
                     info!(
-                        "service reachable again after {:.1} s",
+                        "the service answers again after {:.1} s",
                         since.elapsed().as_secs_f64()
                     );
                 }
                 idle = 0;
                 let ticket = match submit(&shared, &renderer, c).await {
-                    Ok(Some(t)) => t,
-                    Ok(None) => continue,
+                    Ok(Submitted::Queued(t)) => t,
+                    Ok(Submitted::Dropped) => continue,
+                    Ok(Submitted::Unfetched(e)) => {
+                        pipe.next = Some(Err(e));
+                        continue;
+                    }
                     Err(e) => break Err(e),
                 };
                 if let Err(e) = work(&shared, &renderer, ticket, &mut stop, &mut pipe).await {
@@ -496,16 +500,16 @@ async fn slot(
             Ok(None) => {
                 // The service already waited `idle_max` for work (or, an older service,
                 // answered at once): a short jittered pause keeps idle workers out of step.
-                unreachable_since = None;
+                failing_since = None;
                 idle = idle.saturating_add(1);
                 if pause(backoff(0, shared.cfg.idle_max, &mut rng), &mut stop).await {
                     break Ok(());
                 }
             }
             Err(e) if e.is_transient() => {
-                if unreachable_since.is_none() {
+                if failing_since.is_none() {
                     warn!("{e}; retrying with back-off");
-                    unreachable_since = Some(Instant::now());
+                    failing_since = Some(Instant::now());
                 }
                 idle = idle.saturating_add(1);
                 let max = shared.cfg.idle_max.max(Duration::from_secs(2));
@@ -543,21 +547,27 @@ async fn drain(shared: &Shared, mut pipe: Pipeline) -> Result<(), ClientError> {
     posted
 }
 
+/// What became of a claimed tile handed to [`submit`].
+enum Submitted {
+    /// In the render thread's queue.
+    Queued(Ticket),
+    /// Dealt with: its job is gone, or its scene does not build here (reported).
+    Dropped,
+    /// Its scene or a texture could not be fetched (the service failed to answer, or could
+    /// not be reached): the tile was given back, and the slot backs off as from a failing
+    /// service. It took the job's every tile in turn, each held until its lease ran out.
+    Unfetched(ClientError),
+}
+
 /// Puts a claimed tile in the render thread's queue, with its scene (from the cache, or
-/// fetched and built). `None` when the tile cannot be rendered here and has been dealt with
-/// (its job is gone, its scene does not build: reported, or the service is unreachable: its
-/// lease will run out).
-async fn submit(
-    shared: &Shared,
-    renderer: &Renderer,
-    c: Claim,
-) -> Result<Option<Ticket>, ClientError> {
+/// fetched and built), or deals with a tile that cannot be rendered here.
+async fn submit(shared: &Shared, renderer: &Renderer, c: Claim) -> Result<Submitted, ClientError> {
     if shared.cfg.noop {
-        return Ok(Some(renderer.submit(c, None)));
+        return Ok(Submitted::Queued(renderer.submit(c, None)));
     }
     match prepared(shared, &c.job).await {
-        Ok(p) => Ok(Some(renderer.submit(c, Some(p)))),
-        Err(Unusable::Gone) => Ok(None),
+        Ok(p) => Ok(Submitted::Queued(renderer.submit(c, Some(p)))),
+        Err(Unusable::Gone) => Ok(Submitted::Dropped),
         Err(Unusable::Invalid(reason)) => {
             warn!(job = %c.job, "cannot build scene: {reason}");
             shared.failed.fetch_add(1, Ordering::Relaxed);
@@ -566,12 +576,14 @@ async fn submit(
                 .fail(&c, &shared.cfg.name, &reason)
                 .await
                 .or_else(ignore_transient)?;
-            Ok(None)
+            Ok(Submitted::Dropped)
         }
         Err(Unusable::Client(e)) if e.is_transient() => {
-            // The lease runs out and the tile goes to whoever asks next.
-            warn!(job = %c.job, "cannot fetch scene: {e}");
-            Ok(None)
+            // Not the tile's fault, nor the scene's: another worker may fetch it. If the
+            // give-back cannot reach the service either, the lease runs out.
+            warn!(job = %c.job, "cannot fetch scene: {e}; giving the tile back");
+            give_back(shared, &c).await?;
+            Ok(Submitted::Unfetched(e))
         }
         Err(Unusable::Client(e)) => Err(e),
     }
@@ -673,7 +685,11 @@ async fn work(
                 pipe.claim = None;
                 match answer {
                     Ok(Some(next)) if !*stop.borrow() => {
-                        pipe.queued = submit(shared, renderer, next).await?;
+                        match submit(shared, renderer, next).await? {
+                            Submitted::Queued(t) => pipe.queued = Some(t),
+                            Submitted::Dropped => {}
+                            Submitted::Unfetched(e) => pipe.next = Some(Err(e)),
+                        }
                     }
                     other => pipe.next = Some(other),
                 }
