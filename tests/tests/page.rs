@@ -1,7 +1,12 @@
-//! The web page's script, run by Node (`tests/tests/page/page.js`) against a real service:
-//! the job list a page at a time, a submission through the form, a refused scene's position,
-//! cancel and delete, a scene file with its textures, the workers heard from. Skipped, with a note, where `node` is
-//! not installed (`.ci/run` installs it).
+//! The web page's script, run by Node against a real service in a stand-in browser
+//! (`tests/tests/page/harness.js`). `page.js`: the job list a page at a time (and a notice
+//! when it cannot be loaded), a submission through the form, a refused scene's position,
+//! cancel and delete, a scene file with its textures, a chosen file sent as its own bytes
+//! unless edited, the workers heard from. `guarded.js`, against a service with a submit token
+//! and a small body limit: an upload over the limit refused before it is sent, a saved token
+//! forgotten, refused and unanswered cancels and deletes shown, and the delete question
+//! mentioning an image only for a done job. Skipped, with a note, where `node` is not
+//! installed (`.ci/run` installs it).
 
 mod common;
 
@@ -48,7 +53,82 @@ fn the_page_lists_submits_and_deletes() {
         "bad_column": "height = ".len() + 1,
         "examples": examples(),
     });
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/page/page.js");
+    let steps = run_script("page.js", &svc, &checks);
+    assert_eq!(
+        steps,
+        [
+            "workers",
+            "newest page",
+            "older pages",
+            "submitted",
+            "refused",
+            "cancelled and deleted",
+            "anchor gone",
+            "textures",
+            "scene file as bytes",
+            "edited scene",
+            "list notice",
+        ]
+    );
+}
+
+/// Body limit of the guarded service: `textures.ray` and its two textures (4,763 bytes) do
+/// not fit, `thesis.ray` (379) does.
+const SMALL_LIMIT: usize = 4096;
+
+#[test]
+fn the_page_with_a_token_and_a_small_body_limit() {
+    if Command::new("node").arg("--version").output().is_err() {
+        eprintln!("skipped: `node` is not installed");
+        return;
+    }
+    let dir = TempDir::new("page-guarded");
+    let token = "page-secret";
+    let limit = SMALL_LIMIT.to_string();
+    // No workers (the script plays one), and one attempt a tile, so that a tile reported
+    // failed fails its job.
+    let svc = Service::start(
+        &dir,
+        &[
+            "--local-workers",
+            "0",
+            "--max-attempts",
+            "1",
+            "--submit-token",
+            token,
+            "--max-body-bytes",
+            &limit,
+        ],
+    );
+    let scene = std::fs::read_to_string(examples().join("thesis.ray")).expect("example");
+    assert!(scene.contains("width = 640\nheight = 480\n"));
+    let checks = serde_json::json!({
+        "token": token,
+        "limit": SMALL_LIMIT,
+        "scene": scene,
+        "examples": examples(),
+    });
+    let steps = run_script("guarded.js", &svc, &checks);
+    assert_eq!(
+        steps,
+        [
+            "too large",
+            "within the limit",
+            "token forgotten",
+            "cancel refused",
+            "failed job deleted",
+            "done job asks about its image",
+            "cancel of a job gone",
+        ]
+    );
+}
+
+/// Runs `tests/page/{script}` under Node against `svc` with `checks`, and returns the steps
+/// it reported; fails if the script does.
+fn run_script(script: &str, svc: &Service, checks: &serde_json::Value) -> Vec<String> {
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/page")
+        .join(script);
     let mut node = Command::new("node")
         .arg(&script)
         .arg(&svc.url)
@@ -72,22 +152,9 @@ fn the_page_lists_submits_and_deletes() {
         svc.log()
     );
     // Every step ran (the script stops at the first failed assertion).
-    let steps: Vec<String> = stdout
+    stdout
         .lines()
         .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
         .filter_map(|v| v["step"].as_str().map(str::to_string))
-        .collect();
-    assert_eq!(
-        steps,
-        [
-            "workers",
-            "newest page",
-            "older pages",
-            "submitted",
-            "refused",
-            "cancelled and deleted",
-            "anchor gone",
-            "textures"
-        ]
-    );
+        .collect()
 }

@@ -1,137 +1,29 @@
-// The service's web page, run under Node against a real service: its script, taken from the
-// page the service serves, in a `vm` context with a small stand-in for the DOM (elements are
-// plain objects that keep their children, text and handlers). Driven by
-// `tests/tests/page.rs`; it prints one line of JSON per step, and fails (exit 1) on the first
-// assertion that does not hold.
+// The service's web page, run under Node against a real service with no submit token and the
+// default body limit, in the stand-in browser of `harness.js`. Driven by `tests/tests/page.rs`;
+// it prints one line of JSON per step, and fails (exit 1) on the first assertion that does
+// not hold.
 //
 // Usage: node page.js SERVICE_URL CHECKS_JSON
-//
-// What it does not cover: layout, CSS, the browser's own form controls, file pickers.
 
 "use strict";
 const assert = require("node:assert/strict");
-const vm = require("node:vm");
 const fs = require("node:fs");
 const path = require("node:path");
 const { File } = require("node:buffer");
+const { openPage, settle, api: request, step, run: runMain } = require("./harness.js");
 
 const [base, checksJson] = process.argv.slice(2);
 const checks = JSON.parse(checksJson);
 
-class Element {
-  constructor(tag, id) {
-    this.tagName = tag;
-    this.id = id;
-    this.children = [];
-    this.listeners = {};
-    this.textContent = "";
-    this.value = "";
-    this.className = "";
-    this.hidden = false;
-    this.files = [];
-    this.onclick = null;
-  }
-  append(...items) {
-    for (const x of items) this.children.push(typeof x === "string" ? { text: x } : x);
-  }
-  replaceChildren(...items) {
-    this.children = [];
-    this.append(...items);
-  }
-  addEventListener(event, f) {
-    (this.listeners[event] ||= []).push(f);
-  }
-  // Everything this element shows as text, children included.
-  get text() {
-    return (this.textContent || "") + this.children.map((c) => c.text ?? "").join("");
-  }
-  // Depth-first search for the first descendant with this tag.
-  find(tag) {
-    for (const c of this.children) {
-      if (c.tagName === tag) return c;
-      const inner = c.find ? c.find(tag) : null;
-      if (inner) return inner;
-    }
-    return null;
-  }
-}
-
-// Every request the page makes, until its answer's body has been read.
-const pending = new Set();
-function track(p) {
-  pending.add(p);
-  p.finally(() => pending.delete(p)).catch(() => {});
-  return p;
-}
-
-// Lets the page run until it has no request in flight and nothing left to do about the
-// last answers (a handler that starts another request is waited for too).
-async function settle() {
-  for (;;) {
-    await new Promise((r) => setImmediate(r));
-    if (pending.size === 0) return;
-    await Promise.allSettled([...pending]);
-  }
-}
-
 async function main() {
-  const html = await (await fetch(base + "/")).text();
-  const script = html.match(/<script>([\s\S]*)<\/script>/)[1];
-  const elements = {};
-  for (const [, id] of html.matchAll(/\bid="([^"]+)"/g)) elements[id] = new Element("?", id);
-  // The page's `hidden` attributes, as the browser would have them before the script runs.
-  for (const [, id] of html.matchAll(/\bid="([^"]+)"[^>]*\bhidden\b/g)) elements[id].hidden = true;
-  const storage = new Map();
-  let confirmAnswer = true;
-  const confirmed = [];
-  const documentListeners = {};
-  const context = {
-    document: {
-      hidden: false,
-      getElementById: (id) => elements[id] ?? null,
-      createElement: (tag) => new Element(tag),
-      addEventListener: (event, f) => (documentListeners[event] ||= []).push(f),
-    },
-    localStorage: {
-      getItem: (k) => (storage.has(k) ? storage.get(k) : null),
-      setItem: (k, v) => storage.set(k, String(v)),
-    },
-    confirm: (question) => {
-      confirmed.push(question);
-      return confirmAnswer;
-    },
-    // The timer is not run: each step refreshes explicitly, so that what it sees is what
-    // that step did.
-    setInterval: () => 0,
-    URLSearchParams,
-    FormData,
-    Blob,
-    fetch: (url, options) =>
-      track(
-        fetch(url.startsWith("/") ? base + url : url, options).then(async (r) => {
-          const text = await r.text();
-          return {
-            ok: r.ok,
-            status: r.status,
-            statusText: r.statusText,
-            json: async () => JSON.parse(text),
-          };
-        }),
-      ),
-  };
-  vm.createContext(context);
-  vm.runInContext(script, context);
-  const run = (code) => vm.runInContext(code, context);
-  await settle();
+  const page = await openPage(base);
+  const { elements, confirmed } = page;
+  const run = page.run;
+  const api = (p, options) => request(base, p, options);
 
   const rows = () => elements.jobs.children;
   // The job id or name a row starts with (its first cell).
   const firstCells = () => rows().map((tr) => tr.children[0].text);
-  const api = async (path, options) => {
-    const r = await fetch(base + path, options);
-    return { status: r.status, body: r.status === 204 ? null : await r.json() };
-  };
-  const step = (name, facts) => console.log(JSON.stringify({ step: name, ...facts }));
 
   // 0. No worker yet; one that claims a tile is listed by name, with its tiles done.
   const workerRows = () => elements.workers.children.map((tr) => tr.children.map((td) => td.text));
@@ -182,8 +74,7 @@ async function main() {
   // 3. A scene submitted through the form is queued and listed first.
   elements.scene.value = checks.scene;
   elements.tile.value = String(checks.tile);
-  await elements.submit.listeners.submit[0]({ preventDefault() {} });
-  await settle();
+  await page.submit();
   const queued = elements.msg.textContent.match(/^Job (\S+) queued: (\d+) tiles\.$/);
   assert.ok(queued, `submission message: ${elements.msg.textContent}`);
   assert.equal(elements.msg.className, "ok");
@@ -197,8 +88,7 @@ async function main() {
 
   // 4. A bad scene shows the service's error with its line and column.
   elements.scene.value = checks.bad_scene;
-  await elements.submit.listeners.submit[0]({ preventDefault() {} });
-  await settle();
+  await page.submit();
   assert.equal(elements.msg.className, "err");
   assert.ok(
     elements.msg.textContent.startsWith(`line ${checks.bad_line}, column ${checks.bad_column}: `),
@@ -221,13 +111,15 @@ async function main() {
   assert.equal(confirmed.length, 0);
   assert.equal((await api("/jobs/" + id)).status, 200, "a repeated cancel keeps the job");
   assert.equal(button().textContent, "delete");
-  confirmAnswer = false;
+  page.confirmAnswer = false;
   button().onclick();
   await settle();
   assert.equal(confirmed.length, 1);
   assert.ok(confirmed[0].includes(id), confirmed[0]);
+  // A cancelled job has no image to delete, and the question does not say it has.
+  assert.ok(!/image/i.test(confirmed[0]), `asked: ${confirmed[0]}`);
   assert.equal((await api("/jobs/" + id)).status, 200, "kept when the user says no");
-  confirmAnswer = true;
+  page.confirmAnswer = true;
   button().onclick();
   await settle();
   assert.equal((await api("/jobs/" + id)).status, 404, "deleted when the user says yes");
@@ -253,13 +145,12 @@ async function main() {
   // area shows the scene, and each texture goes under the name the scene gives it.
   const read = (...parts) => fs.readFileSync(path.join(checks.examples, ...parts));
   elements.scenefile.files = [new File([read("textures.ray")], "textures.ray")];
-  await elements.scenefile.listeners.change[0]();
+  await elements.scenefile.fire("change");
   assert.equal(elements.scene.value, read("textures.ray").toString("utf8"));
   const textures = ["globe.png", "tile.ppm"];
   elements.assets.files = textures.map((n) => new File([read("textures", n)], n));
   elements.tile.value = "";
-  await elements.submit.listeners.submit[0]({ preventDefault() {} });
-  await settle();
+  await page.submit();
   const withTextures = elements.msg.textContent.match(/^Job (\S+) queued: \d+ tiles\.$/);
   assert.ok(withTextures, `submission message: ${elements.msg.textContent}`);
   const textured = withTextures[1];
@@ -272,9 +163,70 @@ async function main() {
     assert.ok(Buffer.from(await r.arrayBuffer()).equals(read("textures", n)), `bytes of ${n}`);
   }
   step("textures", { id: textured });
+
+  // 8. A chosen scene file, unedited, goes as its own bytes, so that the service checks
+  // them: one that is not UTF-8 (Latin-1 here) is refused as such, as curl's upload would be,
+  // not sent as its decoded text with U+FFFD in it; so is a PNG chosen by mistake, in one
+  // error rather than a hundred parse errors. Nothing is queued.
+  elements.assets.files = [];
+  const newest = async () => (await api("/jobs?limit=1")).body[0].id;
+  const latin1 = Buffer.concat([Buffer.from("# caf\xe9, Latin-1\n", "latin1"), Buffer.from(checks.scene)]);
+  for (const [bytes, name, byte] of [
+    [latin1, "latin1.ray", "0xe9"],
+    [read("textures", "globe.png"), "globe.png", "0x89"],
+  ]) {
+    elements.scenefile.files = [new File([bytes], name)];
+    await elements.scenefile.fire("change");
+    await page.submit();
+    assert.equal(elements.msg.className, "err", `${name}: ${elements.msg.textContent}`);
+    assert.ok(
+      elements.msg.textContent.includes(`not UTF-8 text (byte ${byte})`),
+      `${name}: ${elements.msg.textContent}`,
+    );
+    assert.equal(elements.msg.textContent.split("\n").length, 1, elements.msg.textContent);
+    assert.equal(await newest(), textured, `nothing queued for ${name}`);
+  }
+  step("scene file as bytes", { message: elements.msg.textContent });
+
+  // 9. A chosen file whose text was edited after loading goes as the edited text, still named
+  // by the file.
+  elements.scenefile.files = [new File([checks.scene], "thesis.ray")];
+  await elements.scenefile.fire("change");
+  assert.equal(elements.scene.value, checks.scene);
+  elements.scene.value = checks.scene.replace("width = 640", "width = 320");
+  await page.submit();
+  const edited = elements.msg.textContent.match(/^Job (\S+) queued: \d+ tiles\.$/);
+  assert.ok(edited, `submission message: ${elements.msg.textContent}`);
+  const editedJob = (await api("/jobs/" + edited[1])).body;
+  assert.equal(editedJob.width, 320, "the edited width");
+  assert.equal(editedJob.name, "thesis.ray");
+  step("edited scene", { id: edited[1] });
+
+  // 10. A list refresh that fails (no answer; an error answer) keeps the rows drawn, under a
+  // notice; the next one that works takes the notice away.
+  const before = firstCells();
+  assert.equal(elements.listmsg.hidden, true, "no notice while the list loads");
+  const listing = (url, options) => url.startsWith("/jobs?") && (options.method || "GET") === "GET";
+  const faults = [
+    [() => new TypeError("fetch failed"), "fetch failed"],
+    [() => ({ status: 503, statusText: "Service Unavailable", body: { error: "database is locked" } }), "database is locked"],
+  ];
+  for (const [fault, why] of faults) {
+    page.fault = (url, options) => (listing(url, options) ? fault() : undefined);
+    run("refresh()");
+    await settle();
+    assert.equal(elements.listmsg.hidden, false, `a notice for ${why}`);
+    assert.ok(elements.listmsg.text.startsWith("Could not load the job list"), elements.listmsg.text);
+    assert.ok(elements.listmsg.text.includes(why), elements.listmsg.text);
+    assert.deepEqual(firstCells(), before, "the rows are kept");
+  }
+  page.fault = null;
+  run("refresh()");
+  await settle();
+  assert.equal(elements.listmsg.hidden, true, "the notice goes once the list loads");
+  assert.equal(elements.listmsg.text, "");
+  assert.deepEqual(firstCells(), before);
+  step("list notice", {});
 }
 
-main().catch((e) => {
-  console.error(e && e.stack ? e.stack : e);
-  process.exit(1);
-});
+runMain(main);
