@@ -270,6 +270,19 @@ pub async fn serve(
         ));
     }
     let queue = Queue::open(&cfg.database).await?;
+    let local_count = local_worker_count(&cfg);
+    // Unique to this process (host, pid, a random salt), and no name `--name` gives a remote
+    // worker by chance.
+    let local_prefix = format!("{}-local", tessera_worker::default_name());
+    let requeued = queue
+        .forget_local_workers((local_count > 0).then_some(local_prefix.as_str()))
+        .await?;
+    if requeued > 0 {
+        info!(
+            "{requeued} tiles held by the local workers of the service's previous run \
+             requeued (they ended with it)"
+        );
+    }
     let extended = queue.extend_leases(now_ms(), cfg.lease_ms).await?;
     if extended > 0 {
         info!(
@@ -299,7 +312,7 @@ pub async fn serve(
     });
     tokio::spawn(reaper(state.clone(), stop_rx.clone()));
 
-    let locals = spawn_local_workers(&state.cfg, addr, &stop_rx);
+    let locals = spawn_local_workers(&state.cfg, addr, local_count, &local_prefix, &stop_rx);
     println!("tessera-service listening on http://{addr}");
     info!(
         "listening on http://{addr} with {} local workers, database {}",
@@ -345,15 +358,22 @@ pub async fn serve(
 /// take before their connections are closed.
 pub const DRAIN: Duration = Duration::from_secs(5);
 
+/// `--local-workers`, or one per core.
+fn local_worker_count(cfg: &Config) -> usize {
+    cfg.local_workers.map_or_else(
+        || std::thread::available_parallelism().map_or(1, |n| n.get()),
+        usize::from,
+    )
+}
+
+/// Starts `n` local workers named `{prefix}{i}`.
 fn spawn_local_workers(
     cfg: &Config,
     addr: SocketAddr,
+    n: usize,
+    prefix: &str,
     stop: &watch::Receiver<bool>,
 ) -> Vec<tokio::task::JoinHandle<()>> {
-    let n = cfg.local_workers.map_or_else(
-        || std::thread::available_parallelism().map_or(1, |n| n.get()),
-        usize::from,
-    );
     let host = if addr.ip().is_unspecified() {
         match addr {
             SocketAddr::V4(_) => format!("127.0.0.1:{}", addr.port()),
@@ -362,7 +382,6 @@ fn spawn_local_workers(
     } else {
         addr.to_string()
     };
-    let base_name = tessera_worker::default_name();
     // One cache of built scenes for all of them: a job's scene is fetched and built once.
     let scenes = tessera_worker::SceneCache::default();
     (0..n)
@@ -370,7 +389,7 @@ fn spawn_local_workers(
             let mut wc = tessera_worker::WorkerConfig::new(format!("http://{host}"));
             wc.threads = 1;
             wc.token = cfg.token.clone();
-            wc.name = format!("{base_name}-local{i}");
+            wc.name = format!("{prefix}{i}");
             wc.idle_max = Duration::from_millis(500);
             wc.grace = Duration::from_secs(cfg.grace_secs);
             let mut stop = stop.clone();

@@ -977,6 +977,37 @@ impl Queue {
         Ok(failed)
     }
 
+    /// At start: the tiles held by the local workers of the service process that last
+    /// started on this database (their names begin with a prefix it stored) are requeued
+    /// without a failure counted, since those workers ended with that process; `prefix`, the
+    /// name prefix of this process's local workers (none without any), is stored instead.
+    /// Tiles of jobs that have ended are left as they are, as the reaper leaves them.
+    /// Returns the number of tiles requeued.
+    pub async fn forget_local_workers(&self, prefix: Option<&str>) -> Result<u64> {
+        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
+        let requeued = sqlx::query(
+            "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL
+             WHERE state = 'leased'
+               AND job_id IN (SELECT id FROM jobs WHERE state IN ('queued', 'running'))
+               AND EXISTS (SELECT 1 FROM local_workers p
+                           WHERE substr(tiles.worker, 1, length(p.prefix)) = p.prefix)",
+        )
+        .execute(&mut *tx)
+        .await?
+        .rows_affected();
+        sqlx::query("DELETE FROM local_workers")
+            .execute(&mut *tx)
+            .await?;
+        if let Some(prefix) = prefix {
+            sqlx::query("INSERT INTO local_workers (prefix) VALUES (?1)")
+                .bind(prefix)
+                .execute(&mut *tx)
+                .await?;
+        }
+        tx.commit().await?;
+        Ok(requeued)
+    }
+
     /// After a restart: every live lease gets a fresh `lease_ms`, so workers that rode
     /// through the outage can still post what they rendered.
     pub async fn extend_leases(&self, now: i64, lease_ms: u64) -> Result<u64> {

@@ -85,6 +85,56 @@ fn jobs_survive_service_restarts_and_workers_ride_through() {
     );
 }
 
+/// A service killed (SIGKILL, out of memory) with its local workers rendering: started
+/// again, it requeues the tiles they held at once and charges nothing, since they died with
+/// it. It extended their leases like any worker's and then charged each as a stall: four
+/// crashes during one big tile failed the job, blaming a worker. Remote workers' leases are
+/// still extended, for workers that ride through a restart.
+#[test]
+fn a_restarted_service_requeues_its_dead_local_workers_tiles_uncharged() {
+    let dir = TempDir::new("local-crash");
+    let addr = free_addr();
+    let mut svc = Service::start_on(
+        &dir,
+        &addr,
+        &[
+            "--local-workers",
+            "1",
+            "--lease-ms",
+            "60000",
+            "--max-attempts",
+            "1",
+        ],
+    );
+    let id = svc.submit_id(&mirror_cave(64, 32), "?tile=64");
+    wait_claimed(&svc, &id);
+    svc.kill();
+    // No local workers now: the test claims as a worker would.
+    svc = Service::start_on(
+        &dir,
+        &addr,
+        &["--local-workers", "0", "--max-attempts", "1"],
+    );
+    assert!(
+        svc.log().contains("1 tiles held by the local workers"),
+        "{}",
+        svc.log()
+    );
+    let c = svc.claim("after");
+    assert_eq!(c.status(), 200, "the dead worker's tile is free at once");
+    let c: Value = c.json().expect("claim");
+    assert_eq!(
+        (c["job"].as_str(), c["idx"].as_u64()),
+        (Some(id.as_str()), Some(0))
+    );
+    let job = svc.get_json(&format!("/jobs/{id}"));
+    assert_eq!(job["state"], "running", "{job}");
+    // Held by a remote worker now, the tile's lease survives the next restart.
+    svc.kill();
+    svc = Service::start_on(&dir, &addr, &["--local-workers", "0"]);
+    assert_eq!(svc.claim("another").status(), 204);
+}
+
 #[test]
 fn chaos_killed_workers_and_a_restarted_service_still_give_the_exact_image() {
     let dir = TempDir::new("chaos");
