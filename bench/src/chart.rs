@@ -110,6 +110,12 @@ struct Point {
 pub fn scene_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
     for p in paths {
+        anyhow::ensure!(
+            p.exists(),
+            "{}: no such file or folder (the default scenes are named from the repository's \
+             root: run the benchmark there, or pass --scenes)",
+            p.display()
+        );
         if p.is_dir() {
             for e in std::fs::read_dir(p).with_context(|| format!("cannot list {}", p.display()))? {
                 let path = e?.path();

@@ -37,7 +37,10 @@ pub enum QueueError {
     Migrate(#[from] sqlx::migrate::MigrateError),
     #[error("bad database URL `{url}`: {reason}")]
     Url { url: String, reason: String },
-    #[error("cannot open the database `{url}`: {source} (its folder must exist and be writable)")]
+    #[error(
+        "cannot open the database `{url}`: {source} (its folder must exist and be writable, \
+         and a file already there must be a Tessera queue)"
+    )]
     Open { url: String, source: sqlx::Error },
     #[error("the database took no write within {0:?}")]
     WriteTimeout(Duration),
