@@ -271,8 +271,8 @@ pub async fn serve(
     }
     let queue = Queue::open(&cfg.database).await?;
     let local_count = local_worker_count(&cfg);
-    // Unique to this process (host, pid, a random salt), and no name `--name` gives a remote
-    // worker by chance.
+    // Unique to this run (host, pid, a random salt): no other worker's name starts with it
+    // unless copied from this service's `/workers`.
     let local_prefix = format!("{}-local", tessera_worker::default_name());
     let requeued = queue
         .forget_local_workers((local_count > 0).then_some(local_prefix.as_str()))

@@ -1074,87 +1074,91 @@ fn a_renewal_takes_rendering_as_a_flag() {
     assert_eq!(renew("&rendering=yes"), 400);
 }
 
-/// A worker that cannot fetch a job's texture (the service answers `500` for it) gives each
-/// tile back and backs off, so that healthy workers get them at once: it took the job's
-/// every tile in turn, each held until its lease ran out, and gave none back. Played against
-/// a fake service that always has work, fails every asset and records every give-back.
-#[test]
-fn a_worker_that_cannot_fetch_a_texture_gives_the_tile_back() {
-    use std::io::{BufRead, BufReader, Read, Write};
-    use std::sync::{Arc, Mutex};
+/// What the fake service of [`fake_service`] was asked.
+#[derive(Default)]
+struct Seen {
+    claims: u32,
+    released: Vec<u32>,
+    assets: u32,
+}
 
-    #[derive(Default)]
-    struct Seen {
-        claims: u32,
-        released: Vec<u32>,
-        assets: u32,
-    }
-    let seen = Arc::new(Mutex::new(Seen::default()));
+/// A fake service for one worker: it always has a tile of job `j` to hand out (a scene with
+/// one texture), answers every texture fetch with `asset_status` and records claims, texture
+/// fetches and give-backs. One request per connection.
+fn fake_service(asset_status: &'static str) -> (String, std::sync::Arc<std::sync::Mutex<Seen>>) {
+    use std::io::{BufRead, BufReader, Read, Write};
+    let seen = std::sync::Arc::new(std::sync::Mutex::new(Seen::default()));
     let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
     let url = format!("http://{}", listener.local_addr().expect("addr"));
     let scene = "[OBJECT]\ntype = sphere\ntexture = t.ppm\n[/OBJECT]\n";
-    {
-        let seen = seen.clone();
-        std::thread::spawn(move || {
-            for stream in listener.incoming() {
-                let Ok(stream) = stream else { continue };
-                let mut reader = BufReader::new(stream);
-                let mut head = String::new();
-                let mut length = 0usize;
-                loop {
-                    let mut line = String::new();
-                    if reader.read_line(&mut line).unwrap_or(0) == 0 {
-                        break;
-                    }
-                    if let Some(v) = line.to_ascii_lowercase().strip_prefix("content-length:") {
-                        length = v.trim().parse().unwrap_or(0);
-                    }
-                    if line == "\r\n" {
-                        break;
-                    }
-                    head.push_str(&line);
+    let shared = seen.clone();
+    std::thread::spawn(move || {
+        for stream in listener.incoming() {
+            let Ok(stream) = stream else { continue };
+            let mut reader = BufReader::new(stream);
+            let mut head = String::new();
+            let mut length = 0usize;
+            loop {
+                let mut line = String::new();
+                if reader.read_line(&mut line).unwrap_or(0) == 0 {
+                    break;
                 }
-                let mut body = vec![0u8; length];
-                let _ = reader.read_exact(&mut body);
-                let target = head.split_whitespace().nth(1).unwrap_or("").to_string();
-                let path = target.split('?').next().unwrap_or("").to_string();
-                let mut s = seen.lock().expect("not poisoned");
-                let (status, answer) = if path == "/worker/claim" {
-                    s.claims += 1;
-                    let claim = json!({"job": "j", "idx": s.claims - 1, "x": 0, "y": 0,
-                        "w": 4, "h": 4, "lease": format!("L{}", s.claims), "lease_ms": 60_000});
-                    ("200 OK", claim.to_string())
-                } else if path == "/worker/jobs/j" {
-                    let spec = json!({"id": "j", "scene": scene, "sampler": null,
-                        "samples": null, "threshold": null, "assets": ["t.ppm"]});
-                    ("200 OK", spec.to_string())
-                } else if path.starts_with("/worker/jobs/j/assets/") {
-                    s.assets += 1;
-                    let e = json!({"error": "internal storage error"});
-                    ("500 Internal Server Error", e.to_string())
-                } else if let Some(idx) = path
-                    .strip_prefix("/worker/jobs/j/tiles/")
-                    .and_then(|p| p.strip_suffix("/release"))
-                {
-                    s.released.push(idx.parse().unwrap_or(u32::MAX));
-                    ("200 OK", "{}".to_string())
-                } else {
-                    (
-                        "404 Not Found",
-                        json!({"error": "no such route"}).to_string(),
-                    )
-                };
-                drop(s);
-                let mut stream = reader.into_inner();
-                let _ = write!(
-                    stream,
-                    "HTTP/1.1 {status}\r\ncontent-type: application/json\r\n\
-                     content-length: {}\r\nconnection: close\r\n\r\n{answer}",
-                    answer.len()
-                );
+                if let Some(v) = line.to_ascii_lowercase().strip_prefix("content-length:") {
+                    length = v.trim().parse().unwrap_or(0);
+                }
+                if line == "\r\n" {
+                    break;
+                }
+                head.push_str(&line);
             }
-        });
-    }
+            let mut body = vec![0u8; length];
+            let _ = reader.read_exact(&mut body);
+            let target = head.split_whitespace().nth(1).unwrap_or("").to_string();
+            let path = target.split('?').next().unwrap_or("").to_string();
+            let mut s = shared.lock().expect("not poisoned");
+            let (status, answer) = if path == "/worker/claim" {
+                s.claims += 1;
+                let claim = json!({"job": "j", "idx": s.claims - 1, "x": 0, "y": 0,
+                    "w": 4, "h": 4, "lease": format!("L{}", s.claims), "lease_ms": 60_000});
+                ("200 OK", claim.to_string())
+            } else if path == "/worker/jobs/j" {
+                let spec = json!({"id": "j", "scene": scene, "sampler": null,
+                    "samples": null, "threshold": null, "assets": ["t.ppm"]});
+                ("200 OK", spec.to_string())
+            } else if path.starts_with("/worker/jobs/j/assets/") {
+                s.assets += 1;
+                (asset_status, json!({"error": asset_status}).to_string())
+            } else if let Some(idx) = path
+                .strip_prefix("/worker/jobs/j/tiles/")
+                .and_then(|p| p.strip_suffix("/release"))
+            {
+                s.released.push(idx.parse().unwrap_or(u32::MAX));
+                ("200 OK", "{}".to_string())
+            } else {
+                (
+                    "404 Not Found",
+                    json!({"error": "no such route"}).to_string(),
+                )
+            };
+            drop(s);
+            let mut stream = reader.into_inner();
+            let _ = write!(
+                stream,
+                "HTTP/1.1 {status}\r\ncontent-type: application/json\r\n\
+                 content-length: {}\r\nconnection: close\r\n\r\n{answer}",
+                answer.len()
+            );
+        }
+    });
+    (url, seen)
+}
+
+/// A worker that cannot fetch a job's texture (the service answers `500` for it) gives each
+/// tile back and backs off, so that healthy workers get them at once: it took the job's
+/// every tile in turn, each held until its lease ran out, and gave none back.
+#[test]
+fn a_worker_that_cannot_fetch_a_texture_gives_the_tile_back() {
+    let (url, seen) = fake_service("500 Internal Server Error");
     let _worker = Worker::start(&url, "unlucky", &[]);
     wait_until("three tiles given back", Duration::from_secs(30), || {
         seen.lock().expect("not poisoned").released.len() >= 3
@@ -1169,4 +1173,17 @@ fn a_worker_that_cannot_fetch_a_texture_gives_the_tile_back() {
     );
     assert!(s.assets >= 3);
     assert_eq!(s.released[..3], [0, 1, 2]);
+}
+
+/// A texture gone (`404`: its job deleted between the worker's fetch of the scene and of
+/// the texture) drops the tile, as a job gone does: it stopped the worker with an error.
+#[test]
+fn a_worker_whose_job_is_deleted_mid_fetch_carries_on() {
+    let (url, seen) = fake_service("404 Not Found");
+    let mut worker = Worker::start(&url, "carries-on", &[]);
+    wait_until("three texture fetches", Duration::from_secs(30), || {
+        seen.lock().expect("not poisoned").assets >= 3 || worker.try_wait().is_some()
+    });
+    assert!(worker.try_wait().is_none(), "the worker stopped");
+    assert!(seen.lock().expect("not poisoned").released.is_empty());
 }

@@ -608,11 +608,13 @@ async fn prepared(shared: &Shared, job: &str) -> Result<Arc<Prepared>, Unusable>
     };
     let mut assets = MemoryAssets::new();
     for name in &spec.assets {
-        let bytes = shared
-            .client
-            .asset(job, name)
-            .await
-            .map_err(Unusable::Client)?;
+        let bytes = match shared.client.asset(job, name).await {
+            Ok(bytes) => bytes,
+            // The job was deleted since its scene was fetched: it stopped the worker.
+            Err(ClientError::Status { status: 404, .. })
+            | Err(ClientError::Status { status: 410, .. }) => return Err(Unusable::Gone),
+            Err(e) => return Err(Unusable::Client(e)),
+        };
         assets.insert(name.clone(), bytes);
     }
     let started = Instant::now();
