@@ -287,7 +287,23 @@ fn a_bad_vector_component_is_pointed_at() {
         "[LIGHT]\nposition = <1, 2>\n[/LIGHT]\n",
         2,
         12,
-        &["three components"],
+        &["three components", "found 2"],
+    );
+    // Finite and of determinant 1, but too ill-conditioned for its inverse to be one: the
+    // message said "singular or non-finite" only.
+    one_error(
+        "[OBJECT]\ntype = sphere\nscale = <1e15, 1e-15, 1>\nrotate = <30, 40, 50>\n\
+         scale = <1e-15, 1e15, 1>\n[/OBJECT]\n",
+        5,
+        1,
+        &["too close to singular"],
+    );
+    // Nothing between the brackets is no component (it read "found 1").
+    one_error(
+        "[LIGHT]\nposition = <>\n[/LIGHT]\n",
+        2,
+        12,
+        &["three components", "found 0"],
     );
 }
 

@@ -1161,7 +1161,8 @@ impl Parser<'_> {
             if !t.is_valid() {
                 self.err(
                     pos,
-                    "this transform makes the object's matrix singular or non-finite",
+                    "this transform makes the object's matrix singular or non-finite, or too \
+                     close to singular to invert accurately",
                 );
                 return None;
             }
@@ -1313,7 +1314,12 @@ impl<'a> Value<'a> {
             return self.fail(EXPECTED);
         };
         let inner = &inner[..inner.len() - 1];
-        let parts: Vec<&str> = inner.split(',').collect();
+        // `<>` has no components (split, it is one empty one).
+        let parts: Vec<&str> = if inner.trim().is_empty() {
+            Vec::new()
+        } else {
+            inner.split(',').collect()
+        };
         if parts.len() != 3 {
             return Err(Diagnostic::new(
                 self.pos,
