@@ -206,7 +206,12 @@ impl Scene {
                         } else {
                             let mut on: arrayvec::ArrayVec<u32, 4> = arrayvec::ArrayVec::new();
                             for &(o, n) in lies_on {
-                                if n.dot(origin - light.position) > 0.0 && on.try_push(o).is_err() {
+                                // An object at whose edge or corner the light lies is listed
+                                // once per face plane there: one outer side is enough.
+                                if n.dot(origin - light.position) > 0.0
+                                    && !on.contains(&o)
+                                    && on.try_push(o).is_err()
+                                {
                                     break;
                                 }
                             }

@@ -12,6 +12,7 @@ use std::collections::HashMap;
 use std::ops::ControlFlow;
 use std::sync::Arc;
 
+use arrayvec::ArrayVec;
 use glam::DVec3;
 
 use crate::bvh::{Bvh, Item};
@@ -242,54 +243,68 @@ impl Object {
             .collect()
     }
 
-    /// The world outward normal (not unit) of the surface at `p` when `p` lies on it, to
-    /// within the rounding of carrying `p` into object space, at a point where the shape is
-    /// convex and smooth: a sphere anywhere, a plane, a cube's face or a cylinder's or
-    /// cone's side or cap away from their edges, a torus where its tangent plane holds it
-    /// all on one side. `None` elsewhere (edges, corners, the apex, the rest of a torus)
-    /// and off the surface.
+    /// The world outward normals (not unit) of the planes through `p` that hold the whole
+    /// solid on their inner side, when `p` lies on its surface (to within the rounding of
+    /// carrying `p` into object space): the tangent plane where the surface is smooth and
+    /// convex (a sphere anywhere, a plane, a cube's face, a cylinder's or cone's side or
+    /// cap, a torus where its tangent plane holds it all on one side), and at an edge or
+    /// corner of a convex solid the plane of each face that meets there (two on a cube's
+    /// edge or a cylinder's or cone's rim, three at a cube's corner; the plane of the base
+    /// through a cone's apex, parallel to it, holds the cone too). Empty elsewhere (the rest of
+    /// a torus) and off the surface. A light on such a plane cannot be shadowed by the solid
+    /// from a point strictly on the plane's outer side: the segment stays in that open
+    /// half-space but for the light.
     ///
     /// The tolerance is twice the error bound of the object-space point
     /// ([`crate::transform::Transform::to_object_error`]) plus a few ulps of it: a light the scene puts on a surface is within it, a light
     /// 1e-14 of a unit inside a unit sphere is not.
-    pub fn normal_through(&self, p: DVec3) -> Option<DVec3> {
+    pub fn normals_through(&self, p: DVec3) -> ArrayVec<DVec3, 3> {
         let q = self.transform.point_to_object(p);
         let err = self.transform.to_object_error(p);
         let tol = 2.0 * err.max_element() + crate::math::gamma(4) * (q.abs().max_element() + 1.0);
         let near = |a: f64, b: f64| (a - b).abs() <= tol;
-        let n = match self.shape {
-            Shape::Sphere => near(q.length(), 1.0).then_some(q),
-            Shape::Plane => near(q.y, 0.0).then_some(DVec3::Y),
+        let mut normals = ArrayVec::<DVec3, 3>::new();
+        match self.shape {
+            Shape::Sphere => {
+                if near(q.length(), 1.0) {
+                    normals.push(q);
+                }
+            }
+            Shape::Plane => {
+                if near(q.y, 0.0) {
+                    normals.push(DVec3::Y);
+                }
+            }
             Shape::Cube => {
-                let a = q.abs();
-                let on: Vec<usize> = (0..3).filter(|&i| near(a[i], 1.0)).collect();
-                match on[..] {
-                    [i] if a.max_element() <= 1.0 + tol => {
-                        let mut n = DVec3::ZERO;
-                        n[i] = q[i].signum();
-                        Some(n)
+                if q.abs().max_element() <= 1.0 + tol {
+                    for i in 0..3 {
+                        if near(q[i].abs(), 1.0) {
+                            let mut n = DVec3::ZERO;
+                            n[i] = q[i].signum();
+                            normals.push(n);
+                        }
                     }
-                    _ => None,
                 }
             }
             Shape::Cylinder => {
                 let rho = q.x.hypot(q.z);
-                if near(rho, 1.0) && q.y.abs() < 1.0 - tol {
-                    Some(DVec3::new(q.x, 0.0, q.z))
-                } else if near(q.y.abs(), 1.0) && rho < 1.0 - tol {
-                    Some(DVec3::new(0.0, q.y.signum(), 0.0))
-                } else {
-                    None
+                if near(rho, 1.0) && q.y.abs() <= 1.0 + tol {
+                    normals.push(DVec3::new(q.x, 0.0, q.z));
+                }
+                if near(q.y.abs(), 1.0) && rho <= 1.0 + tol {
+                    normals.push(DVec3::new(0.0, q.y.signum(), 0.0));
                 }
             }
             Shape::Cone => {
                 let rho = q.x.hypot(q.z);
-                if near(rho, 0.5 * (1.0 - q.y)) && q.y.abs() < 1.0 - tol && rho > tol {
-                    Some(DVec3::new(q.x / rho, 0.5, q.z / rho))
-                } else if near(q.y, -1.0) && rho < 1.0 - tol {
-                    Some(DVec3::NEG_Y)
-                } else {
-                    None
+                if near(rho, 0.5 * (1.0 - q.y)) && q.y.abs() <= 1.0 + tol && rho > tol {
+                    normals.push(DVec3::new(q.x / rho, 0.5, q.z / rho));
+                }
+                if near(q.y, -1.0) && rho <= 1.0 + tol {
+                    normals.push(DVec3::NEG_Y);
+                }
+                if near(q.y, 1.0) && rho <= tol {
+                    normals.push(DVec3::Y);
                 }
             }
             Shape::Torus { major, minor } => {
@@ -304,18 +319,23 @@ impl Object {
                 };
                 let n = (q - core).normalize_or_zero();
                 let support = major * n.x.hypot(n.z) + minor;
-                (rho > 0.0
+                if rho > 0.0
                     && near((q - core).length(), minor)
-                    && n.dot(q) >= support - tol * (1.0 + major))
-                    .then_some(n)
+                    && n.dot(q) >= support - tol * (1.0 + major)
+                {
+                    normals.push(n);
+                }
             }
-        }?;
-        Some(self.transform.normal_to_world(n))
+        }
+        normals
+            .into_iter()
+            .map(|n| self.transform.normal_to_world(n))
+            .collect()
     }
 }
 
-/// The lone objects whose surface passes through `p`, with their normals there (see
-/// [`Object::normal_through`]). Only the solids whose (padded) boxes hold `p` are asked,
+/// The lone objects whose surface passes through `p`, with the normals of their supporting
+/// planes there (see [`Object::normals_through`]). Only the solids whose (padded) boxes hold `p` are asked,
 /// found through the BVH when the scene has one, so that a thousand lights over a million
 /// objects cost a point query each, not a billion tests.
 fn surfaces_through(
@@ -326,10 +346,13 @@ fn surfaces_through(
 ) -> Vec<(u32, DVec3)> {
     let mut found = Vec::new();
     let mut ask = |pi: u32| {
+        // A long object is in the tree once per slice: asked once.
         if let Prim::Object(o) = prims[pi as usize]
-            && let Some(n) = objects[o as usize].normal_through(p)
+            && !found.iter().any(|e: &(u32, DVec3)| e.0 == o)
         {
-            found.push((o, n));
+            for n in objects[o as usize].normals_through(p) {
+                found.push((o, n));
+            }
         }
     };
     match accel {
@@ -345,9 +368,8 @@ fn surfaces_through(
             );
         }
     }
-    // A long object is in the tree once per slice: one entry each.
-    found.sort_unstable_by_key(|e| e.0);
-    found.dedup_by_key(|e| e.0);
+    // In the order the objects are written, whatever order the tree met them in.
+    found.sort_by_key(|e| e.0);
     found
 }
 
@@ -717,7 +739,7 @@ impl Scene {
 
     /// The lone convex objects whose surface passes through light `light` (within the
     /// rounding of carrying the light into their space), each with its world outward normal
-    /// there ([`Object::normal_through`]). Such an object cannot shadow its light from a
+    /// there ([`Object::normals_through`]), once per supporting plane. Such an object cannot shadow its light from a
     /// point on the outer side of its tangent plane there: the object lies in the other
     /// half-space, and the segment meets it only at the light, which SCENE.md's segment
     /// does not include. Tracing it anyway decides by rounding: a shadow ray reaching the
