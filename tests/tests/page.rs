@@ -15,13 +15,21 @@ use std::time::Duration;
 
 use common::{Service, TempDir, examples, wait_until};
 
+/// Whether `node` is missing here (said on stderr): `.ci/run` installs it.
+fn node_missing() -> bool {
+    let missing = Command::new("node").arg("--version").output().is_err();
+    if missing {
+        eprintln!("skipped: `node` is not installed");
+    }
+    missing
+}
+
 /// Jobs the page lists at a time (`PAGE` in `page.html`).
 const PAGE: usize = 50;
 
 #[test]
 fn the_page_lists_submits_and_deletes() {
-    if Command::new("node").arg("--version").output().is_err() {
-        eprintln!("skipped: `node` is not installed");
+    if node_missing() {
         return;
     }
     let dir = TempDir::new("page");
@@ -78,8 +86,7 @@ const SMALL_LIMIT: usize = 4096;
 
 #[test]
 fn the_page_with_a_token_and_a_small_body_limit() {
-    if Command::new("node").arg("--version").output().is_err() {
-        eprintln!("skipped: `node` is not installed");
+    if node_missing() {
         return;
     }
     let dir = TempDir::new("page-guarded");
