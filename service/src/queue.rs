@@ -441,13 +441,12 @@ impl Queue {
     ) -> Result<JobRow> {
         let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
         sqlx::query(
-            "INSERT INTO jobs (id, seq, state, scene, name, width, height, tile, sampler, samples,
+            "INSERT INTO jobs (id, seq, state, name, width, height, tile, sampler, samples,
                                threshold, tiles_total, created_at)
-             VALUES (?1, (SELECT COALESCE(MAX(seq), 0) + 1 FROM jobs), 'queued', ?2, ?3, ?4, ?5,
-                     ?6, ?7, ?8, ?9, ?10, ?11)",
+             VALUES (?1, (SELECT COALESCE(MAX(seq), 0) + 1 FROM jobs), 'queued', ?2, ?3, ?4,
+                     ?5, ?6, ?7, ?8, ?9, ?10)",
         )
         .bind(&job.id)
-        .bind(&job.scene)
         .bind(&job.name)
         .bind(i64::from(job.width))
         .bind(i64::from(job.height))
@@ -459,6 +458,11 @@ impl Queue {
         .bind(job.created_at)
         .execute(&mut *tx)
         .await?;
+        sqlx::query("INSERT INTO job_scenes (job_id, scene) VALUES (?1, ?2)")
+            .bind(&job.id)
+            .bind(&job.scene)
+            .execute(&mut *tx)
+            .await?;
         for (chunk, rows) in tiles.chunks(TILES_PER_INSERT).enumerate() {
             sqlx::query(sqlx::AssertSqlSafe(tile_insert(
                 chunk * TILES_PER_INSERT,
@@ -1044,7 +1048,8 @@ impl Queue {
     pub async fn job_scene(&self, id: &str) -> Result<Option<(String, JobSpec)>> {
         type SceneRow = (String, String, Option<String>, Option<i64>, Option<f64>);
         let row: Option<SceneRow> = sqlx::query_as(
-            "SELECT state, scene, sampler, samples, threshold FROM jobs WHERE id = ?1",
+            "SELECT state, scene, sampler, samples, threshold
+             FROM jobs JOIN job_scenes ON job_scenes.job_id = jobs.id WHERE id = ?1",
         )
         .bind(id)
         .fetch_optional(&self.pool)

@@ -844,3 +844,59 @@ async fn the_write_probe_fails_while_writes_cannot_happen() {
         .await
         .expect("writable again");
 }
+
+/// A database from before migration 0008, whose jobs hold their scenes in the `jobs` row,
+/// opens with its scenes moved to `job_scenes`: a worker still gets each job's scene, and the
+/// listing reads rows without one (a 10 MB scene made each listed job walk its overflow
+/// pages to reach the columns after it).
+#[tokio::test]
+async fn scenes_move_out_of_the_jobs_rows_when_an_older_database_opens() {
+    use sqlx::sqlite::{SqliteConnectOptions, SqlitePoolOptions};
+    let db = Db::new("migrate-scenes");
+    let opts: SqliteConnectOptions = db.url().parse().expect("url");
+    let pool = SqlitePoolOptions::new()
+        .connect_with(opts.create_if_missing(true))
+        .await
+        .expect("pool");
+    let mut before = sqlx::migrate!("../migrations");
+    before.migrations = before
+        .migrations
+        .iter()
+        .filter(|m| m.version < 8)
+        .cloned()
+        .collect::<Vec<_>>()
+        .into();
+    before.run(&pool).await.expect("migrations 1 to 7");
+    let scene = format!("# a big scene\n{}", "# padding\n".repeat(100_000));
+    sqlx::query(
+        "INSERT INTO jobs (id, seq, state, scene, width, height, tile, tiles_total, created_at)
+         VALUES ('old', 1, 'queued', ?1, 8, 8, 8, 1, 0)",
+    )
+    .bind(&scene)
+    .execute(&pool)
+    .await
+    .expect("an old job");
+    pool.close().await;
+
+    let q = Queue::open(&db.url()).await.expect("opens, migrating");
+    let (state, spec) = q.job_scene("old").await.expect("reads").expect("the job");
+    assert_eq!((state.as_str(), spec.scene), ("queued", scene));
+    let listed = q.jobs(10, None).await.expect("lists").expect("a page");
+    assert_eq!(listed.len(), 1);
+    assert_eq!(listed[0].id, "old");
+    // The scene is in its own table only: the listed rows no longer carry it.
+    let look = sqlx::SqlitePool::connect(&db.url()).await.expect("open");
+    let columns: Vec<String> = sqlx::query_scalar("SELECT name FROM pragma_table_info('jobs')")
+        .fetch_all(&look)
+        .await
+        .expect("columns");
+    assert!(!columns.iter().any(|c| c == "scene"), "{columns:?}");
+    // A job deleted takes its scene with it.
+    assert!(q.delete("old").await.expect("deletes"));
+    let left: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM job_scenes")
+        .fetch_one(&look)
+        .await
+        .expect("count");
+    assert_eq!(left, 0);
+    look.close().await;
+}
