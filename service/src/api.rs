@@ -150,7 +150,8 @@ fn max_job_wait(cfg: &crate::Config) -> f64 {
 }
 
 /// How often a waiting request looks again without being woken: only a change made outside
-/// this process (another service on the same database) goes unannounced.
+/// this process (the database edited by hand, or a second service on it, which is not
+/// supported) goes unannounced.
 const JOB_WAIT_RECHECK: Duration = Duration::from_secs(1);
 
 pub async fn get_job(

@@ -106,8 +106,11 @@ fn a_restarted_service_requeues_its_dead_local_workers_tiles_uncharged() {
             "1",
         ],
     );
-    let id = svc.submit_id(&mirror_cave(64, 32), "?tile=64");
+    // Four tiles: the local worker renders one (and may hold one ahead), a remote worker
+    // (the test) holds another.
+    let id = svc.submit_id(&mirror_cave(128, 32), "?tile=64");
     wait_claimed(&svc, &id);
+    let remote: Value = svc.claim("remote").json().expect("a claim");
     svc.kill();
     // No local workers now: the test claims as a worker would.
     svc = Service::start_on(
@@ -116,23 +119,41 @@ fn a_restarted_service_requeues_its_dead_local_workers_tiles_uncharged() {
         &["--local-workers", "0", "--max-attempts", "1"],
     );
     assert!(
-        svc.log().contains("1 tiles held by the local workers"),
+        svc.log().contains("tiles held by the local workers"),
         "{}",
         svc.log()
     );
-    let c = svc.claim("after");
-    assert_eq!(c.status(), 200, "the dead worker's tile is free at once");
-    let c: Value = c.json().expect("claim");
+    // Every tile but the remote worker's is free at once: the dead local worker's, and
+    // those it never claimed. The remote worker's lease is extended, not taken.
+    let mut free = Vec::new();
+    loop {
+        let c = svc.claim("after");
+        if c.status() != 200 {
+            assert_eq!(c.status(), 204);
+            break;
+        }
+        let c: Value = c.json().expect("claim");
+        assert_eq!(c["job"].as_str(), Some(id.as_str()));
+        free.push(c["idx"].as_u64().expect("idx"));
+    }
+    free.sort_unstable();
+    let held = remote["idx"].as_u64().expect("idx");
+    assert_eq!(free, (0..4).filter(|&i| i != held).collect::<Vec<_>>());
+    let renewed = client()
+        .post(format!(
+            "{}/worker/jobs/{id}/tiles/{held}/renew?lease={}",
+            svc.url,
+            remote["lease"].as_str().expect("lease")
+        ))
+        .send()
+        .expect("answered");
     assert_eq!(
-        (c["job"].as_str(), c["idx"].as_u64()),
-        (Some(id.as_str()), Some(0))
+        renewed.status(),
+        200,
+        "the remote worker's lease is still good"
     );
     let job = svc.get_json(&format!("/jobs/{id}"));
     assert_eq!(job["state"], "running", "{job}");
-    // Held by a remote worker now, the tile's lease survives the next restart.
-    svc.kill();
-    svc = Service::start_on(&dir, &addr, &["--local-workers", "0"]);
-    assert_eq!(svc.claim("another").status(), 204);
 }
 
 #[test]
@@ -788,6 +809,14 @@ fn silent_connections_are_closed() {
     let job = svc.get_json(&format!("/jobs/{id}?wait=5"));
     assert_eq!(job["state"], "queued");
     assert!(started.elapsed() >= Duration::from_secs(1));
+    // So is a worker's claim waiting for work, once there is none left to hand out.
+    while svc.claim("idle").status() == 200 {}
+    let r = client()
+        .post(format!("{}/worker/claim?wait_ms=5000", svc.url))
+        .json(&json!({"worker": "idle"}))
+        .send()
+        .expect("answered, not dropped");
+    assert_eq!(r.status(), 204);
 }
 
 /// A service that was itself suspended longer than a lease does not blame its workers for
@@ -1078,6 +1107,8 @@ fn a_renewal_takes_rendering_as_a_flag() {
 #[derive(Default)]
 struct Seen {
     claims: u32,
+    /// When each claim came.
+    claimed_at: Vec<Instant>,
     released: Vec<u32>,
     assets: u32,
 }
@@ -1118,6 +1149,7 @@ fn fake_service(asset_status: &'static str) -> (String, std::sync::Arc<std::sync
             let mut s = shared.lock().expect("not poisoned");
             let (status, answer) = if path == "/worker/claim" {
                 s.claims += 1;
+                s.claimed_at.push(Instant::now());
                 let claim = json!({"job": "j", "idx": s.claims - 1, "x": 0, "y": 0,
                     "w": 4, "h": 4, "lease": format!("L{}", s.claims), "lease_ms": 60_000});
                 ("200 OK", claim.to_string())
@@ -1155,13 +1187,15 @@ fn fake_service(asset_status: &'static str) -> (String, std::sync::Arc<std::sync
 
 /// A worker that cannot fetch a job's texture (the service answers `500` for it) gives each
 /// tile back and backs off, so that healthy workers get them at once: it took the job's
-/// every tile in turn, each held until its lease ran out, and gave none back.
+/// every tile in turn, each held until its lease ran out, and gave none back. The back-off
+/// grows from one give-back to the next (a review found it reset by each successful claim:
+/// a claim and a give-back every 50 ms, for ever).
 #[test]
 fn a_worker_that_cannot_fetch_a_texture_gives_the_tile_back() {
     let (url, seen) = fake_service("500 Internal Server Error");
     let _worker = Worker::start(&url, "unlucky", &[]);
-    wait_until("three tiles given back", Duration::from_secs(30), || {
-        seen.lock().expect("not poisoned").released.len() >= 3
+    wait_until("seven tiles given back", Duration::from_secs(60), || {
+        seen.lock().expect("not poisoned").released.len() >= 7
     });
     let s = seen.lock().expect("not poisoned");
     // Each tile it took was given back, but for one being fetched or claimed right now.
@@ -1171,8 +1205,12 @@ fn a_worker_that_cannot_fetch_a_texture_gives_the_tile_back() {
         s.claims,
         s.released
     );
-    assert!(s.assets >= 3);
-    assert_eq!(s.released[..3], [0, 1, 2]);
+    assert!(s.assets >= 6);
+    assert_eq!(s.released[..6], [0, 1, 2, 3, 4, 5]);
+    // Pauses of 25 ms · 2^n, ±50 %: the sixth (800–2,000 ms) outlasts the first (25–75 ms)
+    // four times over whatever the jitter; without the growth they were alike.
+    let gap = |i: usize| s.claimed_at[i + 1] - s.claimed_at[i];
+    assert!(gap(5) > gap(0) * 4, "{:?} then {:?}", gap(0), gap(5));
 }
 
 /// A texture gone (`404`: its job deleted between the worker's fetch of the scene and of

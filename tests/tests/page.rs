@@ -120,6 +120,7 @@ fn the_page_with_a_token_and_a_small_body_limit() {
         steps,
         [
             "too large",
+            "pasted too large",
             "within the limit",
             "token forgotten",
             "cancel refused",

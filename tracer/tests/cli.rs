@@ -330,6 +330,20 @@ fn an_output_that_cannot_be_written_fails_before_the_render() {
             .expect("kept")
             .starts_with("[OBJECT]")
     );
+    // Through a hard link too, where the paths have nothing in common.
+    #[cfg(unix)]
+    {
+        let twin = dir.join("twin.png");
+        std::fs::hard_link(&bad, &twin).expect("a hard link");
+        let out = bin().arg(&bad).arg("-o").arg(&twin).output().expect("runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.contains("it is the scene file"), "{stderr}");
+        assert!(
+            std::fs::read_to_string(&bad)
+                .expect("kept")
+                .starts_with("[OBJECT]")
+        );
+    }
     // A link to a file not yet there is written through, as it was before the check.
     #[cfg(unix)]
     {

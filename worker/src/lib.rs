@@ -385,6 +385,9 @@ struct Pipeline {
     queued: Option<Ticket>,
     /// Posts of earlier tiles still under way, oldest first (at most [`POSTS_IN_FLIGHT`]).
     posts: std::collections::VecDeque<PostTask>,
+    /// A tile claimed ahead was given back because its scene or a texture could not be
+    /// fetched: the slot backs off before its next claim.
+    unfetched: bool,
 }
 
 impl Pipeline {
@@ -448,12 +451,25 @@ async fn slot(
     let mut rng = seed().wrapping_add(index as u64 * 0x9E37_79B9_7F4A_7C15) | 1;
     let mut idle = 0u32;
     let mut failing_since: Option<Instant> = None;
+    // Tiles given back in a row because their scene or textures could not be fetched: the
+    // back-off grows with them, as with a failing service (a claim that succeeds between
+    // them does not reset it, or the slot would claim and give back ten times a second).
+    let mut unfetched = 0u32;
     let mut pipe = Pipeline::default();
     let outcome = loop {
         if *stop.borrow() {
             break Ok(());
         }
+        if std::mem::take(&mut pipe.unfetched) {
+            unfetched = unfetched.saturating_add(1);
+            let max = shared.cfg.idle_max.max(Duration::from_secs(2));
+            if pause(backoff(unfetched, max, &mut rng), &mut stop).await {
+                break Ok(());
+            }
+            continue;
+        }
         if let Some(ticket) = pipe.queued.take() {
+            unfetched = 0;
             if let Err(e) = work(&shared, &renderer, ticket, &mut stop, &mut pipe).await {
                 break Err(e);
             }
@@ -487,8 +503,8 @@ async fn slot(
                 let ticket = match submit(&shared, &renderer, c).await {
                     Ok(Submitted::Queued(t)) => t,
                     Ok(Submitted::Dropped) => continue,
-                    Ok(Submitted::Unfetched(e)) => {
-                        pipe.next = Some(Err(e));
+                    Ok(Submitted::Unfetched) => {
+                        pipe.unfetched = true;
                         continue;
                     }
                     Err(e) => break Err(e),
@@ -556,7 +572,7 @@ enum Submitted {
     /// Its scene or a texture could not be fetched (the service failed to answer, or could
     /// not be reached): the tile was given back, and the slot backs off as from a failing
     /// service. It took the job's every tile in turn, each held until its lease ran out.
-    Unfetched(ClientError),
+    Unfetched,
 }
 
 /// Puts a claimed tile in the render thread's queue, with its scene (from the cache, or
@@ -583,7 +599,7 @@ async fn submit(shared: &Shared, renderer: &Renderer, c: Claim) -> Result<Submit
             // give-back cannot reach the service either, the lease runs out.
             warn!(job = %c.job, "cannot fetch scene: {e}; giving the tile back");
             give_back(shared, &c).await?;
-            Ok(Submitted::Unfetched(e))
+            Ok(Submitted::Unfetched)
         }
         Err(Unusable::Client(e)) => Err(e),
     }
@@ -690,7 +706,7 @@ async fn work(
                         match submit(shared, renderer, next).await? {
                             Submitted::Queued(t) => pipe.queued = Some(t),
                             Submitted::Dropped => {}
-                            Submitted::Unfetched(e) => pipe.next = Some(Err(e)),
+                            Submitted::Unfetched => pipe.unfetched = true,
                         }
                     }
                     other => pipe.next = Some(other),

@@ -115,12 +115,30 @@ fn read_scene(path: &Path) -> Result<Vec<u8>> {
 /// that does not exist is created to prove it can be and removed again; an existing file is
 /// opened for writing, not truncated, so that it is kept if the render fails. Devices and
 /// pipes are left alone (opening a pipe waits for its reader).
+/// Whether two paths name one existing file: through links, `.` and `..`, and (on Unix,
+/// by device and inode) a hard link.
+fn same_file(a: &Path, b: &Path) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        matches!(
+            (std::fs::metadata(a), std::fs::metadata(b)),
+            (Ok(x), Ok(y)) if x.dev() == y.dev() && x.ino() == y.ino()
+        )
+    }
+    #[cfg(not(unix))]
+    {
+        matches!(
+            (std::fs::canonicalize(a), std::fs::canonicalize(b)),
+            (Ok(x), Ok(y)) if x == y
+        )
+    }
+}
+
 fn check_output(path: &Path, scene: &Path) -> Result<()> {
     let what = || format!("cannot create {}", path.display());
     // `-o` naming the scene itself replaced the scene with its picture.
-    if let (Ok(out), Ok(input)) = (std::fs::canonicalize(path), std::fs::canonicalize(scene))
-        && out == input
-    {
+    if same_file(path, scene) {
         anyhow::bail!(
             "cannot create {}: it is the scene file being rendered",
             path.display()
