@@ -28,6 +28,9 @@ where
         // Colour only on a terminal: a log redirected to a file stays plain text.
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
+    if let Some((before, after)) = crate::rlimit::raise_open_files() {
+        tracing::info!("open-file limit raised from {before} to {after} (each connection is one)");
+    }
     let runtime = match tokio::runtime::Runtime::new() {
         Ok(r) => r,
         Err(e) => {

@@ -14,6 +14,7 @@ pub mod config;
 pub mod error;
 pub mod idle;
 pub mod queue;
+pub mod rlimit;
 pub mod worker_api;
 
 use std::collections::HashMap;

@@ -1225,3 +1225,63 @@ fn a_worker_whose_job_is_deleted_mid_fetch_carries_on() {
     assert!(worker.try_wait().is_none(), "the worker stopped");
     assert!(seen.lock().expect("not poisoned").released.is_empty());
 }
+
+/// The service raises its open-file limit from the soft limit to the hard one at start: at
+/// a soft limit of 1,024 a few hundred idle clients (each held until the idle timeout) used
+/// up the rest, and every new connection, `/healthz` and the local workers' included, then
+/// waited while the service logged "Too many open files".
+#[cfg(target_os = "linux")]
+#[test]
+fn the_service_raises_its_open_file_limit() {
+    use std::io::{BufRead, BufReader};
+    use std::process::{Command, Stdio};
+    let soft_and_hard = |pid: u32| -> (String, String) {
+        let limits = std::fs::read_to_string(format!("/proc/{pid}/limits")).expect("limits");
+        let line = limits
+            .lines()
+            .find(|l| l.starts_with("Max open files"))
+            .expect("a line for open files")
+            .to_string();
+        let mut fields = line["Max open files".len()..].split_whitespace();
+        let soft = fields.next().unwrap_or_default().to_string();
+        let hard = fields.next().unwrap_or_default().to_string();
+        (soft, hard)
+    };
+    let (_, hard) = soft_and_hard(std::process::id());
+    if hard.parse::<u64>().is_ok_and(|h| h <= 64) {
+        eprintln!("skipped: the hard limit here is {hard}");
+        return;
+    }
+    let dir = TempDir::new("nofile");
+    let db = format!("sqlite://{}", dir.path().join("t.db").display());
+    let mut child = Command::new("bash")
+        .args(["-c", "ulimit -S -n 64 && exec \"$0\" \"$@\""])
+        .arg(SERVICE)
+        .args([
+            "--listen",
+            "127.0.0.1:0",
+            "--local-workers",
+            "0",
+            "--database",
+            &db,
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("starts");
+    let stdout = child.stdout.take().expect("piped");
+    let listening = BufReader::new(stdout)
+        .lines()
+        .map_while(Result::ok)
+        .any(|l| l.starts_with("tessera-service listening on "));
+    let (soft, hard) = soft_and_hard(child.id());
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(listening, "the service started");
+    let expected = hard.parse::<u64>().map_or(1 << 20, |h| h.min(1 << 20));
+    assert_eq!(
+        soft.parse::<u64>().ok(),
+        Some(expected),
+        "raised from 64 (hard: {hard})"
+    );
+}
