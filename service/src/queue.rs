@@ -481,6 +481,9 @@ impl Queue {
                 .await?;
         }
         tx.commit().await?;
+        // The scene and textures went into the WAL too: a few 64 MiB submissions left it at
+        // 200 MB when only pixels counted towards the next checkpoint.
+        self.wrote(job.scene.len() + assets.iter().map(|(_, b)| b.len()).sum::<usize>());
         self.job(&job.id).await?.ok_or_else(|| {
             QueueError::Db(sqlx::Error::Protocol("job vanished after insert".into()))
         })

@@ -664,6 +664,46 @@ async fn stored_pixels_past_the_threshold_are_checkpointed_in_the_background() {
     assert_eq!(memory.checkpoint().await.expect("no error"), None);
 }
 
+/// A submission's scene and textures count towards the next checkpoint as tile pixels do:
+/// a few 64 MiB submissions left the WAL at 200 MB.
+#[tokio::test]
+async fn a_large_submission_is_checkpointed_in_the_background() {
+    let db = Db::new("checkpoint-scene");
+    let q = Queue::open(&db.url())
+        .await
+        .expect("open")
+        .checkpoint_every(100_000);
+    let mut finished = q.checkpoints().expect("a database file has a WAL");
+    let scene = format!("[GLOBALS]\n[/GLOBALS]\n{}", "# padding\n".repeat(8_000));
+    let texture = vec![1u8; 30_000];
+    q.insert_job(
+        &NewJob {
+            id: "big".into(),
+            scene,
+            name: None,
+            width: 8,
+            height: 8,
+            tile: 8,
+            sampler: None,
+            samples: None,
+            threshold: None,
+            created_at: 0,
+        },
+        &tiles(8, 8, 8),
+        &[("t.ppm".to_string(), texture)],
+    )
+    .await
+    .expect("job stored");
+    // A timeout only turns a checkpoint that never comes into a failure.
+    tokio::time::timeout(
+        std::time::Duration::from_secs(20),
+        finished.wait_for(|n| *n >= 1),
+    )
+    .await
+    .expect("a checkpoint after 110 kB of submission")
+    .expect("the queue is alive");
+}
+
 /// A pixel value that differs between neighbouring pixels and tiles.
 fn shade(x: u32, y: u32, c: u32) -> u8 {
     (x.wrapping_mul(7) ^ y.wrapping_mul(13) ^ (c * 85)) as u8
