@@ -360,7 +360,15 @@ pub struct SubmitParams {
     pub threshold: Option<f64>,
     /// A name for the job (the scene file's name, shown in lists and used for the download).
     pub name: Option<String>,
+    /// Claims serve the highest priority first ([`MIN_PRIORITY`] to [`MAX_PRIORITY`],
+    /// default 0), and jobs of one priority in the order they came.
+    pub priority: Option<i64>,
 }
+
+/// The lowest `?priority=`.
+pub const MIN_PRIORITY: i64 = -1000;
+/// The highest `?priority=`.
+pub const MAX_PRIORITY: i64 = 1000;
 
 /// `POST /jobs`: the raw scene as the body, or multipart with a `scene` part and one part
 /// per asset named as the scene names it.
@@ -407,6 +415,14 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
             "the body is one comment line, with no line breaks: `curl -d` drops a file's line \
              breaks; send the scene file with curl --data-binary @scene.ray",
         ));
+    }
+    if params
+        .priority
+        .is_some_and(|p| !(MIN_PRIORITY..=MAX_PRIORITY).contains(&p))
+    {
+        return Err(ApiError::bad_request(format!(
+            "priority must be from {MIN_PRIORITY} to {MAX_PRIORITY}"
+        )));
     }
     let tile = params.tile.or(state.cfg.tile);
     if tile.is_some_and(|t| !(MIN_TILE..=MAX_TILE).contains(&t)) {
@@ -718,6 +734,7 @@ async fn validate(
         samples: params.samples,
         threshold: params.threshold,
         created_at: now_ms(),
+        priority: params.priority.unwrap_or(0),
     };
     let rects = tiles(width, height, tile);
     Ok((job, rects, kept))

@@ -67,10 +67,12 @@ pub struct JobRow {
     pub started_at: Option<i64>,
     pub finished_at: Option<i64>,
     pub png_bytes: Option<i64>,
+    /// Claims take tiles of the highest-priority job first (see [`Queue::claim`]).
+    pub priority: i64,
 }
 
 const JOB_COLUMNS: &str = "id, state, name, width, height, tile, sampler, samples, threshold, \
-     tiles_total, tiles_done, error, created_at, started_at, finished_at, png_bytes";
+     tiles_total, tiles_done, error, created_at, started_at, finished_at, png_bytes, priority";
 
 /// A job about to be stored.
 #[derive(Debug, Clone)]
@@ -85,6 +87,8 @@ pub struct NewJob {
     pub samples: Option<u32>,
     pub threshold: Option<f64>,
     pub created_at: i64,
+    /// Higher first; first in, first out among equals.
+    pub priority: i64,
 }
 
 /// A tile's place and lease, with its job's state.
@@ -259,6 +263,28 @@ pub struct Checkpoint {
     /// Frames of it now copied into the database file.
     pub copied: i64,
 }
+
+/// The claim: the first queued tile (by index) of the first active job (by priority, then
+/// submission) that has one the worker may take. Its job is found through `jobs_to_claim`
+/// (migration 0009), which holds only the active jobs, in that order, so the walk stops at
+/// the first job that qualifies. Named, because SQLite's planner preferred `jobs_by_state`
+/// and then sorted every active job, checking each for a tile, on every claim.
+const CLAIM_SQL: &str =
+    "UPDATE tiles SET state = 'leased', attempt = attempt + 1, lease = ?2, worker = ?1,
+                   lease_expires = ?3, rendering = 0
+  WHERE rowid = (
+      SELECT t.rowid FROM tiles t
+      WHERE t.job_id = (
+          SELECT j.id FROM jobs j INDEXED BY jobs_to_claim
+          WHERE j.state IN ('queued', 'running')
+            AND NOT EXISTS (SELECT 1 FROM keep_away k
+                            WHERE k.job_id = j.id AND k.worker = ?1 AND k.until > ?4)
+            AND EXISTS (SELECT 1 FROM tiles q
+                        WHERE q.job_id = j.id AND q.state = 'queued' AND q.failures < ?5)
+          ORDER BY j.priority DESC, j.seq LIMIT 1)
+        AND t.state = 'queued' AND t.failures < ?5
+      ORDER BY t.idx LIMIT 1)
+  RETURNING job_id, idx, x, y, w, h";
 
 impl Queue {
     /// Opens (creating if missing) the database at `url` (`sqlite://path`, or
@@ -442,9 +468,9 @@ impl Queue {
         let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
         sqlx::query(
             "INSERT INTO jobs (id, seq, state, name, width, height, tile, sampler, samples,
-                               threshold, tiles_total, created_at)
+                               threshold, tiles_total, created_at, priority)
              VALUES (?1, (SELECT COALESCE(MAX(seq), 0) + 1 FROM jobs), 'queued', ?2, ?3, ?4,
-                     ?5, ?6, ?7, ?8, ?9, ?10)",
+                     ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
         )
         .bind(&job.id)
         .bind(&job.name)
@@ -456,6 +482,7 @@ impl Queue {
         .bind(job.threshold)
         .bind(tiles.len() as i64)
         .bind(job.created_at)
+        .bind(job.priority)
         .execute(&mut *tx)
         .await?;
         sqlx::query("INSERT INTO job_scenes (job_id, scene) VALUES (?1, ?2)")
@@ -561,10 +588,10 @@ impl Queue {
         Ok(r.rows_affected() > 0)
     }
 
-    /// Hands the first queued tile of the oldest active job to `worker` under a new lease,
-    /// unless the worker is kept away from that job. One statement: see the module comment.
+    /// Hands the first queued tile of the first active job (the highest priority, then the
+    /// oldest) to `worker` under a new lease, unless the worker is kept away from that job. One statement: see the module comment.
     /// The job is chosen first and its tile second, so that both steps walk an index in
-    /// order (`jobs_by_state`, `tiles_by_state`) instead of sorting every queued tile of
+    /// order (`jobs_to_claim`, `tiles_by_state`) instead of sorting every queued tile of
     /// every job on each claim.
     pub async fn claim(
         &self,
@@ -574,36 +601,20 @@ impl Queue {
         max_attempts: u32,
     ) -> Result<Option<Claim>> {
         let lease = uuid::Uuid::new_v4().simple().to_string();
-        let row = sqlx::query(
-            "UPDATE tiles SET state = 'leased', attempt = attempt + 1, lease = ?2, worker = ?1,
-                              lease_expires = ?3, rendering = 0
-             WHERE rowid = (
-                 SELECT t.rowid FROM tiles t
-                 WHERE t.job_id = (
-                     SELECT j.id FROM jobs j
-                     WHERE j.state IN ('queued', 'running')
-                       AND NOT EXISTS (SELECT 1 FROM keep_away k
-                                       WHERE k.job_id = j.id AND k.worker = ?1 AND k.until > ?4)
-                       AND EXISTS (SELECT 1 FROM tiles q
-                                   WHERE q.job_id = j.id AND q.state = 'queued' AND q.failures < ?5)
-                     ORDER BY j.seq LIMIT 1)
-                   AND t.state = 'queued' AND t.failures < ?5
-                 ORDER BY t.idx LIMIT 1)
-             RETURNING job_id, idx, x, y, w, h",
-        )
-        .bind(worker)
-        .bind(&lease)
-        .bind(now.saturating_add(lease_ms as i64))
-        .bind(now)
-        .bind(i64::from(max_attempts))
-        // To the statement's end, not its first row: SQLite commits an autocommit statement
-        // when it finishes, and a commit that fails (a full disk) must be this call's error,
-        // not lost in a reset after the row was taken (the claim was answered with a lease
-        // that was never stored).
-        .fetch_all(&self.writer)
-        .await?
-        .into_iter()
-        .next();
+        let row = sqlx::query(CLAIM_SQL)
+            .bind(worker)
+            .bind(&lease)
+            .bind(now.saturating_add(lease_ms as i64))
+            .bind(now)
+            .bind(i64::from(max_attempts))
+            // To the statement's end, not its first row: SQLite commits an autocommit statement
+            // when it finishes, and a commit that fails (a full disk) must be this call's error,
+            // not lost in a reset after the row was taken (the claim was answered with a lease
+            // that was never stored).
+            .fetch_all(&self.writer)
+            .await?
+            .into_iter()
+            .next();
         let Some(row) = row else { return Ok(None) };
         let job: String = row.try_get(0)?;
         let claim = Claim {
@@ -1204,6 +1215,28 @@ impl Queue {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The claim finds its job through `jobs_to_claim` and sorts no jobs: without it, the
+    /// planner found the active jobs through `jobs_by_state` and sorted them all, each
+    /// checked for a tile the worker may take, on every claim.
+    #[tokio::test]
+    async fn the_claim_walks_the_active_jobs_in_order() {
+        let q = Queue::open("sqlite::memory:").await.expect("open");
+        let rows: Vec<(i64, i64, i64, String)> = sqlx::query_as(sqlx::AssertSqlSafe(format!(
+            "EXPLAIN QUERY PLAN {CLAIM_SQL}"
+        )))
+        .bind("w")
+        .bind("lease")
+        .bind(0i64)
+        .bind(0i64)
+        .bind(4i64)
+        .fetch_all(&q.writer)
+        .await
+        .expect("plan");
+        let plan: Vec<String> = rows.into_iter().map(|r| r.3).collect();
+        assert!(plan.iter().any(|d| d.contains("jobs_to_claim")), "{plan:?}");
+        assert!(!plan.iter().any(|d| d.contains("B-TREE")), "{plan:?}");
+    }
 
     /// The band query finds its rows through `tiles_by_band` and sorts nothing: a sort
     /// would copy every tile's pixels once more into SQLite's sorter.

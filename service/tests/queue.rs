@@ -35,6 +35,11 @@ const KEEP: KeepAway = KeepAway {
 };
 
 async fn job(q: &Queue, id: &str, w: u32, h: u32, tile: u32) -> Vec<Rect> {
+    job_at(q, id, 0, w, h, tile).await
+}
+
+/// [`job`] of a given priority.
+async fn job_at(q: &Queue, id: &str, priority: i64, w: u32, h: u32, tile: u32) -> Vec<Rect> {
     let rects = tiles(w, h, tile);
     q.insert_job(
         &NewJob {
@@ -48,6 +53,7 @@ async fn job(q: &Queue, id: &str, w: u32, h: u32, tile: u32) -> Vec<Rect> {
             samples: None,
             threshold: None,
             created_at: 0,
+            priority,
         },
         &rects,
         &[],
@@ -688,6 +694,7 @@ async fn a_large_submission_is_checkpointed_in_the_background() {
             samples: None,
             threshold: None,
             created_at: 0,
+            priority: 0,
         },
         &tiles(8, 8, 8),
         &[("t.ppm".to_string(), texture)],
@@ -939,4 +946,34 @@ async fn scenes_move_out_of_the_jobs_rows_when_an_older_database_opens() {
         .expect("count");
     assert_eq!(left, 0);
     look.close().await;
+}
+
+/// Claims serve the highest priority first, and jobs of one priority in the order they came:
+/// a preview submitted behind a long render (at a higher priority) is rendered first, and a
+/// job below every other waits for them all.
+#[tokio::test]
+async fn claims_serve_the_highest_priority_first_then_the_oldest() {
+    let db = Db::new("priority");
+    let q = Queue::open(&db.url()).await.expect("open");
+    job_at(&q, "long", 0, 64, 64, 32).await; // 4 tiles
+    job_at(&q, "later", 0, 32, 32, 32).await; // 1 tile
+    job_at(&q, "low", -5, 32, 32, 32).await;
+    job_at(&q, "preview", 10, 64, 32, 32).await; // 2 tiles
+    let mut order = Vec::new();
+    while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
+        order.push(format!("{}/{}", c.job, c.idx));
+    }
+    assert_eq!(
+        order,
+        [
+            "preview/0",
+            "preview/1",
+            "long/0",
+            "long/1",
+            "long/2",
+            "long/3",
+            "later/0",
+            "low/0"
+        ]
+    );
 }

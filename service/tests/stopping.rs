@@ -66,6 +66,7 @@ async fn a_waiting_job_request_answers_when_the_service_stops() {
         samples: None,
         threshold: None,
         created_at: 0,
+        priority: 0,
     };
     state
         .queue

@@ -274,6 +274,22 @@ fn bad_requests_get_json_errors_and_store_nothing() {
         let bad = typo.rsplit('&').next().and_then(|p| p.split('=').next());
         refused(r, &format!("`{}`", bad.unwrap_or_default()));
     }
+    // A priority out of its range is refused; one within it is the job's.
+    let r = http
+        .post(format!("{}/jobs?priority=1001", svc.url))
+        .body(read("thesis.ray"))
+        .send()
+        .expect("answer");
+    refused(r, "priority must be from -1000 to 1000");
+    for (query, priority) in [("?priority=-3", -3), ("", 0)] {
+        let job = svc.submit(&read("thesis.ray"), query);
+        assert_eq!(job["priority"], priority, "{job}");
+        // Gone again, as this test ends with nothing stored.
+        let url = format!("{}/jobs/{}", svc.url, job["id"].as_str().expect("id"));
+        assert_eq!(http.delete(&url).send().expect("cancel").status(), 200);
+        let purge = http.delete(format!("{url}?purge=true")).send().expect("purge");
+        assert_eq!(purge.status(), 204);
+    }
     // So are the reading routes': `limt` listed every job, `wiat` answered at once.
     for (path, bad) in [("/jobs?limt=5", "`limt`"), ("/jobs/j?wiat=60", "`wiat`")] {
         let r = http

@@ -74,7 +74,9 @@ async function main() {
   // 3. A scene submitted through the form is queued and listed first.
   elements.scene.value = checks.scene;
   elements.tile.value = String(checks.tile);
+  elements.priority.value = "7";
   await page.submit();
+  elements.priority.value = "";
   const queued = elements.msg.textContent.match(/^Job (\S+) queued: (\d+) tiles\.$/);
   assert.ok(queued, `submission message: ${elements.msg.textContent}`);
   assert.equal(elements.msg.className, "ok");
@@ -83,6 +85,7 @@ async function main() {
   const job = await api("/jobs/" + id);
   assert.equal(job.status, 200);
   assert.equal(job.body.tiles_total, checks.tiles);
+  assert.equal(job.body.priority, 7, "the form's priority is the job's");
   assert.equal(firstCells()[0], id, "the new job heads the list");
   step("submitted", { id, tiles: Number(tiles) });
 
