@@ -287,7 +287,10 @@ fn bad_requests_get_json_errors_and_store_nothing() {
         // Gone again, as this test ends with nothing stored.
         let url = format!("{}/jobs/{}", svc.url, job["id"].as_str().expect("id"));
         assert_eq!(http.delete(&url).send().expect("cancel").status(), 200);
-        let purge = http.delete(format!("{url}?purge=true")).send().expect("purge");
+        let purge = http
+            .delete(format!("{url}?purge=true"))
+            .send()
+            .expect("purge");
         assert_eq!(purge.status(), 204);
     }
     // So are the reading routes': `limt` listed every job, `wiat` answered at once.
