@@ -410,7 +410,13 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     }
     // `curl -d @scene.ray` sends the file without its line breaks, and a scene that starts
     // with a comment becomes one comment line: it rendered a black image without a word.
-    if !is_multipart && !source.contains('\n') && source.trim_start().starts_with('#') {
+    if !is_multipart
+        && !source.contains('\n')
+        && source
+            .trim_start_matches('\u{feff}')
+            .trim_start()
+            .starts_with('#')
+    {
         return Err(ApiError::bad_request(
             "the body is one comment line, with no line breaks: `curl -d` drops a file's line \
              breaks; send the scene file with curl --data-binary @scene.ray",

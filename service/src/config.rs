@@ -39,12 +39,44 @@ pub fn auto_tile(width: u32, height: u32, rays_per_pixel: u32) -> u32 {
     edge
 }
 
-/// `HOST:PORT` with a numeric port (`127.0.0.1:8080`, `[::]:8080`, `localhost:8080`): a
-/// value without one failed only once the service tried to listen, with exit status 1.
+/// `HOST:PORT` with a numeric port: an IP address (`127.0.0.1:8080`, `[::]:8080`) or a host
+/// name of letters, digits, `-` and `.` (`localhost:8080`). Anything else failed only once
+/// the service tried to listen, with exit status 1.
 fn listen_addr(s: &str) -> Result<String, String> {
-    match s.rsplit_once(':') {
-        Some((host, port)) if !host.is_empty() && port.parse::<u16>().is_ok() => Ok(s.to_string()),
-        _ => Err("expected HOST:PORT, e.g. 127.0.0.1:8080 or [::]:8080".to_string()),
+    let named = |host: &str| {
+        !host.is_empty()
+            && host
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '.'))
+    };
+    let ok = s.parse::<std::net::SocketAddr>().is_ok()
+        || s.rsplit_once(':')
+            .is_some_and(|(host, port)| named(host) && port.parse::<u16>().is_ok());
+    if ok {
+        Ok(s.to_string())
+    } else {
+        Err("expected HOST:PORT, e.g. 127.0.0.1:8080, [::]:8080 or localhost:8080".to_string())
+    }
+}
+
+/// A bearer token: not empty, and no white space at either end, which HTTP trims from the
+/// header that carries it (`--token ' '` locked out every worker, as an empty one did).
+fn token(s: &str) -> Result<String, String> {
+    if s.is_empty() || s.trim() != s {
+        Err("a token may not be empty nor start or end with white space".to_string())
+    } else {
+        Ok(s.to_string())
+    }
+}
+
+/// The database: not blank, and a `sqlite://` URL names a file (`sqlite://` alone failed
+/// with "no such table: jobs"; `' '` made a file named by a space).
+fn database(s: &str) -> Result<String, String> {
+    let path = s.strip_prefix("sqlite://").unwrap_or(s);
+    if path.trim().is_empty() || s.trim() != s {
+        Err("expected sqlite://PATH (or a file path), e.g. sqlite://tessera.db".to_string())
+    } else {
+        Ok(s.to_string())
     }
 }
 
@@ -58,7 +90,7 @@ pub struct Config {
     pub listen: String,
     /// The queue's database.
     #[arg(long, env = "TESSERA_DATABASE", default_value = "sqlite://tessera.db",
-          value_parser = clap::builder::NonEmptyStringValueParser::new())]
+          value_parser = database)]
     pub database: String,
     /// Workers run inside this process, over the same HTTP protocol, one thread each: 0 to
     /// 1024 (default: one per core).
@@ -68,12 +100,12 @@ pub struct Config {
     /// Bearer token the worker routes require (none: open). An empty one is refused: it
     /// would lock out every worker, its own local ones too.
     #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true,
-          value_parser = clap::builder::NonEmptyStringValueParser::new())]
+          value_parser = token)]
     pub token: Option<String>,
     /// Bearer token that job submission and deletion require (none: open, which is allowed
     /// only on a loopback address unless --open-submit is given). An empty one is refused.
     #[arg(long, env = "TESSERA_SUBMIT_TOKEN", hide_env_values = true,
-          value_parser = clap::builder::NonEmptyStringValueParser::new())]
+          value_parser = token)]
     pub submit_token: Option<String>,
     /// Accept jobs from anyone even when listening beyond loopback without --submit-token.
     #[arg(long, env = "TESSERA_OPEN_SUBMIT")]

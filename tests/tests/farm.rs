@@ -258,6 +258,8 @@ fn bad_requests_get_json_errors_and_store_nothing() {
     let flattened = read("thesis.ray").replace(['\n', '\r'], "");
     assert!(flattened.starts_with('#'));
     refused(post(&flattened), "--data-binary");
+    // Also from a file saved with a byte-order mark (it rendered black).
+    refused(post(&format!("\u{feff}{flattened}")), "--data-binary");
     let r = http
         .post(format!("{}/jobs?tile=3", svc.url))
         .body(read("thesis.ray"))
