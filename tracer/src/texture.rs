@@ -127,6 +127,11 @@ impl DirAssets {
     pub fn new(root: impl Into<PathBuf>) -> Self {
         DirAssets { root: root.into() }
     }
+
+    /// The file a texture name is read from.
+    pub fn path_of(&self, name: &str) -> PathBuf {
+        self.root.join(lexical(name))
+    }
 }
 
 /// `name` with `.` dropped and `..` taken back against the name's own folders, before the
@@ -151,7 +156,7 @@ fn lexical(name: &str) -> PathBuf {
 
 impl AssetSource for DirAssets {
     fn load(&self, name: &str) -> Result<Vec<u8>, TextureError> {
-        let path = self.root.join(lexical(name));
+        let path = self.path_of(name);
         let missing = |reason: String| TextureError::Missing {
             name: name.to_string(),
             reason: format!("{}: {reason}", path.display()),

@@ -162,6 +162,24 @@ fn texture_names_resolve_next_to_the_scene_and_errors_point_at_them() {
              [OBJECT]\ntype = sphere\nradius = 30\ntexture = {name}\n[/OBJECT]\n"
         )
     };
+    // `-o` naming one of the scene's textures replaced it with the render.
+    std::fs::write(&scene, lit("maps/../t.ppm")).expect("write");
+    let out = bin()
+        .arg(&scene)
+        .arg("-o")
+        .arg(dir.join("t.ppm"))
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("it is the scene's texture `maps/../t.ppm`"),
+        "{stderr}"
+    );
+    assert!(
+        std::fs::read(dir.join("t.ppm"))
+            .expect("kept")
+            .starts_with(b"P3")
+    );
     for name in ["./t.ppm", "maps/../t.ppm", "a/./b/../../t.ppm"] {
         std::fs::write(&scene, lit(name)).expect("write");
         let out = bin()

@@ -184,8 +184,20 @@ fn run(args: &Args) -> Result<()> {
         )
         .map_err(anyhow::Error::msg)?;
     let dir = args.scene.parent().unwrap_or(Path::new("."));
+    let assets = DirAssets::new(dir);
     check_output(&args.output, &args.scene)?;
-    let scene = Scene::build(&desc, &DirAssets::new(dir), &TextureLimits::default())?;
+    // Nor one of the scene's textures, which it replaced with the render.
+    if let Some((name, _)) = desc
+        .texture_names()
+        .into_iter()
+        .find(|(name, _)| same_file(&args.output, &assets.path_of(name)))
+    {
+        anyhow::bail!(
+            "cannot create {}: it is the scene's texture `{name}`",
+            args.output.display()
+        );
+    }
+    let scene = Scene::build(&desc, &assets, &TextureLimits::default())?;
 
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(n) = args.threads {
