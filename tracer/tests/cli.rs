@@ -337,30 +337,27 @@ fn an_output_that_cannot_be_written_fails_before_the_render() {
     }
     assert!(!fresh.exists());
     assert_eq!(std::fs::read(&kept).expect("kept"), b"old image");
-    // `-o` naming the scene (here through `.`) replaced the scene with its picture.
-    let same = dir.join(".").join("bad.ray");
-    let out = bin().arg(&bad).arg("-o").arg(&same).output().expect("runs");
-    assert!(!out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(stderr.contains("it is the scene file"), "{stderr}");
-    assert!(
-        std::fs::read_to_string(&bad)
-            .expect("kept")
-            .starts_with("[OBJECT]")
-    );
-    // Through a hard link too, where the paths have nothing in common.
+    // `-o` naming the scene replaced the scene with its picture: refused, here through `.`
+    // and (Unix) through a hard link, where the paths have nothing in common.
+    let refused_as_the_scene = |output: &Path| {
+        let out = bin()
+            .arg(&bad)
+            .arg("-o")
+            .arg(output)
+            .output()
+            .expect("runs");
+        assert!(!out.status.success());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.contains("it is the scene file"), "{stderr}");
+        let kept = std::fs::read_to_string(&bad).expect("kept");
+        assert!(kept.starts_with("[OBJECT]"));
+    };
+    refused_as_the_scene(&dir.join(".").join("bad.ray"));
     #[cfg(unix)]
     {
         let twin = dir.join("twin.png");
         std::fs::hard_link(&bad, &twin).expect("a hard link");
-        let out = bin().arg(&bad).arg("-o").arg(&twin).output().expect("runs");
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(stderr.contains("it is the scene file"), "{stderr}");
-        assert!(
-            std::fs::read_to_string(&bad)
-                .expect("kept")
-                .starts_with("[OBJECT]")
-        );
+        refused_as_the_scene(&twin);
     }
     // A link to a file not yet there is written through, as it was before the check.
     #[cfg(unix)]
