@@ -40,18 +40,21 @@ pub fn auto_tile(width: u32, height: u32, rays_per_pixel: u32) -> u32 {
 }
 
 /// `HOST:PORT` with a numeric port: an IP address (`127.0.0.1:8080`, `[::]:8080`) or a host
-/// name of letters, digits, `-` and `.` (`localhost:8080`). Anything else failed only once
+/// name of letters, digits, `-`, `_` and `.` (`localhost:8080`, a container's name). Anything else failed only once
 /// the service tried to listen, with exit status 1.
 fn listen_addr(s: &str) -> Result<String, String> {
     let named = |host: &str| {
         !host.is_empty()
             && host
                 .chars()
-                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '.'))
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '.' | '_'))
     };
+    // As the standard library splits it: at the last `:`, so `:::8080` is `::` and 8080.
     let ok = s.parse::<std::net::SocketAddr>().is_ok()
-        || s.rsplit_once(':')
-            .is_some_and(|(host, port)| named(host) && port.parse::<u16>().is_ok());
+        || s.rsplit_once(':').is_some_and(|(host, port)| {
+            (named(host) || host.parse::<std::net::IpAddr>().is_ok())
+                && port.parse::<u16>().is_ok()
+        });
     if ok {
         Ok(s.to_string())
     } else {
@@ -69,10 +72,18 @@ fn token(s: &str) -> Result<String, String> {
     }
 }
 
-/// The database: not blank, and a `sqlite://` URL names a file (`sqlite://` alone failed
-/// with "no such table: jobs"; `' '` made a file named by a space).
+/// The database: not blank, and a `sqlite:` URL names a file, as sqlx reads it (`sqlite:`
+/// or `//` dropped, then everything from `?`): `sqlite://` or `sqlite:?mode=rwc` named a
+/// private temporary database per connection, and reads failed with "no such table: jobs";
+/// `' '` made a file named by a space.
 fn database(s: &str) -> Result<String, String> {
-    let path = s.strip_prefix("sqlite://").unwrap_or(s);
+    let path = match s.strip_prefix("sqlite:") {
+        Some(url) => {
+            let url = url.strip_prefix("//").unwrap_or(url);
+            url.split('?').next().unwrap_or_default()
+        }
+        None => s,
+    };
     if path.trim().is_empty() || s.trim() != s {
         Err("expected sqlite://PATH (or a file path), e.g. sqlite://tessera.db".to_string())
     } else {

@@ -15,16 +15,20 @@ pub fn raise_open_files() -> Option<(u64, u64)> {
     let (current, maximum) = (limit.current?, limit.maximum);
     // At most 2^20, the kernel's usual ceiling for this resource (`fs.nr_open`), also when
     // the hard limit says "unlimited"; a raise the kernel refuses changes nothing.
-    let target = maximum.map_or(1 << 20, |m| m.min(1 << 20));
-    if target <= current {
-        return None;
+    // A kernel may refuse less than the hard limit (macOS: above `kern.maxfilesperproc`,
+    // with an unlimited hard limit): halved until one is taken.
+    let mut target = maximum.map_or(1 << 20, |m| m.min(1 << 20));
+    while target > current {
+        let raised = rustix::process::Rlimit {
+            current: Some(target),
+            maximum,
+        };
+        if setrlimit(Resource::Nofile, raised).is_ok() {
+            return Some((current, target));
+        }
+        target /= 2;
     }
-    let raised = rustix::process::Rlimit {
-        current: Some(target),
-        maximum,
-    };
-    setrlimit(Resource::Nofile, raised).ok()?;
-    Some((current, target))
+    None
 }
 
 #[cfg(not(unix))]

@@ -571,6 +571,7 @@ fn service_flags_out_of_range_are_usage_errors() {
         ("--token", " ", "white space"),
         ("--submit-token", "abc\t", "white space"),
         ("--database", "sqlite://", "sqlite://PATH"),
+        ("--database", "sqlite:?mode=rwc", "sqlite://PATH"),
         // Values past any use overflowed the clock's arithmetic: every connection panicked
         // (idle timeout), a lease read as expired at once (lease), a stop panicked (grace).
         ("--lease-ms", "86400001", "100..=86400000"),
@@ -1118,6 +1119,8 @@ struct Seen {
     /// When each claim came.
     claimed_at: Vec<Instant>,
     released: Vec<u32>,
+    /// Tiles reported failed, with the reason given.
+    failed: Vec<(u32, String)>,
     assets: u32,
 }
 
@@ -1174,6 +1177,17 @@ fn fake_service(asset_status: &'static str) -> (String, std::sync::Arc<std::sync
             {
                 s.released.push(idx.parse().unwrap_or(u32::MAX));
                 ("200 OK", "{}".to_string())
+            } else if let Some(idx) = path
+                .strip_prefix("/worker/jobs/j/tiles/")
+                .and_then(|p| p.strip_suffix("/fail"))
+            {
+                let reason = serde_json::from_slice::<Value>(&body)
+                    .ok()
+                    .and_then(|v| v["reason"].as_str().map(String::from))
+                    .unwrap_or_default();
+                s.failed.push((idx.parse().unwrap_or(u32::MAX), reason));
+                let answer = json!({"requeued": true, "job_failed": false});
+                ("200 OK", answer.to_string())
             } else {
                 (
                     "404 Not Found",
@@ -1222,18 +1236,31 @@ fn a_worker_that_cannot_fetch_a_texture_gives_the_tile_back() {
 }
 
 /// A texture answered `404` (its job deleted between the worker's fetch of the scene and of
-/// the texture, or a proxy that refuses the texture's URL): the worker gives the tile back
-/// and carries on. It stopped the worker with an error, and then (dropped unreleased) left
-/// its lease to run out and be charged as a crash: a QA pass had such a job failed.
+/// the texture, or a proxy that refuses the texture's URL, which no retry mends): the worker
+/// reports the tile failed, naming the texture, and carries on, so that the service keeps it
+/// away from the job and a job no worker can fetch fails with that reason. It stopped the
+/// worker with an error; then the tile was dropped unreleased (its lease ran out and was
+/// charged as a crash); then given back uncharged, which a review found came back to the
+/// same tile for ever.
 #[test]
-fn a_worker_whose_texture_is_not_found_gives_the_tile_back_and_carries_on() {
+fn a_worker_whose_texture_is_not_found_reports_the_tile_failed_and_carries_on() {
     let (url, seen) = fake_service("404 Not Found");
     let mut worker = Worker::start(&url, "carries-on", &[]);
-    wait_until("three tiles given back", Duration::from_secs(30), || {
-        seen.lock().expect("not poisoned").released.len() >= 3 || worker.try_wait().is_some()
+    wait_until("three tiles reported", Duration::from_secs(30), || {
+        seen.lock().expect("not poisoned").failed.len() >= 3 || worker.try_wait().is_some()
     });
     assert!(worker.try_wait().is_none(), "the worker stopped");
-    assert_eq!(seen.lock().expect("not poisoned").released[..3], [0, 1, 2]);
+    let s = seen.lock().expect("not poisoned");
+    assert_eq!(
+        s.failed.iter().map(|f| f.0).take(3).collect::<Vec<_>>(),
+        [0, 1, 2]
+    );
+    assert!(
+        s.failed[0].1.contains("t.ppm") && s.failed[0].1.contains("404"),
+        "{:?}",
+        s.failed[0]
+    );
+    assert!(s.released.is_empty(), "{:?}", s.released);
 }
 
 /// The service raises its open-file limit from the soft limit to the hard one at start: at

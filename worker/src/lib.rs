@@ -106,10 +106,6 @@ enum Unusable {
     Invalid(String),
     /// The service could not be asked: give up on this tile for now.
     Client(ClientError),
-    /// A texture the job names was not found (`404`/`410`): the job was deleted since its
-    /// scene was fetched, or a proxy before the service refuses the texture's URL (some
-    /// refuse the `%2F` of `textures%2Fglobe.png`). Given back, as when it cannot be fetched.
-    Missing(ClientError),
 }
 
 /// Built scenes by job id, most recently used last: shared by the slots of one worker, and
@@ -599,10 +595,9 @@ async fn submit(shared: &Shared, renderer: &Renderer, c: Claim) -> Result<Submit
             Ok(Submitted::Dropped)
         }
         Err(Unusable::Client(e)) if !e.is_transient() => Err(e),
-        Err(Unusable::Client(e) | Unusable::Missing(e)) => {
-            // Not the tile's fault, nor the scene's: another worker may fetch it (and a job
-            // deleted meanwhile refuses the give-back, harmlessly). If the give-back cannot
-            // reach the service either, the lease runs out.
+        Err(Unusable::Client(e)) => {
+            // Not the tile's fault, nor the scene's: another worker may fetch it. If the
+            // give-back cannot reach the service either, the lease runs out.
             warn!(job = %c.job, "cannot fetch scene: {e}; giving the tile back");
             give_back(shared, &c).await?;
             Ok(Submitted::Unfetched)
@@ -631,11 +626,18 @@ async fn prepared(shared: &Shared, job: &str) -> Result<Arc<Prepared>, Unusable>
     for name in &spec.assets {
         let bytes = match shared.client.asset(job, name).await {
             Ok(bytes) => bytes,
-            // It stopped the worker with an error; dropped unreleased, its lease ran out
-            // and was charged as a crash.
+            // Not found: the job was deleted since its scene was fetched, or a proxy before
+            // the service refuses the texture's URL (some refuse the `%2F` of
+            // `textures%2Fglobe.png`), which no retry mends. Reported as a failure, with
+            // the reason: this worker is then kept away from the job, and a job no worker
+            // can fetch fails, instead of coming back to the same tile for ever. (It stopped
+            // the worker with an error; then, dropped unreleased, the tile's lease ran out
+            // and was charged as a crash.)
             Err(e @ ClientError::Status { status: 404, .. })
             | Err(e @ ClientError::Status { status: 410, .. }) => {
-                return Err(Unusable::Missing(e));
+                return Err(Unusable::Invalid(format!(
+                    "cannot fetch texture `{name}`: {e}"
+                )));
             }
             Err(e) => return Err(Unusable::Client(e)),
         };
