@@ -52,8 +52,7 @@ fn listen_addr(s: &str) -> Result<String, String> {
     // As the standard library splits it: at the last `:`, so `:::8080` is `::` and 8080.
     let ok = s.parse::<std::net::SocketAddr>().is_ok()
         || s.rsplit_once(':').is_some_and(|(host, port)| {
-            (named(host) || host.parse::<std::net::IpAddr>().is_ok())
-                && port.parse::<u16>().is_ok()
+            (named(host) || host.parse::<std::net::IpAddr>().is_ok()) && port.parse::<u16>().is_ok()
         });
     if ok {
         Ok(s.to_string())
