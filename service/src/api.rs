@@ -142,13 +142,6 @@ pub struct JobParams {
 /// The longest `GET /jobs/{id}?wait=` holds a request.
 pub const MAX_JOB_WAIT_SECS: f64 = 60.0;
 
-/// The longest wait this service gives: [`MAX_JOB_WAIT_SECS`], and a second less than its
-/// idle timeout (`--idle-timeout-secs`), which would otherwise close the silent connection of
-/// a longer wait with no answer at all.
-fn max_job_wait(cfg: &crate::Config) -> f64 {
-    MAX_JOB_WAIT_SECS.min(cfg.idle_timeout_secs as f64 - 1.0)
-}
-
 /// How often a waiting request looks again without being woken: only a change made outside
 /// this process (the database edited by hand, or a second service on it, which is not
 /// supported) goes unannounced.
@@ -161,7 +154,9 @@ pub async fn get_job(
 ) -> Result<Json<Value>, ApiError> {
     let wait = match params.wait {
         None => 0.0,
-        Some(w) if w.is_finite() && w >= 0.0 => w.min(max_job_wait(&state.cfg)),
+        Some(w) if w.is_finite() && w >= 0.0 => w
+            .min(MAX_JOB_WAIT_SECS)
+            .min(state.cfg.longest_silence().as_secs_f64()),
         Some(_) => {
             return Err(ApiError::bad_request(
                 "`wait` must be a number of seconds ≥ 0",
@@ -612,25 +607,23 @@ pub fn check_asset_name(name: &str) -> Result<(), ApiError> {
     Ok(())
 }
 
-/// A scene's texture name as the upload it stands for: `/`-separated, `.` and empty
-/// segments dropped and `..` resolved, as `tessera-render` resolves it beside the scene
-/// (`./globe.png` and `maps/../globe.png` are `globe.png`). `None` for a name that leaves
-/// the scene's folder or is no relative name (a leading `/`, a `\`, control characters).
+/// A scene's texture name as the upload it stands for: `/`-separated, resolved by
+/// `tessera-render`'s own rule ([`tessera_tracer::texture::lexical`]: `./globe.png` and
+/// `maps/../globe.png` are `globe.png`). `None` for a name that leaves the scene's folder
+/// or is no relative name (a leading `/`, a `\`, control characters).
 fn texture_key(name: &str) -> Option<String> {
     if name.starts_with('/') || name.contains('\\') || name.chars().any(char::is_control) {
         return None;
     }
-    let mut parts: Vec<&str> = Vec::new();
-    for seg in name.split('/') {
-        match seg {
-            "" | "." => {}
-            ".." => {
-                parts.pop()?;
-            }
-            s => parts.push(s),
-        }
-    }
-    (!parts.is_empty()).then(|| parts.join("/"))
+    let resolved = tessera_tracer::texture::lexical(name);
+    let parts: Option<Vec<&str>> = resolved
+        .components()
+        .map(|c| match c {
+            std::path::Component::Normal(s) => s.to_str(),
+            _ => None,
+        })
+        .collect();
+    parts.filter(|p| !p.is_empty()).map(|p| p.join("/"))
 }
 
 fn scene_error(e: &SceneError) -> ApiError {

@@ -205,6 +205,13 @@ impl Config {
         Config::parse_from(["tessera-service"])
     }
 
+    /// The longest a request may wait without a byte sent (`GET /jobs/{id}?wait=`, a claim's
+    /// `wait_ms`): a second under `--idle-timeout-secs`, which would otherwise close the
+    /// silent connection with no answer at all.
+    pub fn longest_silence(&self) -> std::time::Duration {
+        std::time::Duration::from_secs(self.idle_timeout_secs.saturating_sub(1))
+    }
+
     pub fn scene_limits(&self) -> Limits {
         Limits {
             max_dimension: self.max_dimension,

@@ -46,20 +46,8 @@ pub async fn claim(
     Json(req): Json<ClaimRequest>,
 ) -> Result<Response, ApiError> {
     let name = worker_name(&req.worker)?;
-    // Also a second under the idle timeout, which would close the silent connection of a
-    // longer wait with no answer (as for `GET /jobs/{id}?wait=`).
-    let idle_ms = state
-        .cfg
-        .idle_timeout_secs
-        .saturating_mul(1000)
-        .saturating_sub(1000);
-    let wait = Duration::from_millis(
-        params
-            .wait_ms
-            .unwrap_or(0)
-            .min(MAX_CLAIM_WAIT_MS)
-            .min(idle_ms),
-    );
+    let wait = Duration::from_millis(params.wait_ms.unwrap_or(0).min(MAX_CLAIM_WAIT_MS))
+        .min(state.cfg.longest_silence());
     let deadline = tokio::time::Instant::now() + wait;
     loop {
         // Registered before looking, so that work arriving in between is not missed.

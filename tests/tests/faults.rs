@@ -965,6 +965,14 @@ fn a_reported_failure_says_whether_it_failed_the_job() {
     assert_eq!(svc.get_json(&format!("/jobs/{id}"))["state"], "failed");
 }
 
+/// A worker process of one thread for `url`, keeping its tiles `grace` seconds once asked
+/// to stop; the caller sets its log level and where its log goes.
+fn one_thread_worker(url: &str, grace: &str) -> std::process::Command {
+    let mut worker = std::process::Command::new(WORKER);
+    worker.args(["--server", url, "--threads", "1", "--grace-secs", grace]);
+    worker
+}
+
 /// A second SIGTERM while a worker is stopping gracefully ends it at once (status 130),
 /// instead of leaving it to finish its tile for up to its grace period.
 #[test]
@@ -973,15 +981,7 @@ fn a_second_signal_stops_a_worker_at_once() {
     let dir = TempDir::new("second-signal");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
     let id = svc.submit_id(&mirror_cave(1024, 32), "?tile=1024");
-    let mut worker = std::process::Command::new(WORKER)
-        .args([
-            "--server",
-            &svc.url,
-            "--threads",
-            "1",
-            "--grace-secs",
-            "600",
-        ])
+    let mut worker = one_thread_worker(&svc.url, "600")
         .env("RUST_LOG", "info")
         .stderr(std::process::Stdio::piped())
         .stdout(std::process::Stdio::null())
@@ -1055,15 +1055,7 @@ fn stop_worker_with_the_service_out(
     let id = svc.submit_id(scene, &format!("?tile={tile}"));
     let log_path = dir.path().join("worker.log");
     let grace = grace.to_string();
-    let mut worker = std::process::Command::new(WORKER)
-        .args([
-            "--server",
-            &svc.url,
-            "--threads",
-            "1",
-            "--grace-secs",
-            &grace,
-        ])
+    let mut worker = one_thread_worker(&svc.url, &grace)
         .env("RUST_LOG", format!("tessera_worker={level}"))
         .stdout(std::process::Stdio::null())
         .stderr(std::fs::File::create(&log_path).expect("log file"))

@@ -135,11 +135,11 @@ impl DirAssets {
 }
 
 /// `name` with `.` dropped and `..` taken back against the name's own folders, before the
-/// file system sees it, as the farm resolves a scene's texture names: `maps/../globe.png` is
+/// file system sees it; the farm resolves a scene's texture names with it too: `maps/../globe.png` is
 /// `globe.png` whether or not `maps/` exists (or is a link elsewhere), so a scene that
 /// renders on the farm renders here too. A `..` with no folder of the name's own before it
 /// is kept (a local scene may reach outside its folder; the farm refuses that).
-fn lexical(name: &str) -> PathBuf {
+pub fn lexical(name: &str) -> PathBuf {
     use std::path::Component;
     let mut parts: Vec<Component> = Vec::new();
     for c in Path::new(name).components() {
