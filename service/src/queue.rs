@@ -268,10 +268,13 @@ pub struct Checkpoint {
 /// submission) that has one the worker may take. Its job is found through `jobs_to_claim`
 /// (migration 0009), which holds only the active jobs, in that order, so the walk stops at
 /// the first job that qualifies. Named, because SQLite's planner preferred `jobs_by_state`
-/// and then sorted every active job, checking each for a tile, on every claim.
+/// and then sorted every active job, checking each for a tile, on every claim. The claim
+/// stamps `claimed_at` with the queue's clock, which the `job_started` trigger (migration
+/// 0010) copies into a queued job's `started_at` as it marks the job running, inside this
+/// statement.
 const CLAIM_SQL: &str =
     "UPDATE tiles SET state = 'leased', attempt = attempt + 1, lease = ?2, worker = ?1,
-                   lease_expires = ?3, rendering = 0
+                   lease_expires = ?3, rendering = 0, claimed_at = ?4
   WHERE rowid = (
       SELECT t.rowid FROM tiles t
       WHERE t.job_id = (
@@ -616,9 +619,8 @@ impl Queue {
             .into_iter()
             .next();
         let Some(row) = row else { return Ok(None) };
-        let job: String = row.try_get(0)?;
         let claim = Claim {
-            job: job.clone(),
+            job: row.try_get(0)?,
             idx: row.try_get::<i64, _>(1)? as u32,
             x: row.try_get::<i64, _>(2)? as u32,
             y: row.try_get::<i64, _>(3)? as u32,
@@ -627,19 +629,6 @@ impl Queue {
             lease,
             lease_ms,
         };
-        // A job's first claim is always its tile 0 (every tile is queued with no failures
-        // then, and claims take the lowest index), so only that claim needs to mark the job
-        // running: no second write on every other claim. The state guard keeps a later
-        // re-claim of tile 0 from changing anything.
-        if claim.idx == 0 {
-            sqlx::query(
-                "UPDATE jobs SET state = 'running', started_at = ?2 WHERE id = ?1 AND state = 'queued'",
-            )
-            .bind(&job)
-            .bind(now)
-            .execute(&self.writer)
-            .await?;
-        }
         Ok(Some(claim))
     }
 

@@ -977,3 +977,53 @@ async fn claims_serve_the_highest_priority_first_then_the_oldest() {
         ]
     );
 }
+
+/// A job's first claim marks it running in the claim's own statement: a claim whose job
+/// could not be marked (here a trigger refuses the write, as a full disk would) stores no
+/// lease at all, and the tile is the next claim's, as if the failed one never happened. (The
+/// job was marked in a second statement after the claim had committed: the failed claim's
+/// lease stayed stored, its tile sat leased to a worker that never got it, and the job stayed
+/// `queued` with no start time while its tiles were rendered.)
+#[tokio::test]
+async fn a_claim_and_its_jobs_start_are_one_write() {
+    let db = Db::new("first-claim");
+    let q = Queue::open(&db.url()).await.expect("open");
+    job(&q, "j", 64, 32, 32).await; // 2 tiles
+    let pool = sqlx::SqlitePool::connect(&db.url()).await.expect("open");
+    sqlx::query(
+        "CREATE TRIGGER refuse_start BEFORE UPDATE OF state ON jobs WHEN NEW.state = 'running'
+         BEGIN SELECT RAISE(ABORT, 'disk full'); END",
+    )
+    .execute(&pool)
+    .await
+    .expect("trigger");
+    let refused = q.claim("w", 5, 60_000, 4).await;
+    assert!(refused.is_err(), "{refused:?}");
+    let leased: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM tiles WHERE state != 'queued'")
+        .fetch_one(&pool)
+        .await
+        .expect("read");
+    assert_eq!(leased, 0, "the failed claim left a lease behind");
+    sqlx::query("DROP TRIGGER refuse_start")
+        .execute(&pool)
+        .await
+        .expect("drop");
+    pool.close().await;
+
+    assert_eq!(q.job("j").await.expect("job").expect("row").state, "queued");
+    let c = q
+        .claim("w", 7, 60_000, 4)
+        .await
+        .expect("claim")
+        .expect("a tile");
+    assert_eq!((c.job.as_str(), c.idx), ("j", 0));
+    let row = q.job("j").await.expect("job").expect("row");
+    assert_eq!((row.state.as_str(), row.started_at), ("running", Some(7)));
+    // A later claim of the running job changes neither.
+    q.claim("w", 9, 60_000, 4)
+        .await
+        .expect("claim")
+        .expect("a tile");
+    let row = q.job("j").await.expect("job").expect("row");
+    assert_eq!((row.state.as_str(), row.started_at), ("running", Some(7)));
+}
