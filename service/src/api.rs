@@ -19,6 +19,7 @@ use tessera_tracer::{MemoryAssets, Sampler, Scene, SceneError, parse, tile_count
 use crate::config::auto_tile;
 use crate::error::{ApiError, ok_json};
 use crate::queue::{Cancel, JobRow, NewJob};
+use crate::receiving::{Full, Receiving, Reservation};
 use crate::{AppState, now_ms};
 
 /// Smallest and largest tile edge a job may ask for.
@@ -382,6 +383,8 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
             )));
         }
     };
+    // Room for the body before any of it is read (see `receiving`); held until answered.
+    let _room = reserve_room(&state, declared_length(req.headers())).await?;
     let is_multipart = req
         .headers()
         .get(header::CONTENT_TYPE)
@@ -393,7 +396,7 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
         let body = Bytes::from_request(req, &state)
             .await
             .map_err(|e| ApiError::new(e.status(), e.body_text()))?;
-        (body.to_vec(), None, Vec::new())
+        (Vec::from(body), None, Vec::new())
     };
     let source = tessera_tracer::scene_text(scene_bytes).map_err(|e| scene_error(&e))?;
     if source.trim().is_empty() {
@@ -462,6 +465,44 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     Ok(resp)
 }
 
+/// Reserves a submission's share of `--max-receiving-bytes`: its declared length, or the
+/// whole body limit when it declares none (none for one declared over the limit, which is
+/// refused with `413` before its body is read). A submission that finds no room within
+/// [`Receiving::wait_limit`], or while the service stops, is answered `503` with
+/// `Retry-After`.
+async fn reserve_room(
+    state: &AppState,
+    declared: Option<usize>,
+) -> Result<Option<Reservation>, ApiError> {
+    let bytes = match declared {
+        // Refused on its headers as its body is read: no room needed, no wait.
+        Some(n) if n > state.cfg.max_body_bytes => return Ok(None),
+        Some(n) => n,
+        None => state.cfg.max_body_bytes,
+    };
+    let within = Receiving::wait_limit(state.cfg.longest_silence());
+    let busy = |why: &str| {
+        ApiError::new(StatusCode::SERVICE_UNAVAILABLE, why.to_string())
+            .with("receiving_bytes", state.cfg.receiving_bytes())
+            .retry_after(5)
+    };
+    tokio::select! {
+        room = state.receiving.reserve(bytes, within) => room.map(Some).map_err(|Full| busy(
+            "the service is receiving as many scenes as it takes at once \
+             (--max-receiving-bytes); try again shortly",
+        )),
+        () = state.stopped() => Err(busy("the service is stopping; try again shortly")),
+    }
+}
+
+/// The request's `Content-Length`, when it has a readable one.
+fn declared_length(headers: &HeaderMap) -> Option<usize> {
+    headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse().ok())
+}
+
 type Uploads = Vec<(String, Vec<u8>)>;
 
 async fn read_multipart(
@@ -493,7 +534,7 @@ async fn read_multipart(
                     "the `scene` part was sent twice: send one scene per job",
                 ));
             }
-            scene = Some(bytes.to_vec());
+            scene = Some(Vec::from(bytes));
             file_name = fname;
             continue;
         }
@@ -521,7 +562,7 @@ async fn read_multipart(
                  (curl -F 'asset=@a/{name};filename=a/{name}' -F 'asset=@b/{name};filename=b/{name}')"
             )));
         }
-        uploads.push((name, bytes.to_vec()));
+        uploads.push((name, Vec::from(bytes)));
     }
     let scene = scene.ok_or_else(|| {
         ApiError::bad_request("multipart body has no `scene` part (curl -F scene=@file.ray)")

@@ -3,7 +3,7 @@
 
 use std::process::ExitCode;
 
-use clap::Parser;
+use clap::{CommandFactory, Parser};
 
 use crate::{Config, run, shutdown_signal};
 
@@ -19,6 +19,20 @@ where
     T: Into<std::ffi::OsString> + Clone,
 {
     let cfg = Config::parse_from(args);
+    if cfg.receiving_bytes() < cfg.max_body_bytes {
+        // Exits with clap's usage status (2), as a value out of its range does.
+        Config::command()
+            .error(
+                clap::error::ErrorKind::ValueValidation,
+                format!(
+                    "--max-receiving-bytes ({}) must be at least --max-body-bytes ({}): a \
+                     submission of the largest size could never be received",
+                    cfg.receiving_bytes(),
+                    cfg.max_body_bytes
+                ),
+            )
+            .exit();
+    }
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()

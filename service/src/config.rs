@@ -151,6 +151,11 @@ pub struct Config {
     /// Largest request body for POST /jobs (scene plus textures), in bytes.
     #[arg(long, env = "TESSERA_MAX_BODY_BYTES", default_value_t = 64 << 20)]
     pub max_body_bytes: usize,
+    /// Body bytes of all the submissions being received and checked at once (default twice
+    /// `--max-body-bytes`; at least `--max-body-bytes`). A submission that does not fit waits
+    /// its turn, up to 30 s, then is answered 503 with Retry-After.
+    #[arg(long, env = "TESSERA_MAX_RECEIVING_BYTES")]
+    pub max_receiving_bytes: Option<usize>,
     /// Largest image, width × height pixels. The limits below go up to the workers' own
     /// (the tracer's defaults, which `tessera-worker` applies), not past them: a job the
     /// service accepted and no worker would build failed a second later.
@@ -210,6 +215,12 @@ impl Config {
     /// silent connection with no answer at all.
     pub fn longest_silence(&self) -> std::time::Duration {
         std::time::Duration::from_secs(self.idle_timeout_secs.saturating_sub(1))
+    }
+
+    /// The submission budget in bytes (`--max-receiving-bytes`, or twice the body limit).
+    pub fn receiving_bytes(&self) -> usize {
+        self.max_receiving_bytes
+            .unwrap_or(self.max_body_bytes.saturating_mul(2))
     }
 
     pub fn scene_limits(&self) -> Limits {

@@ -17,13 +17,25 @@ use crate::queue::QueueError;
 pub struct ApiError {
     pub status: StatusCode,
     pub body: Map<String, Value>,
+    /// Seconds for a `Retry-After` header (a `503` the client may simply repeat).
+    pub retry_after: Option<u32>,
 }
 
 impl ApiError {
     pub fn new(status: StatusCode, message: impl Into<String>) -> ApiError {
         let mut body = Map::new();
         body.insert("error".into(), Value::String(message.into()));
-        ApiError { status, body }
+        ApiError {
+            status,
+            body,
+            retry_after: None,
+        }
+    }
+
+    /// Says when to try again (`Retry-After`, in seconds).
+    pub fn retry_after(mut self, secs: u32) -> ApiError {
+        self.retry_after = Some(secs);
+        self
     }
 
     pub fn bad_request(message: impl Into<String>) -> ApiError {
@@ -55,6 +67,7 @@ impl From<QueueError> for ApiError {
                 StatusCode::SERVICE_UNAVAILABLE,
                 "the database is busy; try again",
             )
+            .retry_after(1)
         } else {
             ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal storage error")
         }
@@ -63,7 +76,12 @@ impl From<QueueError> for ApiError {
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        (self.status, Json(Value::Object(self.body))).into_response()
+        let mut resp = (self.status, Json(Value::Object(self.body))).into_response();
+        if let Some(secs) = self.retry_after {
+            resp.headers_mut()
+                .insert(axum::http::header::RETRY_AFTER, secs.into());
+        }
+        resp
     }
 }
 

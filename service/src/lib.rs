@@ -14,6 +14,7 @@ pub mod config;
 pub mod error;
 pub mod idle;
 pub mod queue;
+pub mod receiving;
 pub mod rlimit;
 pub mod worker_api;
 
@@ -66,6 +67,8 @@ pub struct AppState {
     pub ended: Arc<tokio::sync::Notify>,
     /// The PNGs being encoded while their jobs render.
     pub progress: Arc<assemble::Progress>,
+    /// The body bytes of submissions being received at once (`--max-receiving-bytes`).
+    pub receiving: receiving::Receiving,
     /// Turns `true` when the service begins to stop: requests that wait (a claim waiting
     /// for work, `GET /jobs/{id}?wait=`) answer at once, since a graceful stop waits for
     /// every open request.
@@ -265,6 +268,14 @@ pub async fn serve(
             config::MIN_LEASE_MS
         )));
     }
+    if cfg.receiving_bytes() < cfg.max_body_bytes {
+        return Err(ServiceError::Config(format!(
+            "--max-receiving-bytes ({}) must be at least --max-body-bytes ({}): a submission \
+             of the largest size could never be received",
+            cfg.receiving_bytes(),
+            cfg.max_body_bytes
+        )));
+    }
     if cfg.max_attempts == 0 {
         return Err(ServiceError::Config(
             "--max-attempts must be at least 1".into(),
@@ -292,6 +303,7 @@ pub async fn serve(
         );
     }
     let (stop_tx, stop_rx) = watch::channel(false);
+    let receiving = receiving::Receiving::new(cfg.receiving_bytes());
     let state = AppState {
         cfg: Arc::new(cfg),
         queue: queue.clone(),
@@ -299,6 +311,7 @@ pub async fn serve(
         work: Arc::default(),
         ended: Arc::default(),
         progress: Arc::default(),
+        receiving,
         stopping: stop_rx.clone(),
     };
     for job in queue.unassembled().await? {

@@ -8,8 +8,9 @@ use std::time::Duration;
 use axum::extract::{Json, Path, Query, State};
 use axum::http::StatusCode;
 use axum::response::IntoResponse;
-use tessera_service::api::{JobParams, get_job};
+use tessera_service::api::{JobParams, get_job, submit};
 use tessera_service::queue::{NewJob, Queue};
+use tessera_service::receiving::Receiving;
 use tessera_service::worker_api::{ClaimParams, claim};
 use tessera_service::{AppState, Config};
 use tessera_tracer::tiles;
@@ -26,6 +27,7 @@ async fn state(stopping: watch::Receiver<bool>) -> AppState {
         work: Arc::default(),
         ended: Arc::default(),
         progress: Arc::default(),
+        receiving: Receiving::new(Config::defaults().receiving_bytes()),
         stopping,
     }
 }
@@ -97,4 +99,28 @@ async fn a_waiting_claim_answers_no_work_when_the_service_stops() {
     ));
     let answer = answer_on_stop(stop, waiting).await.expect("an answer");
     assert_eq!(answer.into_response().status(), StatusCode::NO_CONTENT);
+}
+
+/// A submission waiting for room to be received (`--max-receiving-bytes`) is answered `503`
+/// when the service stops, instead of holding the stop up for the rest of its wait.
+#[tokio::test]
+async fn a_submission_waiting_for_room_answers_when_the_service_stops() {
+    let (stop, stopping) = watch::channel(false);
+    let state = state(stopping).await;
+    let held = state
+        .receiving
+        .reserve(usize::MAX, Duration::from_secs(1))
+        .await
+        .expect("the whole budget");
+    let scene = "[GLOBALS]\n[/GLOBALS]\n";
+    let req = axum::http::Request::post("/jobs")
+        .header("content-length", scene.len())
+        .body(axum::body::Body::from(scene))
+        .expect("a request");
+    let waiting = tokio::spawn(submit(State(state.clone()), req));
+    let answer = answer_on_stop(stop, waiting).await;
+    let resp = answer.into_response();
+    assert_eq!(resp.status(), StatusCode::SERVICE_UNAVAILABLE);
+    assert_eq!(resp.headers()["retry-after"], "5");
+    drop(held);
 }

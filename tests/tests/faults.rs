@@ -578,6 +578,8 @@ fn service_flags_out_of_range_are_usage_errors() {
         ("--idle-timeout-secs", "86401", "1..=86400"),
         ("--grace-secs", "86401", "0..=86400"),
         ("--keep-away-secs", "604801", "0..=604800"),
+        // The largest submission could never be received.
+        ("--max-receiving-bytes", "1000", "at least --max-body-bytes"),
         // Found only when the service tried to listen (exit 1).
         ("--listen", "foo", "HOST:PORT"),
         ("--listen", "http://127.0.0.1:8080", "HOST:PORT"),
@@ -1313,4 +1315,121 @@ fn the_service_raises_its_open_file_limit() {
         Some(expected),
         "raised from 64 (hard: {hard})"
     );
+}
+
+/// Submissions share one budget of body bytes (`--max-receiving-bytes`): one that does not
+/// fit beside those being received waits its turn, gets it when another ends, and is
+/// answered `503` with `Retry-After` if none ends in time. (Nothing bounded how many were
+/// received at once: sixteen 64 MiB uploads held 1.6 GB.)
+#[test]
+fn submissions_past_the_receiving_budget_wait_their_turn() {
+    use std::io::{Read, Write};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let dir = TempDir::new("receiving");
+    let svc = Service::start(
+        &dir,
+        &[
+            "--local-workers",
+            "0",
+            "--max-body-bytes",
+            "4096",
+            "--max-receiving-bytes",
+            "6000",
+            "--idle-timeout-secs",
+            "5",
+        ],
+    );
+    // A scene padded with a comment to `len` bytes.
+    let padded = |len: usize| {
+        let mut s = read("thesis.ray");
+        s.push('#');
+        s.push_str(&"-".repeat(len - s.len() - 1));
+        s.push('\n');
+        s.into_bytes()
+    };
+    let big = padded(4000);
+    // The first submission declares 4,000 bytes and sends them slowly: while it is being
+    // received, 2,000 of the 6,000 are left.
+    let mut first =
+        std::net::TcpStream::connect(svc.url.trim_start_matches("http://")).expect("connect");
+    write!(
+        first,
+        "POST /jobs HTTP/1.1\r\nHost: x\r\nContent-Length: {}\r\n\r\n",
+        big.len()
+    )
+    .expect("write");
+    first.write_all(&big[..1000]).expect("write");
+    // A byte every 200 ms keeps it from falling silent (the idle timeout is 5 s) while the
+    // test waits on the others; the rest goes at once when the test says.
+    let done = std::sync::Arc::new(AtomicBool::new(false));
+    let trickle = std::thread::spawn({
+        let done = done.clone();
+        let mut first = first.try_clone().expect("clone");
+        move || {
+            let mut sent = 1000;
+            while !done.load(Ordering::Acquire) && sent < 1500 {
+                first.write_all(&big[sent..sent + 1]).expect("write");
+                sent += 1;
+                std::thread::sleep(Duration::from_millis(200));
+            }
+            first.write_all(&big[sent..]).expect("write");
+            first
+        }
+    });
+    let post = |body: Vec<u8>| {
+        client()
+            .post(format!("{}/jobs", svc.url))
+            .body(body)
+            .send()
+            .expect("answer")
+    };
+    // 3,000 more do not fit: refused after waiting (4 s, a second under the idle timeout).
+    // A submission that got in before the first one's headers were read is served; the
+    // next finds the first one in.
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let refused = loop {
+        let r = post(padded(3000));
+        if r.status() != 201 {
+            break r;
+        }
+        assert!(Instant::now() < deadline, "never refused");
+    };
+    assert_eq!(refused.status(), 503);
+    assert_eq!(refused.headers()["retry-after"], "5");
+    let body: Value = refused.json().expect("JSON");
+    assert!(
+        body["error"]
+            .as_str()
+            .is_some_and(|e| e.contains("--max-receiving-bytes")),
+        "{body}"
+    );
+    assert_eq!(body["receiving_bytes"], 6000);
+    // A small one still fits beside the first.
+    assert_eq!(post(padded(1500)).status(), 201);
+    // One that waits is served once the first one is in (sent before the first one's rest,
+    // it is most likely waiting by then; served either way).
+    let waiting = std::thread::spawn({
+        let url = svc.url.clone();
+        move || {
+            client()
+                .post(format!("{url}/jobs"))
+                .body(padded(3000))
+                .send()
+                .expect("answer")
+                .status()
+        }
+    });
+    done.store(true, Ordering::Release);
+    let mut first = trickle.join().expect("trickle");
+    first
+        .set_read_timeout(Some(Duration::from_secs(20)))
+        .expect("timeout");
+    let mut answer = [0u8; 64];
+    let n = first.read(&mut answer).expect("an answer");
+    assert!(
+        answer[..n].starts_with(b"HTTP/1.1 201"),
+        "{}",
+        String::from_utf8_lossy(&answer[..n])
+    );
+    assert_eq!(waiting.join().expect("waiting"), 201);
 }
