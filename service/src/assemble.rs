@@ -9,9 +9,9 @@
 //!
 //! Memory stays bounded whatever the image size: per job being encoded, one band of RGB rows
 //! (image width × tile height × 3 bytes, kept from one band to the next), the encoder's
-//! state, and at most one pending chunk of compressed output ([`CHUNK`]). The PNG goes into
-//! the database in chunks as it is encoded, so a finished image survives a restart and a
-//! download streams it back chunk by chunk. The encoder is the tracer's, fed the same rows in
+//! state, and one band's compressed output. The PNG goes into the database in chunks of
+//! [`CHUNK`] bytes as it is encoded, so a finished image survives a restart and a download
+//! streams it back chunk by chunk, holding one small chunk at a time per client. The encoder is the tracer's, fed the same rows in
 //! the same order, so the PNG is byte-identical to `tessera-render`'s however the rows were
 //! grouped.
 //!
@@ -27,8 +27,11 @@ use tessera_tracer::{PngWriter, Rect, SharedBuffer};
 use crate::now_ms;
 use crate::queue::{Queue, QueueError};
 
-/// Size at which encoded output is flushed to the database.
-pub const CHUNK: usize = 1 << 20;
+/// The size of the PNG's chunks in the database (all but the last): what a download holds
+/// per client while the client reads. At 1 MiB (and up to a band's output past it) a client
+/// that stopped reading held the service to about 1.5 chunks of memory, 4 MB with the
+/// allocator's share: twenty stalled downloads of a 25 MB PNG held 92 MB.
+pub const CHUNK: usize = 64 << 10;
 
 #[derive(Debug, thiserror::Error)]
 pub enum AssembleError {
@@ -72,7 +75,7 @@ impl Encoder {
         Ok(Encoder {
             png,
             sink,
-            pending: Vec::with_capacity(CHUNK + CHUNK / 4),
+            pending: Vec::new(),
             rows: Vec::new(),
             seq: 0,
             total: 0,
@@ -122,9 +125,7 @@ impl Encoder {
         let started = std::time::Instant::now();
         self.png.write_rows(&self.rows)?;
         self.pending.extend_from_slice(&self.sink.take());
-        if self.pending.len() >= CHUNK {
-            self.flush(queue, id).await?;
-        }
+        self.flush(queue, id, false).await?;
         self.y += bh;
         tracing::debug!(
             job = %id, rows = bh, y, us = started.elapsed().as_micros() as u64,
@@ -133,13 +134,9 @@ impl Encoder {
         Ok(())
     }
 
-    async fn flush(&mut self, queue: &Queue, id: &str) -> Result<(), AssembleError> {
-        if !self.pending.is_empty() {
-            queue.put_image_chunk(id, self.seq, &self.pending).await?;
-            self.total += self.pending.len() as u64;
-            self.seq += 1;
-            self.pending.clear();
-        }
+    /// Stores the pending output's whole chunks (with `all`, the rest too).
+    async fn flush(&mut self, queue: &Queue, id: &str, all: bool) -> Result<(), AssembleError> {
+        self.total += store_chunks(queue, id, &mut self.pending, &mut self.seq, all).await?;
         Ok(())
     }
 
@@ -152,21 +149,42 @@ impl Encoder {
             png,
             sink,
             mut pending,
-            seq,
+            mut seq,
             mut total,
             ..
         } = self;
         png.finish()?;
         pending.extend_from_slice(&sink.take());
-        if !pending.is_empty() {
-            queue.put_image_chunk(id, seq, &pending).await?;
-            total += pending.len() as u64;
-        }
+        total += store_chunks(queue, id, &mut pending, &mut seq, true).await?;
         if queue.finish_image(id, total, now_ms()).await? {
             tracing::info!(job = %id, bytes = total, "image assembled");
         }
         Ok(())
     }
+}
+
+/// Stores the whole [`CHUNK`]s at the front of `pending` (with `all`, the rest too) as the
+/// job's chunks from `*seq` on, in one statement, and returns how many bytes it stored.
+async fn store_chunks(
+    queue: &Queue,
+    id: &str,
+    pending: &mut Vec<u8>,
+    seq: &mut u32,
+    all: bool,
+) -> Result<u64, AssembleError> {
+    let whole = if all {
+        pending.len()
+    } else {
+        pending.len() - pending.len() % CHUNK
+    };
+    if whole == 0 {
+        return Ok(0);
+    }
+    let pieces: Vec<&[u8]> = pending[..whole].chunks(CHUNK).collect();
+    queue.put_image_chunks(id, *seq, &pieces).await?;
+    *seq += pieces.len() as u32;
+    pending.drain(..whole);
+    Ok(whole as u64)
 }
 
 /// Encodes the job's whole PNG from its stored tiles, stores it, and marks the job done.

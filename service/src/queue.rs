@@ -1126,16 +1126,32 @@ impl Queue {
     /// Stores a chunk of a job's PNG, unless the job has ended meanwhile (a cancelled job's
     /// chunks are dropped with it and must not come back).
     pub async fn put_image_chunk(&self, id: &str, seq: u32, bytes: &[u8]) -> Result<()> {
-        sqlx::query(
-            "INSERT INTO image_chunks (job_id, seq, bytes) SELECT ?1, ?2, ?3
-             WHERE EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
-        )
-        .bind(id)
-        .bind(i64::from(seq))
-        .bind(bytes)
-        .execute(&self.writer)
-        .await?;
-        self.wrote(bytes.len());
+        self.put_image_chunks(id, seq, &[bytes]).await
+    }
+
+    /// Stores `pieces` as the job's PNG chunks `first_seq`, `first_seq + 1`, …, a hundred to
+    /// a statement, unless the job has ended meanwhile (as [`Queue::put_image_chunk`]).
+    pub async fn put_image_chunks(&self, id: &str, first_seq: u32, pieces: &[&[u8]]) -> Result<()> {
+        const PER_STATEMENT: usize = 100;
+        for (n, group) in pieces.chunks(PER_STATEMENT).enumerate() {
+            let values = (0..group.len())
+                .map(|i| format!("(?{}, ?{})", 2 + 2 * i, 3 + 2 * i))
+                .collect::<Vec<_>>()
+                .join(", ");
+            let sql = format!(
+                "INSERT INTO image_chunks (job_id, seq, bytes)
+                 SELECT ?1, column1, column2 FROM (VALUES {values})
+                 WHERE EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))"
+            );
+            // Only placeholders are formatted in: the values are bound.
+            let mut q = sqlx::query(sqlx::AssertSqlSafe(sql)).bind(id);
+            let first = i64::from(first_seq) + (n * PER_STATEMENT) as i64;
+            for (i, piece) in group.iter().enumerate() {
+                q = q.bind(first + i as i64).bind(*piece);
+            }
+            q.execute(&self.writer).await?;
+            self.wrote(group.iter().map(|p| p.len()).sum());
+        }
         Ok(())
     }
 

@@ -1027,3 +1027,73 @@ async fn a_claim_and_its_jobs_start_are_one_write() {
     let row = q.job("j").await.expect("job").expect("row");
     assert_eq!((row.state.as_str(), row.started_at), ("running", Some(7)));
 }
+
+/// The PNG is stored in chunks of exactly `CHUNK` bytes but the last (what a download holds
+/// per client while the client reads), whatever the size of each band's output, and the
+/// chunks still make the whole image's PNG. Noise, so that the PNG is about as large as
+/// its pixels and its bands' outputs straddle chunk boundaries.
+#[tokio::test]
+async fn the_png_is_stored_in_chunks_of_one_size() {
+    use tessera_service::assemble::{CHUNK, Progress};
+    let (w, h) = (256, 200);
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let noise: Vec<u8> = (0..w * h * 3)
+        .map(|_| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 24) as u8
+        })
+        .collect();
+    let whole = tessera_tracer::encode_png(w, h, &noise).expect("png");
+    assert!(whole.len() > 2 * CHUNK, "a test of several chunks");
+    let tile_of = |r: Rect| {
+        let mut v = Vec::new();
+        for y in r.y..r.y + r.height {
+            let start = ((y * w + r.x) * 3) as usize;
+            v.extend_from_slice(&noise[start..start + r.width as usize * 3]);
+        }
+        v
+    };
+
+    let db = Db::new("chunks");
+    let q = Queue::open(&db.url()).await.expect("open");
+    let progress = Progress::default();
+    let rects = tiles(w, h, 32);
+    progress.follow("j", w, h, &rects);
+    job(&q, "j", w, h, 32).await;
+    while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
+        let stored = q
+            .complete("j", c.idx, &c.lease, c.rect(), &tile_of(c.rect()))
+            .await
+            .expect("complete");
+        let Completion::Stored { last, .. } = stored else {
+            panic!("{stored:?}")
+        };
+        if last {
+            progress.complete(&q, "j").await.expect("assembled");
+        } else if progress.stored("j", c.rect()) {
+            progress.advance(&q, "j").await;
+        }
+    }
+    let n = q.image_chunks("j").await.expect("count");
+    let mut png = Vec::new();
+    for seq in 0..n {
+        let chunk = q.image_chunk("j", seq).await.expect("read").expect("chunk");
+        if seq + 1 < n {
+            assert_eq!(chunk.len(), CHUNK, "chunk {seq} of {n}");
+        } else {
+            assert!(
+                (1..=CHUNK).contains(&chunk.len()),
+                "last chunk {}",
+                chunk.len()
+            );
+        }
+        png.extend(chunk);
+    }
+    assert_eq!(png, whole, "the same bytes as one whole encode");
+    assert_eq!(
+        q.job("j").await.expect("read").expect("job").png_bytes,
+        Some(whole.len() as i64)
+    );
+}
