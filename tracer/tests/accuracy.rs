@@ -355,3 +355,36 @@ fn adaptive_misses_thin_features_no_more_than_its_bound() {
         }
     }
 }
+
+/// More rays never make the adaptive sampler worse at a checker edge. On the analytic
+/// checker seen straight down, with cells about ten pixels wide (edges a pixel can hold a
+/// sliver of), adaptive at caps of 8, 16 and 32 with a strict threshold errs less than
+/// `jitter` 4×4 in every pixel's worst case and in RMS, and less again at each higher cap.
+/// (Stopping at eight agreeing rays beside a neighbour that differed left slivers of a
+/// sixth of a pixel unseen at every cap: here a worst error of 0.155 at a cap of 8 against
+/// jitter 4×4's 0.107.)
+#[test]
+fn adaptive_at_higher_caps_does_better_than_jitter_at_checker_edges() {
+    let size = 48;
+    let (src, exact) = checker_scene(size, 0.093);
+    let exact = as_grey(&exact);
+    let s = scene(&src);
+    let rect = Rect::full(size, size);
+    let (v, _) = s.render_rect_linear_with(rect, &Sampler::Jitter { n: 4 });
+    let (jitter_rms, jitter_worst) = error(&v, &exact);
+    let (mut last_rms, mut last_worst) = (jitter_rms, jitter_worst);
+    for max in [8, 16, 32] {
+        let sampler = Sampler::Adaptive {
+            max,
+            threshold: 0.001,
+        };
+        let (v, _) = s.render_rect_linear_with(rect, &sampler);
+        let (rms, worst) = error(&v, &exact);
+        assert!(
+            rms < last_rms && worst <= last_worst,
+            "cap {max}: RMS {rms:.2e}, worst {worst:.3} after RMS {last_rms:.2e}, worst \
+             {last_worst:.3} (jitter 4×4: {jitter_rms:.2e}, {jitter_worst:.3})"
+        );
+        (last_rms, last_worst) = (rms, worst);
+    }
+}

@@ -299,9 +299,16 @@ fn surfaces_that_may_be_shadowed_are_never_smooth() {
 }
 
 /// In a scene of plain spheres on the background, the adaptive sampler ends most pixels
-/// after one ray, and its image assembles from tiles byte for byte.
+/// after one ray, and its image assembles from tiles byte for byte, at caps of 4 (refined
+/// in one step) and 8 (in stages).
 #[test]
 fn plain_scenes_take_one_ray_in_flat_pixels_and_stay_tile_independent() {
+    for cap in [4, 8] {
+        plain_scene_at(cap);
+    }
+}
+
+fn plain_scene_at(cap: u32) {
     let mut rng = Rng(7);
     let mut spheres = String::new();
     for _ in 0..12 {
@@ -312,7 +319,7 @@ fn plain_scenes_take_one_ray_in_flat_pixels_and_stay_tile_independent() {
         );
     }
     let src = format!(
-        "[GLOBALS]\nwidth = 50\nheight = 40\nshadow = 0\nsampler = adaptive\nsamples = 8\nthreshold = 0.05\n[/GLOBALS]\n\
+        "[GLOBALS]\nwidth = 50\nheight = 40\nshadow = 0\nsampler = adaptive\nsamples = {cap}\nthreshold = 0.05\n[/GLOBALS]\n\
          [CAMERA]\neye = <0, 0, 20>\n[/CAMERA]\n[LIGHT]\nposition = <5, 10, 20>\n[/LIGHT]\n{spheres}"
     );
     let s = common::scene(&src);
@@ -320,11 +327,16 @@ fn plain_scenes_take_one_ray_in_flat_pixels_and_stay_tile_independent() {
     let (whole, stats) = s.render_rect_stats(Rect::full(w, h));
     let pixels = u64::from(w * h);
     // Without the smoothness test every pixel would take at least its four-ray first pass.
-    assert!(
-        stats.primary < 4 * pixels,
-        "{} primary rays for {pixels} pixels",
-        stats.primary
-    );
+    // At a cap of 4 an edge pixel takes at most 16 rays, so fewer than four a pixel means
+    // most pixels ended after one. (At 8, a pixel beside a colour step that neither it nor
+    // its neighbour saw takes all 64, which no bound on the mean would separate from this.)
+    if cap == 4 {
+        assert!(
+            stats.primary < 4 * pixels,
+            "{} primary rays for {pixels} pixels",
+            stats.primary
+        );
+    }
     for tile in [3u32, 8, 19] {
         let mut assembled = vec![0u8; whole.len()];
         for r in tessera_tracer::tile::tiles(w, h, tile) {
@@ -335,7 +347,10 @@ fn plain_scenes_take_one_ray_in_flat_pixels_and_stay_tile_independent() {
                 assembled[start..start + src.len()].copy_from_slice(src);
             }
         }
-        assert!(assembled == whole, "tiles of {tile} differ from the whole");
+        assert!(
+            assembled == whole,
+            "cap {cap}: tiles of {tile} differ from the whole"
+        );
     }
 }
 
