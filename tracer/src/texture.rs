@@ -156,6 +156,14 @@ pub fn lexical(name: &str) -> PathBuf {
 
 impl AssetSource for DirAssets {
     fn load(&self, name: &str) -> Result<Vec<u8>, TextureError> {
+        // `.`, `a/..`: the scene's own folder, which the file system would be asked for as
+        // an empty path ("cannot read texture file `.`: : No such file or directory").
+        if lexical(name).as_os_str().is_empty() {
+            return Err(TextureError::Missing {
+                name: name.to_string(),
+                reason: "it names the scene's own folder, not a file".to_string(),
+            });
+        }
         let path = self.path_of(name);
         let missing = |reason: String| TextureError::Missing {
             name: name.to_string(),

@@ -263,6 +263,29 @@ fn a_texture_that_is_not_a_file_is_refused() {
     );
 }
 
+/// A texture name that resolves to the scene's own folder (`.`, `maps/..`) says so: the
+/// file system was asked for an empty path ("cannot read texture file `.`: : No such file
+/// or directory").
+#[test]
+fn a_texture_naming_the_scenes_folder_says_so() {
+    let dir = temp_dir("folder-texture");
+    std::fs::create_dir_all(dir.join("maps")).expect("maps");
+    for name in [".", "maps/.."] {
+        let scene = dir.join("s.ray");
+        std::fs::write(
+            &scene,
+            format!("[OBJECT]\ntype = sphere\ntexture = {name}\n[/OBJECT]\n"),
+        )
+        .expect("write");
+        let stderr = refused(&scene, &dir);
+        assert!(
+            stderr.contains(&format!("{}:3:11: ", scene.display()))
+                && stderr.contains("names the scene's own folder, not a file"),
+            "{name}: {stderr}"
+        );
+    }
+}
+
 /// Runs `cmd` to its end, or fails the test if it has not ended within `limit`: for the
 /// cases below, which used to run for ever (a render of hours, a read of `/dev/zero`, an
 /// open of a pipe). A guard against a hang, not a measure of speed: the cases take well
@@ -429,6 +452,53 @@ fn a_texture_that_is_a_pipe_is_refused() {
     assert!(
         stderr.contains(&format!("{}:3:11: ", scene.display()))
             && stderr.contains("pipe.png: not a regular file"),
+        "{stderr}"
+    );
+}
+
+/// `-` reads the scene from standard input, as Unix tools do: the same image as from the
+/// file (textures from the current folder), and errors named `<stdin>:line:col`.
+#[test]
+fn a_scene_from_standard_input() {
+    use std::io::Write;
+    use std::process::Stdio;
+    let dir = temp_dir("stdin");
+    let render = |stdin: &[u8], out: &Path| {
+        let mut child = bin()
+            .current_dir(examples())
+            .args(["-", "-q", "-o"])
+            .arg(out)
+            .stdin(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("runs");
+        child
+            .stdin
+            .take()
+            .expect("piped")
+            .write_all(stdin)
+            .expect("write");
+        child.wait_with_output().expect("ends")
+    };
+    let scene = std::fs::read(examples().join("textures.ray")).expect("scene");
+    let piped = render(&scene, &dir.join("piped.png"));
+    assert!(piped.status.success(), "{piped:?}");
+    let file = bin()
+        .arg(examples().join("textures.ray"))
+        .args(["-q", "-o"])
+        .arg(dir.join("file.png"))
+        .output()
+        .expect("runs");
+    assert!(file.status.success(), "{file:?}");
+    assert!(
+        std::fs::read(dir.join("piped.png")).expect("png")
+            == std::fs::read(dir.join("file.png")).expect("png")
+    );
+    let bad = render(b"[GLOBALS]\nwidht = 3\n[/GLOBALS]\n", &dir.join("bad.png"));
+    let stderr = String::from_utf8_lossy(&bad.stderr);
+    assert_eq!(bad.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("<stdin>:2:1: unknown key `widht`"),
         "{stderr}"
     );
 }

@@ -517,6 +517,12 @@ fn tag_structure_errors() {
         1,
         &["cannot appear inside [LIGHT]"],
     );
+    // `[GLOBAL]` and `[GLOBALS]` are one block, whichever spelling closes it (a mismatch
+    // was "[/GLOBAL] closes nothing" while the block it would close was open).
+    for (open, close) in [("GLOBALS", "GLOBAL"), ("GLOBAL", "GLOBALS")] {
+        let d = ok(&format!("[{open}]\nwidth = 8\nheight = 6\n[/{close}]\n"));
+        assert_eq!((d.width, d.height), (8, 6));
+    }
     let errs = errors("[GLOBALS]\n[/GLOBALS]\n[GLOBAL]\n[/GLOBAL]\n");
     assert_eq!(errs.len(), 1);
     assert!(errs[0].2.contains("second globals"), "{errs:?}");

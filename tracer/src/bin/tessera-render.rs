@@ -45,7 +45,8 @@ impl Write for OutFile {
 #[derive(Debug, Parser)]
 #[command(name = "tessera-render", version, about)]
 struct Args {
-    /// The scene file. Texture names in it are resolved relative to its directory.
+    /// The scene file (`-`: standard input). Texture names in it are resolved relative to
+    /// its directory (the current one for `-`).
     scene: PathBuf,
 
     /// Where to write the PNG.
@@ -81,7 +82,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             if let Some(scene_err) = e.downcast_ref::<SceneError>() {
-                eprintln!("{}", scene_err.with_file(&args.scene.display().to_string()));
+                eprintln!("{}", scene_err.with_file(&scene_name(&args.scene)));
             } else {
                 eprintln!("tessera-render: {e:#}");
             }
@@ -93,20 +94,43 @@ fn main() -> ExitCode {
 /// The scene file's bytes, at most [`MAX_SCENE_FILE_BYTES`] of them. Any readable file is
 /// taken, a pipe included (`<(generate-scene)`), but not read past the cap.
 fn read_scene(path: &Path) -> Result<Vec<u8>> {
-    let what = || format!("cannot read {}", path.display());
-    let file = File::open(path).with_context(what)?;
+    let what = || format!("cannot read {}", scene_name(path));
     let mut bytes = Vec::new();
-    file.take(MAX_SCENE_FILE_BYTES + 1)
-        .read_to_end(&mut bytes)
-        .with_context(what)?;
+    if is_stdin(path) {
+        std::io::stdin()
+            .lock()
+            .take(MAX_SCENE_FILE_BYTES + 1)
+            .read_to_end(&mut bytes)
+            .with_context(what)?;
+    } else {
+        File::open(path)
+            .with_context(what)?
+            .take(MAX_SCENE_FILE_BYTES + 1)
+            .read_to_end(&mut bytes)
+            .with_context(what)?;
+    }
     if bytes.len() as u64 > MAX_SCENE_FILE_BYTES {
         anyhow::bail!(
             "{} is larger than {} MiB, the most a scene file may have: is it a scene?",
-            path.display(),
+            scene_name(path),
             MAX_SCENE_FILE_BYTES >> 20
         );
     }
     Ok(bytes)
+}
+
+/// Whether the scene is read from standard input (`-`, as Unix tools take it).
+fn is_stdin(path: &Path) -> bool {
+    path == Path::new("-")
+}
+
+/// The scene as messages name it: its path, or `<stdin>`.
+fn scene_name(path: &Path) -> String {
+    if is_stdin(path) {
+        "<stdin>".to_string()
+    } else {
+        path.display().to_string()
+    }
 }
 
 /// Fails now if the PNG could not be written at the end, so that a mistyped `-o` does not
@@ -138,7 +162,7 @@ fn same_file(a: &Path, b: &Path) -> bool {
 fn check_output(path: &Path, scene: &Path) -> Result<()> {
     let what = || format!("cannot create {}", path.display());
     // `-o` naming the scene itself replaced the scene with its picture.
-    if same_file(path, scene) {
+    if !is_stdin(scene) && same_file(path, scene) {
         anyhow::bail!(
             "cannot create {}: it is the scene file being rendered",
             path.display()

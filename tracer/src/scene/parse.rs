@@ -334,7 +334,10 @@ fn build_tree(mut items: Lexer<'_>, errors: &mut Found, caps: Caps) -> Block {
                 close: true,
                 pos,
             } => {
-                let open_at = stack.iter().skip(1).rposition(|b| b.name == name);
+                let open_at = stack
+                    .iter()
+                    .skip(1)
+                    .rposition(|b| same_block(&b.name, &name));
                 let Some(depth) = open_at else {
                     let top = stack.len() - 1;
                     let hint = closest(&name, TAGS.iter().copied());
@@ -462,6 +465,13 @@ fn end_unknown(stack: &mut Vec<Block>) -> Option<Option<&'static str>> {
         parent.broken = true;
     }
     Some(hint)
+}
+
+/// Whether a closing tag named `close` ends the block opened as `open`: by name, with
+/// `[GLOBAL]` and `[GLOBALS]` one block (SCENE.md accepts either), so that `[GLOBALS]` …
+/// `[/GLOBAL]` is a block and not "closes nothing".
+fn same_block(open: &str, close: &str) -> bool {
+    open == close || (matches!(open, "global" | "globals") && matches!(close, "global" | "globals"))
 }
 
 /// Takes one pending closer of `hint` off the count; whether there was one.
