@@ -305,6 +305,19 @@ fn a_bad_vector_component_is_pointed_at() {
         12,
         &["three components", "found 0"],
     );
+    // Why the count is off, where it does not show: spaces for commas, a comma at the end.
+    one_error(
+        "[LIGHT]\nposition = <1 2 3>\n[/LIGHT]\n",
+        2,
+        12,
+        &["found 1 (components are separated by commas)"],
+    );
+    one_error(
+        "[LIGHT]\nposition = <1, 2, 3,>\n[/LIGHT]\n",
+        2,
+        12,
+        &["found 4 (the last is empty: a comma at the end?)"],
+    );
 }
 
 #[test]

@@ -1331,10 +1331,19 @@ impl<'a> Value<'a> {
             inner.split(',').collect()
         };
         if parts.len() != 3 {
+            // Say why the count is off where a reader would not see it: components written
+            // with spaces and no commas, or a comma at the end.
+            let why = if parts.len() < 3 && parts.iter().any(|p| p.split_whitespace().count() > 1) {
+                " (components are separated by commas)"
+            } else if parts.len() > 3 && parts.last().is_some_and(|p| p.trim().is_empty()) {
+                " (the last is empty: a comma at the end?)"
+            } else {
+                ""
+            };
             return Err(Diagnostic::new(
                 self.pos,
                 format!(
-                    "`{}`: expected {EXPECTED} with three components, found {}",
+                    "`{}`: expected {EXPECTED} with three components, found {}{why}",
                     self.key,
                     parts.len()
                 ),
