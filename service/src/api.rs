@@ -5,6 +5,7 @@
 //! bad scene is a `400` naming line and column and leaves no trace.
 
 use std::collections::HashMap;
+use std::sync::Arc;
 use std::time::Duration;
 
 use axum::Json;
@@ -14,12 +15,12 @@ use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{Html, IntoResponse, Response};
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
-use tessera_tracer::{MemoryAssets, Sampler, Scene, SceneError, parse, tile_count, tiles};
+use tessera_tracer::{MemoryAssets, Sampler, Scene, SceneError, Texture, parse, tile_count, tiles};
 
 use crate::config::auto_tile;
 use crate::error::{ApiError, ok_json};
 use crate::queue::{Cancel, JobRow, NewJob};
-use crate::receiving::{Full, Receiving, Reservation};
+use crate::receiving::{Full, Held, RELEASE_AFTER_SILENCE, Receiving};
 use crate::{AppState, now_ms};
 
 /// Smallest and largest tile edge a job may ask for.
@@ -383,20 +384,32 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
             )));
         }
     };
-    // Room for the body before any of it is read (see `receiving`); held until answered.
-    let _room = reserve_room(&state, declared_length(req.headers())).await?;
+    // The submission's share of `--max-receiving-bytes`: it grows as the body arrives and
+    // before its textures are decoded, and is given back once it is answered.
+    let held = Arc::new(tokio::sync::Mutex::new(state.receiving.hold()));
+    let req = metered(req, &state, held.clone());
+    // Media types are case-insensitive (RFC 9110): `Multipart/Form-Data` was read as a
+    // raw scene.
     let is_multipart = req
         .headers()
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| v.starts_with("multipart/form-data"));
-    let (scene_bytes, file_name, uploads) = if is_multipart {
-        read_multipart(req, &state).await?
+        .is_some_and(|v| {
+            v.get(..19)
+                .is_some_and(|m| m.eq_ignore_ascii_case("multipart/form-data"))
+        });
+    let read = if is_multipart {
+        read_multipart(req, &state).await
     } else {
-        let body = Bytes::from_request(req, &state)
+        Bytes::from_request(req, &state)
             .await
-            .map_err(|e| ApiError::new(e.status(), e.body_text()))?;
-        (Vec::from(body), None, Vec::new())
+            .map(|body| (Vec::from(body), None, Vec::new()))
+            .map_err(|e| ApiError::new(e.status(), e.body_text()))
+    };
+    let (scene_bytes, file_name, uploads) = match read {
+        Ok(read) => read,
+        Err(_) if held.lock().await.refused() => return Err(busy(&state)),
+        Err(e) => return Err(e),
     };
     let source = tessera_tracer::scene_text(scene_bytes).map_err(|e| scene_error(&e))?;
     if source.trim().is_empty() {
@@ -443,7 +456,7 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     if let Some(n) = &name {
         check_job_name(n)?;
     }
-    let job = validate(&state, source, uploads, &params, tile, name).await?;
+    let job = validate(&state, source, uploads, &params, tile, name, &held).await?;
     let (new_job, rects, assets) = job;
     // Followed before it is stored, so that no stored tile goes uncounted.
     state
@@ -465,34 +478,71 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     Ok(resp)
 }
 
-/// Reserves a submission's share of `--max-receiving-bytes`: its declared length, or the
-/// whole body limit when it declares none (none for one declared over the limit, which is
-/// refused with `413` before its body is read). A submission that finds no room within
-/// [`Receiving::wait_limit`], or while the service stops, is answered `503` with
-/// `Retry-After`.
-async fn reserve_room(
-    state: &AppState,
-    declared: Option<usize>,
-) -> Result<Option<Reservation>, ApiError> {
-    let bytes = match declared {
-        // Refused on its headers as its body is read: no room needed, no wait.
-        Some(n) if n > state.cfg.max_body_bytes => return Ok(None),
-        Some(n) => n,
-        None => state.cfg.max_body_bytes,
-    };
+/// The request with its body counted into the submission's share of the budget (see
+/// `receiving`): its declared length (the body limit if it declares none) before the first
+/// byte is read, all or nothing; the unsent rest given back whenever the client falls
+/// silent for [`RELEASE_AFTER_SILENCE`], and waited for in line when it sends again. A
+/// share that gets no room in time (or none while the service stops) ends the body with
+/// [`Full`], which [`submit`] answers `503`.
+fn metered(req: Request, state: &AppState, held: Arc<tokio::sync::Mutex<Held>>) -> Request {
+    use futures_util::StreamExt;
+    let want = declared_length(req.headers())
+        .unwrap_or(state.cfg.max_body_bytes)
+        .min(state.cfg.max_body_bytes) as u64;
     let within = Receiving::wait_limit(state.cfg.longest_silence());
-    let busy = |why: &str| {
-        ApiError::new(StatusCode::SERVICE_UNAVAILABLE, why.to_string())
-            .with("receiving_bytes", state.cfg.receiving_bytes())
-            .retry_after(5)
-    };
-    tokio::select! {
-        room = state.receiving.reserve(bytes, within) => room.map(Some).map_err(|Full| busy(
-            "the service is receiving as many scenes as it takes at once \
-             (--max-receiving-bytes); try again shortly",
-        )),
-        () = state.stopped() => Err(busy("the service is stopping; try again shortly")),
+    let (parts, body) = req.into_parts();
+    struct Meter {
+        body: axum::body::BodyDataStream,
+        held: Arc<tokio::sync::Mutex<Held>>,
+        state: AppState,
+        received: u64,
+        /// Bytes to hold before the next chunk: the declared length at first.
+        want: u64,
     }
+    impl Meter {
+        async fn hold(&mut self, within: Duration) -> Result<(), axum::Error> {
+            let mut held = self.held.lock().await;
+            tokio::select! {
+                room = held.grow_to(self.want, within) => room.map_err(axum::Error::new),
+                () = self.state.stopped() => {
+                    held.refuse();
+                    Err(axum::Error::new(Full))
+                }
+            }
+        }
+    }
+    let meter = Meter {
+        body: body.into_data_stream(),
+        held,
+        state: state.clone(),
+        received: 0,
+        want,
+    };
+    let chunks = futures_util::stream::unfold(Some(meter), move |meter| async move {
+        let mut m = meter?;
+        if let Err(e) = m.hold(within).await {
+            return Some((Err(e), None));
+        }
+        let next = match tokio::time::timeout(RELEASE_AFTER_SILENCE, m.body.next()).await {
+            Ok(next) => next,
+            Err(_) => {
+                m.held.lock().await.shrink_to(m.received);
+                m.body.next().await
+            }
+        };
+        match next? {
+            Ok(chunk) => {
+                m.received += chunk.len() as u64;
+                m.want = m.received;
+                match m.hold(within).await {
+                    Ok(()) => Some((Ok(chunk), Some(m))),
+                    Err(e) => Some((Err(e), None)),
+                }
+            }
+            Err(e) => Some((Err(e), None)),
+        }
+    });
+    Request::from_parts(parts, Body::from_stream(chunks))
 }
 
 /// The request's `Content-Length`, when it has a readable one.
@@ -501,6 +551,18 @@ fn declared_length(headers: &HeaderMap) -> Option<usize> {
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse().ok())
+}
+
+/// The `503` of a submission that found no room in `--max-receiving-bytes` in time (or
+/// none while the service stops).
+fn busy(state: &AppState) -> ApiError {
+    ApiError::new(
+        StatusCode::SERVICE_UNAVAILABLE,
+        "the service is receiving and checking as many scenes as it takes at once \
+         (--max-receiving-bytes); try again shortly",
+    )
+    .with("receiving_bytes", state.cfg.receiving_bytes())
+    .retry_after(5)
 }
 
 type Uploads = Vec<(String, Vec<u8>)>;
@@ -701,13 +763,18 @@ async fn validate(
     params: &SubmitParams,
     tile: Option<u32>,
     name: Option<String>,
+    held: &tokio::sync::Mutex<Held>,
 ) -> Result<(NewJob, Vec<tessera_tracer::Rect>, Uploads), ApiError> {
     let limits = state.cfg.scene_limits();
     let texture_limits = state.cfg.texture_limits();
     let sampler = params.sampler.clone();
     let samples = params.samples;
     let threshold = params.threshold;
-    let checked = tokio::task::spawn_blocking(move || {
+    let panicked = |e: tokio::task::JoinError| {
+        tracing::error!("scene validation panicked: {e}");
+        ApiError::bad_request("the scene could not be checked (the validator failed)")
+    };
+    let matched = tokio::task::spawn_blocking(move || {
         let desc = parse(&source, &limits).map_err(|e| scene_error(&e))?;
         let chosen = desc
             .sampler
@@ -734,6 +801,31 @@ async fn validate(
                 kept.push((n.to_string(), bytes.clone()));
             }
         }
+        // What the textures decode to, from their headers (a bad header is the check's to
+        // report, below).
+        let texels: u64 = kept
+            .iter()
+            .filter_map(|(n, bytes)| Texture::dimensions(n, bytes, &texture_limits).ok())
+            .map(|(w, h)| u64::from(w) * u64::from(h))
+            .sum();
+        Ok::<_, ApiError>((source, desc, chosen, kept, texels, texture_limits))
+    })
+    .await
+    .map_err(panicked)??;
+    let (source, desc, chosen, kept, texels, texture_limits) = matched;
+    // Room for the textures before they are decoded (see `receiving`).
+    let within = Receiving::wait_limit(state.cfg.longest_silence());
+    let grown = {
+        let mut held = held.lock().await;
+        tokio::select! {
+            room = held.grow_texels(texels, within) => room,
+            () = state.stopped() => Err(Full),
+        }
+    };
+    if grown.is_err() {
+        return Err(busy(state));
+    }
+    let checked = tokio::task::spawn_blocking(move || {
         let mut assets = MemoryAssets::new();
         for (n, bytes) in &kept {
             assets.insert(n.clone(), bytes.clone());
@@ -756,12 +848,17 @@ async fn validate(
         Ok::<_, ApiError>((source, desc.width, desc.height, kept, rays))
     })
     .await
-    .map_err(|e| {
-        tracing::error!("scene validation panicked: {e}");
-        ApiError::bad_request("the scene could not be checked (the validator failed)")
-    })??;
+    .map_err(panicked)??;
     let (source, width, height, kept, rays) = checked;
-    let tile = tile.unwrap_or_else(|| auto_tile(width, height, rays));
+    // The service's own pick grows to the smallest edge that `--max-tiles` allows (a job
+    // that asked for no size was refused for the service's choice); an edge the job or
+    // `--tile` asked for is refused below instead, naming the smallest that fits.
+    let tile = tile.unwrap_or_else(|| {
+        let auto = auto_tile(width, height, rays);
+        (auto..=MAX_TILE)
+            .find(|&e| tile_count(width, height, e) <= state.cfg.max_tiles)
+            .unwrap_or(auto)
+    });
     check_tile_count(width, height, tile, state.cfg.max_tiles)?;
     let job = NewJob {
         id: uuid::Uuid::new_v4().simple().to_string()[..16].to_string(),

@@ -152,8 +152,10 @@ pub struct Config {
     #[arg(long, env = "TESSERA_MAX_BODY_BYTES", default_value_t = 64 << 20)]
     pub max_body_bytes: usize,
     /// Body bytes of all the submissions being received and checked at once (default twice
-    /// `--max-body-bytes`; at least `--max-body-bytes`). A submission that does not fit waits
-    /// its turn, up to 30 s, then is answered 503 with Retry-After.
+    /// `--max-body-bytes`; at least `--max-body-bytes`): each holds its declared length, and
+    /// only what it sent once its client falls silent. A submission that does not fit waits
+    /// its turn, up to 30 s, then is answered 503 with Retry-After. (Textures being decoded
+    /// are held to `--max-scene-texture-pixels` at once, the same way.)
     #[arg(long, env = "TESSERA_MAX_RECEIVING_BYTES")]
     pub max_receiving_bytes: Option<usize>,
     /// Largest image, width × height pixels. The limits below go up to the workers' own
@@ -169,7 +171,7 @@ pub struct Config {
     /// Most tiles in one job. A job's tiles are stored in the one transaction that holds the
     /// queue's only writer, so no claim or result of another job is stored meanwhile (about
     /// 0.5 s for 65,536 tiles); a job asking for more is refused with the smallest tile edge
-    /// that would do.
+    /// that would do, and the service's own pick grows to that edge.
     #[arg(long, env = "TESSERA_MAX_TILES", default_value_t = 65_536,
           value_parser = clap::value_parser!(u64).range(1..))]
     pub max_tiles: u64,

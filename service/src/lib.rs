@@ -303,7 +303,7 @@ pub async fn serve(
         );
     }
     let (stop_tx, stop_rx) = watch::channel(false);
-    let receiving = receiving::Receiving::new(cfg.receiving_bytes());
+    let receiving = receiving::Receiving::new(cfg.receiving_bytes(), cfg.max_scene_texture_pixels);
     let state = AppState {
         cfg: Arc::new(cfg),
         queue: queue.clone(),

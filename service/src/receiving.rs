@@ -1,70 +1,195 @@
-//! How much submitted body the service holds at once: one budget shared by every
-//! `POST /jobs`.
+//! How much memory submissions hold while they are received and checked: one budget shared
+//! by every `POST /jobs`.
 //!
 //! A submission is read whole, then parsed and checked (its textures decoded) before anything
-//! is stored, and costs some four to five times its body while that lasts. `--max-body-bytes`
-//! bounds one submission; nothing bounded how many were taken in at once (sixteen 64 MiB
-//! uploads held 1.6 GB). Each submission now reserves its declared length (`Content-Length`,
-//! or the whole body limit when it declares none) before any of its body is read, and keeps
-//! it until it is answered. One that does not fit waits its turn (first come, first served),
-//! at most [`Receiving::wait_limit`], and is then answered `503` with `Retry-After`.
+//! is stored. `--max-body-bytes` bounds one body; nothing bounded how many were taken in at
+//! once (sixteen 64 MiB uploads held 1.6 GB), nor what their textures decode to (a 55 KB PNG
+//! of one colour is 50 MB of texels: thirty-two small submissions held 3.6 GB). Each
+//! submission now holds a share of the budget ([`Held`]) that grows with what it holds:
+//!
+//! - its body: its declared length (the body limit if it declares none) before any of it
+//!   is read, all or nothing, so that two bodies half received never wait on each other;
+//!   but a client that falls silent for [`RELEASE_AFTER_SILENCE`] keeps only what it sent
+//!   (a client that declared 64 MiB and stalled held it until the idle timeout: two such
+//!   shut every submission out), and waits in line for the rest when it sends again;
+//! - its textures' texels, counted from their headers before they are decoded, against a
+//!   budget of their own: at most one job's worth (`--max-scene-texture-pixels`) is
+//!   decoded at a time. (Counted in the same budget as bodies, shares holding their bodies
+//!   while they waited for texels shut each other out.)
+//!
+//! A share that cannot grow waits its turn (first come, first served), at most
+//! [`Receiving::wait_limit`]; the submission is then answered `503` with `Retry-After` and
+//! its share given back. Everything is given back when the submission is answered.
 //!
 //! **What it is not.** It does not limit connections, nor other routes' bodies (a tile's is
-//! bounded by its size), nor what a submission costs once stored.
+//! bounded by its size), nor what a job costs once stored. Shares that wait on each other
+//! (bodies that fell silent and resumed) end at the wait limit, not in a deadlock.
 
 use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 
-/// Bytes are reserved in whole KiB: tokio's semaphore counts permits in `u32` per request.
-const UNIT: usize = 1024;
+/// How long a body may fall silent before its share shrinks to the bytes it has sent.
+pub const RELEASE_AFTER_SILENCE: Duration = Duration::from_secs(2);
+
+/// The budget is counted in whole KiB: tokio's semaphore counts permits in `u32` per request.
+const UNIT: u64 = 1024;
 
 /// The submission budget (see the module comment).
 #[derive(Debug, Clone)]
 pub struct Receiving {
     permits: Arc<Semaphore>,
     units: usize,
+    /// Texels being decoded, in units of 1,024.
+    texels: Arc<Semaphore>,
+    texel_units: usize,
 }
 
-/// A submission's share of the budget, given back when dropped.
+/// One submission's share of the budget; given back when dropped.
 #[derive(Debug)]
-pub struct Reservation {
-    _room: OwnedSemaphorePermit,
+pub struct Held {
+    budget: Receiving,
+    /// Bytes the share covers (rounded up to whole units in `room`).
+    bytes: u64,
+    room: Option<OwnedSemaphorePermit>,
+    /// Texels being decoded (see [`Held::grow_texels`]).
+    texels: Option<OwnedSemaphorePermit>,
+    /// Whether a `grow` found no room in time: the submission's answer is `503`.
+    refused: bool,
 }
 
 /// The budget stayed full for as long as a submission may wait.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("the service is receiving and checking as much as it takes at once")]
 pub struct Full;
 
 impl Receiving {
-    /// A budget of `bytes` (rounded up to whole KiB, at least one).
-    pub fn new(bytes: usize) -> Receiving {
-        let units = bytes.div_ceil(UNIT).clamp(1, Semaphore::MAX_PERMITS);
+    /// A budget of `bytes` of bodies (rounded up to whole KiB, at least one) and `texels`
+    /// of textures being decoded (rounded up to units of 1,024).
+    pub fn new(bytes: usize, texels: u64) -> Receiving {
+        let units = |n: u64| n.div_ceil(UNIT).clamp(1, Semaphore::MAX_PERMITS as u64) as usize;
+        let (body_units, texel_units) = (units(bytes as u64), units(texels));
         Receiving {
-            permits: Arc::new(Semaphore::new(units)),
-            units,
+            permits: Arc::new(Semaphore::new(body_units)),
+            units: body_units,
+            texels: Arc::new(Semaphore::new(texel_units)),
+            texel_units,
         }
     }
 
-    /// The longest a submission waits for room: at most 30 s, and no longer than its
-    /// connection may stay silent (`silence`, [`crate::Config::longest_silence`]): nothing
-    /// is read from it meanwhile, and the idle timeout would close it unanswered.
+    /// The longest a submission waits for room at a time: at most 30 s, and no longer than
+    /// its connection may stay silent (`silence`, [`crate::Config::longest_silence`]):
+    /// nothing is read from it meanwhile, and the idle timeout would close it unanswered.
     pub fn wait_limit(silence: Duration) -> Duration {
         silence.min(Duration::from_secs(30))
     }
 
-    /// Reserves room for `bytes` (at most the whole budget, so that a request larger than
-    /// the budget waits for it to be free rather than for ever), waiting up to `within`.
-    pub async fn reserve(&self, bytes: usize, within: Duration) -> Result<Reservation, Full> {
-        // At most the whole budget; past `u32::MAX` KiB (4 TiB, so the budget is larger
-        // still) `u32::MAX` units, which the budget also holds.
-        let units = u32::try_from(bytes.div_ceil(UNIT).clamp(1, self.units)).unwrap_or(u32::MAX);
-        match tokio::time::timeout(within, self.permits.clone().acquire_many_owned(units)).await {
-            Ok(Ok(room)) => Ok(Reservation { _room: room }),
-            // The semaphore is never closed; a closed one admits no one.
-            Ok(Err(_)) | Err(_) => Err(Full),
+    /// An empty share, for one submission.
+    pub fn hold(&self) -> Held {
+        Held {
+            budget: self.clone(),
+            bytes: 0,
+            room: None,
+            texels: None,
+            refused: false,
         }
+    }
+
+    /// Room left, in bytes (rounded to units): for tests and logs.
+    pub fn available(&self) -> u64 {
+        self.permits.available_permits() as u64 * UNIT
+    }
+}
+
+impl Held {
+    /// Grows the share by `more` bytes, waiting up to `within` for the room. The share never
+    /// asks for more than the whole budget: a submission larger than the budget waits for
+    /// all of it rather than for ever. On [`Full`] the share keeps what it had (the caller
+    /// answers and drops it) and remembers the refusal ([`Held::refused`]).
+    pub async fn grow(&mut self, more: u64, within: Duration) -> Result<(), Full> {
+        let held_units = self.units();
+        let bytes = self.bytes.saturating_add(more);
+        let target = bytes.div_ceil(UNIT).min(self.budget.units as u64);
+        let need = u32::try_from(target.saturating_sub(held_units)).unwrap_or(u32::MAX);
+        if need > 0 {
+            let acquire = self.budget.permits.clone().acquire_many_owned(need);
+            match tokio::time::timeout(within, acquire).await {
+                Ok(Ok(room)) => match &mut self.room {
+                    Some(held) => held.merge(room),
+                    None => self.room = Some(room),
+                },
+                // The semaphore is never closed; a closed one admits no one.
+                Ok(Err(_)) | Err(_) => {
+                    self.refused = true;
+                    return Err(Full);
+                }
+            }
+        }
+        self.bytes = bytes;
+        Ok(())
+    }
+
+    /// Takes room for `texels` texels of textures to decode (at most the whole texel budget),
+    /// waiting up to `within`; once only, before the textures are decoded.
+    pub async fn grow_texels(&mut self, texels: u64, within: Duration) -> Result<(), Full> {
+        let need = texels.div_ceil(UNIT).min(self.budget.texel_units as u64);
+        let need = u32::try_from(need).unwrap_or(u32::MAX);
+        if need == 0 {
+            return Ok(());
+        }
+        let acquire = self.budget.texels.clone().acquire_many_owned(need);
+        match tokio::time::timeout(within, acquire).await {
+            Ok(Ok(room)) => {
+                self.texels = Some(room);
+                Ok(())
+            }
+            Ok(Err(_)) | Err(_) => {
+                self.refused = true;
+                Err(Full)
+            }
+        }
+    }
+
+    /// Grows the share to cover `bytes` in all, if it covers fewer (see [`Held::grow`]).
+    pub async fn grow_to(&mut self, bytes: u64, within: Duration) -> Result<(), Full> {
+        match bytes.checked_sub(self.bytes) {
+            Some(more) if more > 0 => self.grow(more, within).await,
+            _ => Ok(()),
+        }
+    }
+
+    /// Shrinks the share to cover `bytes` (if it covers more), giving the rest back.
+    pub fn shrink_to(&mut self, bytes: u64) {
+        if bytes >= self.bytes {
+            return;
+        }
+        let keep = bytes.div_ceil(UNIT) as usize;
+        if let Some(room) = &mut self.room
+            && room.num_permits() > keep
+        {
+            drop(room.split(room.num_permits() - keep));
+        }
+        self.bytes = bytes;
+    }
+
+    /// Marks the share refused: its submission is answered `503` (the service is stopping).
+    pub fn refuse(&mut self) {
+        self.refused = true;
+    }
+
+    /// Whether a `grow` ran out of time, or the share was refused.
+    pub fn refused(&self) -> bool {
+        self.refused
+    }
+
+    /// The bytes the share covers.
+    pub fn bytes(&self) -> u64 {
+        self.bytes
+    }
+
+    fn units(&self) -> u64 {
+        self.room.as_ref().map_or(0, |r| r.num_permits() as u64)
     }
 }
 
@@ -73,60 +198,98 @@ mod tests {
     use super::*;
 
     const LONG: Duration = Duration::from_secs(600);
+    const NOW: Duration = Duration::from_millis(1);
 
-    /// Room is given first come, first served, waited for, and given back when a reservation
-    /// is dropped.
+    /// Shares grow a little at a time, wait when the budget is full, get their room when
+    /// another share is dropped, and are counted in bytes, not in calls (a body arriving a
+    /// byte at a time holds what it sent, not a unit per byte).
     #[tokio::test]
-    async fn a_submission_waits_for_room_and_gets_it_when_another_ends() {
-        let budget = Receiving::new(1000 * UNIT);
-        let first = budget.reserve(600 * UNIT, LONG).await.expect("room");
-        assert_eq!(
-            budget
-                .reserve(600 * UNIT, Duration::from_millis(1))
-                .await
-                .err(),
-            Some(Full)
-        );
-        // Two small ones still fit beside the first.
-        let a = budget.reserve(200 * UNIT, LONG).await.expect("room");
-        let b = budget.reserve(200 * UNIT - 7, LONG).await.expect("room");
+    async fn shares_grow_by_the_byte_and_wait_for_room() {
+        let budget = Receiving::new(1000 * UNIT as usize, UNIT);
+        let mut first = budget.hold();
+        for _ in 0..600 * UNIT {
+            first.grow(1, LONG).await.expect("room");
+        }
+        assert_eq!(budget.available(), 400 * UNIT);
+        let mut second = budget.hold();
+        assert_eq!(second.grow(600 * UNIT, NOW).await, Err(Full));
+        assert!(second.refused());
+        let mut third = budget.hold();
+        third.grow(400 * UNIT - 7, LONG).await.expect("fits beside");
+        assert_eq!(budget.available(), 0);
         let waiting = tokio::spawn({
-            let budget = budget.clone();
-            async move { budget.reserve(600 * UNIT, LONG).await.is_ok() }
+            let mut share = budget.hold();
+            async move { share.grow(600 * UNIT, LONG).await.map(|()| share) }
         });
-        drop((a, b));
         // A current-thread runtime: the task runs only when this one yields.
         for _ in 0..10 {
             tokio::task::yield_now().await;
         }
-        assert!(
-            !waiting.is_finished(),
-            "600 + 600 KiB fit in a budget of 1000"
-        );
+        assert!(!waiting.is_finished(), "no room until the first is dropped");
         drop(first);
-        assert!(
-            waiting.await.expect("task"),
-            "the waiting submission got its room"
-        );
-        assert_eq!(
-            budget.permits.available_permits(),
-            1000,
-            "all room given back"
-        );
+        let got = waiting
+            .await
+            .expect("task")
+            .expect("room once the first ended");
+        assert_eq!(got.bytes(), 600 * UNIT);
+        drop((got, third, second));
+        assert_eq!(budget.available(), 1000 * UNIT, "all room given back");
     }
 
-    /// A request larger than the whole budget takes the whole budget once it is free, instead
-    /// of waiting for more room than there is.
+    /// A share shrunk to what it holds gives the rest back, and grows again in line.
     #[tokio::test]
-    async fn a_request_past_the_budget_takes_all_of_it() {
-        let budget = Receiving::new(10 * UNIT);
-        let all = budget.reserve(usize::MAX, LONG).await.expect("room");
-        assert_eq!(budget.permits.available_permits(), 0);
+    async fn a_share_shrinks_to_what_it_holds() {
+        let budget = Receiving::new(100 * UNIT as usize, UNIT);
+        let mut share = budget.hold();
+        share.grow_to(64 * UNIT, LONG).await.expect("room");
+        assert_eq!(budget.available(), 36 * UNIT);
+        share.shrink_to(UNIT + 1);
         assert_eq!(
-            budget.reserve(1, Duration::from_millis(1)).await.err(),
-            Some(Full)
+            budget.available(),
+            98 * UNIT,
+            "two units kept for 1 KiB and a byte"
         );
-        drop(all);
-        budget.reserve(1, LONG).await.expect("room again");
+        assert_eq!(share.bytes(), UNIT + 1);
+        share.grow_to(UNIT, LONG).await.expect("covered already");
+        assert_eq!(budget.available(), 98 * UNIT);
+        let mut other = budget.hold();
+        other.grow(98 * UNIT, LONG).await.expect("room");
+        assert_eq!(share.grow_to(64 * UNIT, NOW).await, Err(Full));
+        drop(other);
+        share.grow_to(64 * UNIT, LONG).await.expect("room again");
+        assert_eq!(budget.available(), 36 * UNIT);
+    }
+
+    /// Texels come from a budget of their own: shares that hold their bodies while they
+    /// wait for texels leave the body budget to others, and a share that asks for more
+    /// texels than there are takes them all once they are free.
+    #[tokio::test]
+    async fn texels_have_a_budget_of_their_own() {
+        let budget = Receiving::new(100 * UNIT as usize, 64 * UNIT);
+        let mut a = budget.hold();
+        a.grow(60 * UNIT, LONG).await.expect("body");
+        a.grow_texels(u64::MAX, LONG).await.expect("all the texels");
+        let mut b = budget.hold();
+        b.grow(40 * UNIT, LONG).await.expect("body beside a's");
+        assert_eq!(b.grow_texels(1, NOW).await, Err(Full));
+        drop(a);
+        b.grow_texels(64 * UNIT, LONG)
+            .await
+            .expect("texels once a is done");
+        assert_eq!(budget.available(), 60 * UNIT);
+    }
+
+    /// A share that asks for more than the whole budget takes all of it once it is free,
+    /// instead of waiting for more room than there is.
+    #[tokio::test]
+    async fn a_share_past_the_budget_takes_all_of_it() {
+        let budget = Receiving::new(10 * UNIT as usize, UNIT);
+        let mut big = budget.hold();
+        big.grow(u64::MAX / 2, LONG).await.expect("room");
+        big.grow(u64::MAX / 2, LONG).await.expect("no more to ask");
+        assert_eq!(budget.available(), 0);
+        assert_eq!(budget.hold().grow(1, NOW).await, Err(Full));
+        drop(big);
+        budget.hold().grow(1, LONG).await.expect("room again");
     }
 }

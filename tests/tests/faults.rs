@@ -392,8 +392,8 @@ fn limits_refuse_oversized_input_and_store_nothing() {
     );
     assert_eq!(common::line_col(&e), (Some(13), Some(11)), "{e}");
 
-    // Too many tiles, asked for or picked by the service: refused with the smallest edge
-    // that makes at most 10 (`⌈100/e⌉² ≤ 10` needs `⌈100/e⌉ ≤ 3`, so `e ≥ 34`).
+    // Too many tiles asked for: refused with the smallest edge that makes at most 10
+    // (`⌈100/e⌉² ≤ 10` needs `⌈100/e⌉ ≤ 3`, so `e ≥ 34`).
     let hundred = |query: &str| {
         http.post(format!("{}/jobs{query}", svc.url))
             .body(format!(
@@ -402,20 +402,28 @@ fn limits_refuse_oversized_input_and_store_nothing() {
             .send()
             .expect("answer")
     };
-    for query in ["?tile=8", ""] {
-        let r = hundred(query);
-        assert_eq!(r.status(), 400, "{query}");
-        let e: Value = r.json().expect("json");
-        assert_eq!(e["max_tiles"], 10, "{e}");
-        assert_eq!(e["min_tile"], 34, "{e}");
-        assert!(e["error"].as_str().unwrap_or("").contains("tile=34"), "{e}");
-    }
+    let r = hundred("?tile=8");
+    assert_eq!(r.status(), 400);
+    let e: Value = r.json().expect("json");
+    assert_eq!(e["max_tiles"], 10, "{e}");
+    assert_eq!(e["min_tile"], 34, "{e}");
+    assert!(e["error"].as_str().unwrap_or("").contains("tile=34"), "{e}");
 
     assert_eq!(svc.get_json("/jobs"), json!([]), "nothing stored");
 
     let r = hundred("?tile=34");
     assert_eq!(r.status(), 201, "the smallest edge that fits is taken");
     assert_eq!(r.json::<Value>().expect("json")["tiles_total"], 9);
+    // A job that asks for no size gets the service's pick grown to that edge (its own pick,
+    // 32 px here, was refused as if the job had asked for it).
+    let r = hundred("");
+    assert_eq!(r.status(), 201);
+    let job: Value = r.json().expect("json");
+    assert_eq!(
+        (job["tile"].as_i64(), job["tiles_total"].as_i64()),
+        (Some(34), Some(9)),
+        "{job}"
+    );
 }
 
 #[test]
@@ -1317,14 +1325,18 @@ fn the_service_raises_its_open_file_limit() {
     );
 }
 
-/// Submissions share one budget of body bytes (`--max-receiving-bytes`): one that does not
-/// fit beside those being received waits its turn, gets it when another ends, and is
+/// Submissions share one budget of body bytes (`--max-receiving-bytes`): each holds its
+/// declared length while its body arrives, and only what it sent once its client falls
+/// silent. A submission that finds no room waits its turn, gets it when another ends, and is
 /// answered `503` with `Retry-After` if none ends in time. (Nothing bounded how many were
-/// received at once: sixteen 64 MiB uploads held 1.6 GB.)
+/// received at once: sixteen 64 MiB uploads held 1.6 GB; and a client that declared 64 MiB
+/// and fell silent held it until the idle timeout, so two shut everyone out.) Textures'
+/// own budget: `a_submission_waiting_to_decode_its_textures_answers_when_the_service_stops`.
 #[test]
 fn submissions_past_the_receiving_budget_wait_their_turn() {
     use std::io::{Read, Write};
     use std::sync::atomic::{AtomicBool, Ordering};
+    const KIB: usize = 1024;
     let dir = TempDir::new("receiving");
     let svc = Service::start(
         &dir,
@@ -1332,50 +1344,23 @@ fn submissions_past_the_receiving_budget_wait_their_turn() {
             "--local-workers",
             "0",
             "--max-body-bytes",
-            "4096",
+            &(64 * KIB).to_string(),
             "--max-receiving-bytes",
-            "6000",
+            &(96 * KIB).to_string(),
             "--idle-timeout-secs",
             "5",
         ],
     );
-    // A scene padded with a comment to `len` bytes.
+    // A scene padded with comment lines to `len` bytes.
     let padded = |len: usize| {
         let mut s = read("thesis.ray");
-        s.push('#');
-        s.push_str(&"-".repeat(len - s.len() - 1));
-        s.push('\n');
+        while s.len() < len {
+            let line = "#".repeat((len - s.len()).min(200) - 1);
+            s.push_str(&line);
+            s.push('\n');
+        }
         s.into_bytes()
     };
-    let big = padded(4000);
-    // The first submission declares 4,000 bytes and sends them slowly: while it is being
-    // received, 2,000 of the 6,000 are left.
-    let mut first =
-        std::net::TcpStream::connect(svc.url.trim_start_matches("http://")).expect("connect");
-    write!(
-        first,
-        "POST /jobs HTTP/1.1\r\nHost: x\r\nContent-Length: {}\r\n\r\n",
-        big.len()
-    )
-    .expect("write");
-    first.write_all(&big[..1000]).expect("write");
-    // A byte every 200 ms keeps it from falling silent (the idle timeout is 5 s) while the
-    // test waits on the others; the rest goes at once when the test says.
-    let done = std::sync::Arc::new(AtomicBool::new(false));
-    let trickle = std::thread::spawn({
-        let done = done.clone();
-        let mut first = first.try_clone().expect("clone");
-        move || {
-            let mut sent = 1000;
-            while !done.load(Ordering::Acquire) && sent < 1500 {
-                first.write_all(&big[sent..sent + 1]).expect("write");
-                sent += 1;
-                std::thread::sleep(Duration::from_millis(200));
-            }
-            first.write_all(&big[sent..]).expect("write");
-            first
-        }
-    });
     let post = |body: Vec<u8>| {
         client()
             .post(format!("{}/jobs", svc.url))
@@ -1383,12 +1368,56 @@ fn submissions_past_the_receiving_budget_wait_their_turn() {
             .send()
             .expect("answer")
     };
-    // 3,000 more do not fit: refused after waiting (4 s, a second under the idle timeout).
-    // A submission that got in before the first one's headers were read is served; the
-    // next finds the first one in.
+    let connect = || {
+        let s =
+            std::net::TcpStream::connect(svc.url.trim_start_matches("http://")).expect("connect");
+        s.set_read_timeout(Some(Duration::from_secs(20)))
+            .expect("timeout");
+        s
+    };
+    // A client that declares 64 KiB and sends nothing holds nothing once silent for two
+    // seconds: a 50 KiB submission goes through beside it (it waits those seconds at most).
+    let mut silent = connect();
+    write!(
+        silent,
+        "POST /jobs HTTP/1.1\r\nHost: x\r\nContent-Length: {}\r\n\r\n",
+        64 * KIB
+    )
+    .expect("write");
+    assert_eq!(post(padded(50 * KIB)).status(), 201);
+    drop(silent);
+
+    // The first submission sends 50 KiB of its 60 and then a byte every 200 ms (the idle
+    // timeout is 5 s), holding 50 of the 96 KiB while the test waits on the others.
+    let big = padded(60 * KIB);
+    let mut first = connect();
+    write!(
+        first,
+        "POST /jobs HTTP/1.1\r\nHost: x\r\nContent-Length: {}\r\n\r\n",
+        big.len()
+    )
+    .expect("write");
+    first.write_all(&big[..50 * KIB]).expect("write");
+    let done = std::sync::Arc::new(AtomicBool::new(false));
+    let trickle = std::thread::spawn({
+        let done = done.clone();
+        let mut first = first.try_clone().expect("clone");
+        move || {
+            let mut sent = 50 * KIB;
+            while !done.load(Ordering::Acquire) && sent < 55 * KIB {
+                first.write_all(&big[sent..sent + 1]).expect("write");
+                sent += 1;
+                std::thread::sleep(Duration::from_millis(200));
+            }
+            first.write_all(&big[sent..]).expect("write");
+        }
+    });
+    // 50 KiB more do not fit: refused after waiting (4 s, a second under the idle timeout).
+    // A submission that got in before the first one's bytes were counted is served; the
+    // next finds them counted.
     let deadline = Instant::now() + Duration::from_secs(60);
     let refused = loop {
-        let r = post(padded(3000));
+        let r = post(padded(50 * KIB));
         if r.status() != 201 {
             break r;
         }
@@ -1403,9 +1432,9 @@ fn submissions_past_the_receiving_budget_wait_their_turn() {
             .is_some_and(|e| e.contains("--max-receiving-bytes")),
         "{body}"
     );
-    assert_eq!(body["receiving_bytes"], 6000);
-    // A small one still fits beside the first.
-    assert_eq!(post(padded(1500)).status(), 201);
+    assert_eq!(body["receiving_bytes"], 96 * KIB);
+    // What the refused one held is given back: a small one fits beside the first.
+    assert_eq!(post(padded(20 * KIB)).status(), 201);
     // One that waits is served once the first one is in (sent before the first one's rest,
     // it is most likely waiting by then; served either way).
     let waiting = std::thread::spawn({
@@ -1413,17 +1442,14 @@ fn submissions_past_the_receiving_budget_wait_their_turn() {
         move || {
             client()
                 .post(format!("{url}/jobs"))
-                .body(padded(3000))
+                .body(padded(50 * KIB))
                 .send()
                 .expect("answer")
                 .status()
         }
     });
     done.store(true, Ordering::Release);
-    let mut first = trickle.join().expect("trickle");
-    first
-        .set_read_timeout(Some(Duration::from_secs(20)))
-        .expect("timeout");
+    trickle.join().expect("trickle");
     let mut answer = [0u8; 64];
     let n = first.read(&mut answer).expect("an answer");
     assert!(
@@ -1432,4 +1458,25 @@ fn submissions_past_the_receiving_budget_wait_their_turn() {
         String::from_utf8_lossy(&answer[..n])
     );
     assert_eq!(waiting.join().expect("waiting"), 201);
+}
+
+/// Media types are case-insensitive (RFC 9110): a multipart body sent as
+/// `Multipart/Form-Data` is read as multipart (it was read as a raw scene and refused at
+/// 1:1).
+#[test]
+fn a_multipart_type_in_any_case_is_multipart() {
+    let dir = TempDir::new("multipart-case");
+    let svc = Service::start(&dir, &["--local-workers", "0"]);
+    let mut body = b"--XyZ\r\nContent-Disposition: form-data; name=\"scene\"\r\n\r\n".to_vec();
+    body.extend_from_slice(read("thesis.ray").as_bytes());
+    body.extend_from_slice(b"\r\n--XyZ--\r\n");
+    for ct in ["Multipart/Form-Data", "MULTIPART/FORM-DATA"] {
+        let r = client()
+            .post(format!("{}/jobs", svc.url))
+            .header("content-type", format!("{ct}; boundary=XyZ"))
+            .body(body.clone())
+            .send()
+            .expect("answer");
+        assert_eq!(r.status(), 201, "{ct}: {:?}", r.text());
+    }
 }
