@@ -726,6 +726,28 @@ fn tile_rgb(r: Rect) -> Vec<u8> {
     v
 }
 
+/// Stores claim `c`'s pixels as the service does: the bands it completes are encoded while
+/// the job renders (`progress` follows the job), and the last tile finishes the PNG.
+async fn store_following(
+    q: &Queue,
+    progress: &tessera_service::assemble::Progress,
+    c: &tessera_worker::protocol::Claim,
+    rgb: &[u8],
+) {
+    let stored = q
+        .complete(&c.job, c.idx, &c.lease, c.rect(), rgb)
+        .await
+        .expect("complete");
+    let Completion::Stored { last, .. } = stored else {
+        panic!("{stored:?}")
+    };
+    if last {
+        progress.complete(q, &c.job).await.expect("assembled");
+    } else if progress.stored(&c.job, c.rect()) {
+        progress.advance(q, &c.job).await;
+    }
+}
+
 async fn png_of(q: &Queue, id: &str) -> Vec<u8> {
     let mut png = Vec::new();
     for seq in 0..q.image_chunks(id).await.expect("count") {
@@ -753,18 +775,7 @@ async fn bands_are_encoded_in_order_as_they_complete_and_give_the_whole_images_p
     assert_eq!(claims.len(), rects.len());
     let store = async |band_y: u32| {
         for c in claims.iter().filter(|c| c.y == band_y) {
-            let stored = q
-                .complete("j", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
-                .await
-                .expect("complete");
-            let Completion::Stored { last, .. } = stored else {
-                panic!("{stored:?}")
-            };
-            if last {
-                progress.complete(&q, "j").await.expect("assembled");
-            } else if progress.stored("j", c.rect()) {
-                progress.advance(&q, "j").await;
-            }
+            store_following(&q, &progress, c, &tile_rgb(c.rect())).await;
         }
     };
     // The second band first: nothing can be encoded before the first.
@@ -1063,18 +1074,7 @@ async fn the_png_is_stored_in_chunks_of_one_size() {
     progress.follow("j", w, h, &rects);
     job(&q, "j", w, h, 32).await;
     while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
-        let stored = q
-            .complete("j", c.idx, &c.lease, c.rect(), &tile_of(c.rect()))
-            .await
-            .expect("complete");
-        let Completion::Stored { last, .. } = stored else {
-            panic!("{stored:?}")
-        };
-        if last {
-            progress.complete(&q, "j").await.expect("assembled");
-        } else if progress.stored("j", c.rect()) {
-            progress.advance(&q, "j").await;
-        }
+        store_following(&q, &progress, &c, &tile_of(c.rect())).await;
     }
     let n = q.image_chunks("j").await.expect("count");
     let mut png = Vec::new();

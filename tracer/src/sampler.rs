@@ -1104,6 +1104,22 @@ mod tests {
         assert_eq!(out[19].x, 0.0);
     }
 
+    /// Renders `rect` with `s`, tracing `f`: the estimates and every ray traced, in order.
+    fn traced(
+        s: Sampler,
+        rect: Rect,
+        f: impl Fn(f64, f64) -> Sample,
+    ) -> (Vec<Color>, Vec<(f64, f64)>) {
+        let rays = std::cell::RefCell::new(Vec::new());
+        let trace = |x: f64, y: f64| {
+            rays.borrow_mut().push((x, y));
+            f(x, y)
+        };
+        let mut out = vec![Color::ZERO; rect.pixel_count()];
+        s.render_rect(rect, trace, &mut out);
+        (out, rays.into_inner())
+    }
+
     /// Rays traced inside pixel `(px, py)` (border first passes of other pixels excluded).
     fn rays_in(rays: &[(f64, f64)], px: u32, py: u32) -> Vec<(f64, f64)> {
         rays.iter()
@@ -1162,7 +1178,6 @@ mod tests {
 
     #[test]
     fn a_pixel_only_a_neighbour_flags_takes_one_more_ray_per_quadrant_first() {
-        use std::cell::RefCell;
         // An edge through the middle of pixel 10: its first pass has two samples on each side,
         // so it is refined in full; 9 and 11 are flat but next to it; 8 and 12 are further.
         let half = |x: f64, _y: f64| {
@@ -1172,18 +1187,11 @@ mod tests {
                 object: u32::from(white),
             }
         };
-        let rays = RefCell::new(Vec::new());
-        let trace = |x: f64, y: f64| {
-            rays.borrow_mut().push((x, y));
-            half(x, y)
-        };
         let s = Sampler::Adaptive {
             max: 6,
             threshold: 0.02,
         };
-        let mut out = vec![Color::ZERO; 20];
-        s.render_rect(Rect::new(0, 0, 20, 1), trace, &mut out);
-        let rays = rays.into_inner();
+        let (out, rays) = traced(s, Rect::new(0, 0, 20, 1), half);
         let count = |x: u32| rays_in(&rays, x, 0).len();
         assert_eq!(count(8), 4);
         assert_eq!(count(9), 8);
@@ -1204,24 +1212,16 @@ mod tests {
     /// `jitter` 4×4.)
     #[test]
     fn a_step_neither_neighbour_saw_is_searched_with_every_ray() {
-        use std::cell::RefCell;
         let edge = 10.96;
         let step = |x: f64, _y: f64| Sample {
             color: Color::splat(if x < edge { 1.0 } else { 0.0 }),
             object: 0,
         };
-        let rays = RefCell::new(Vec::new());
-        let trace = |x: f64, y: f64| {
-            rays.borrow_mut().push((x, y));
-            step(x, y)
-        };
         let s = Sampler::Adaptive {
             max: 6,
             threshold: 0.02,
         };
-        let mut out = vec![Color::ZERO; 20];
-        s.render_rect(Rect::new(0, 0, 20, 1), trace, &mut out);
-        let rays = rays.into_inner();
+        let (out, rays) = traced(s, Rect::new(0, 0, 20, 1), step);
         let first: Vec<_> = rays_in(&rays, 10, 0).into_iter().take(4).collect();
         assert!(
             first.iter().all(|&(x, _)| x < edge),
@@ -1237,7 +1237,6 @@ mod tests {
 
     #[test]
     fn sixteen_rays_are_enough_once_their_standard_error_is_below_the_threshold() {
-        use std::cell::RefCell;
         // Low-contrast fine texture (values within 0.45..0.55): its first pass disagrees by
         // more than either threshold, and the standard error of 16 samples of it cannot
         // exceed 0.05 · √(16/15) / 4 < 0.013.
@@ -1247,15 +1246,9 @@ mod tests {
         };
         let exact = 0.5 + 0.05 * ((97.0 * 5.0f64).cos() - (97.0 * 6.0f64).cos()) / 97.0;
         for (threshold, rays_expected) in [(0.02, 16), (0.0005, 64)] {
-            let rays = RefCell::new(Vec::new());
-            let trace = |x: f64, y: f64| {
-                rays.borrow_mut().push((x, y));
-                texture(x, y)
-            };
             let s = Sampler::Adaptive { max: 8, threshold };
-            let mut out = [Color::ZERO];
-            s.render_rect(Rect::new(5, 0, 1, 1), trace, &mut out);
-            assert_eq!(rays_in(&rays.into_inner(), 5, 0).len(), rays_expected);
+            let (out, rays) = traced(s, Rect::new(5, 0, 1, 1), texture);
+            assert_eq!(rays_in(&rays, 5, 0).len(), rays_expected);
             // Within three of those standard errors of the pixel's exact mean.
             assert!((out[0].x - exact).abs() < 0.04, "{} vs {exact}", out[0].x);
         }
