@@ -486,9 +486,8 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
 /// [`Full`], which [`submit`] answers `503`.
 fn metered(req: Request, state: &AppState, held: Arc<tokio::sync::Mutex<Held>>) -> Request {
     use futures_util::StreamExt;
-    let want = declared_length(req.headers())
-        .unwrap_or(state.cfg.max_body_bytes)
-        .min(state.cfg.max_body_bytes) as u64;
+    let limit = state.cfg.max_body_bytes as u64;
+    let want = crate::error::declared_length(req.headers()).map_or(limit, |n| n.min(limit));
     let within = Receiving::wait_limit(state.cfg.longest_silence());
     let (parts, body) = req.into_parts();
     struct Meter {
@@ -496,13 +495,17 @@ fn metered(req: Request, state: &AppState, held: Arc<tokio::sync::Mutex<Held>>) 
         held: Arc<tokio::sync::Mutex<Held>>,
         state: AppState,
         received: u64,
-        /// Bytes to hold before the next chunk: the declared length at first.
+        /// Bytes to hold before each chunk: the declared length (after a silence, the rest
+        /// of it is waited for again, all or nothing).
         want: u64,
     }
     impl Meter {
         async fn hold(&mut self, within: Duration) -> Result<(), axum::Error> {
             let mut held = self.held.lock().await;
+            // Biased: a share that needs no room goes on though the service is stopping (a
+            // random pick cut half the uploads under way with a 503).
             tokio::select! {
+                biased;
                 room = held.grow_to(self.want, within) => room.map_err(axum::Error::new),
                 () = self.state.stopped() => {
                     held.refuse();
@@ -533,7 +536,6 @@ fn metered(req: Request, state: &AppState, held: Arc<tokio::sync::Mutex<Held>>) 
         match next? {
             Ok(chunk) => {
                 m.received += chunk.len() as u64;
-                m.want = m.received;
                 match m.hold(within).await {
                     Ok(()) => Some((Ok(chunk), Some(m))),
                     Err(e) => Some((Err(e), None)),
@@ -545,12 +547,19 @@ fn metered(req: Request, state: &AppState, held: Arc<tokio::sync::Mutex<Held>>) 
     Request::from_parts(parts, Body::from_stream(chunks))
 }
 
-/// The request's `Content-Length`, when it has a readable one.
-fn declared_length(headers: &HeaderMap) -> Option<usize> {
-    headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse().ok())
+/// The `503` of a submission whose textures found no room to be decoded in time
+/// (`--max-scene-texture-pixels` at once), or none while the service stops.
+fn busy_decoding(state: &AppState) -> ApiError {
+    ApiError::new(
+        StatusCode::SERVICE_UNAVAILABLE,
+        "the service is decoding as many textures as it takes at once \
+         (--max-scene-texture-pixels); try again shortly",
+    )
+    .with(
+        "max_scene_texture_pixels",
+        state.cfg.max_scene_texture_pixels,
+    )
+    .retry_after(5)
 }
 
 /// The `503` of a submission that found no room in `--max-receiving-bytes` in time (or
@@ -813,17 +822,20 @@ async fn validate(
     .await
     .map_err(panicked)??;
     let (source, desc, chosen, kept, texels, texture_limits) = matched;
-    // Room for the textures before they are decoded (see `receiving`).
-    let within = Receiving::wait_limit(state.cfg.longest_silence());
-    let grown = {
+    // Room for the textures before they are decoded (see `receiving`); none for textures
+    // past the job's own limit, which the check refuses from their headers (they waited for
+    // every texel there is, ahead of everyone, to be answered 400).
+    if texels <= state.cfg.max_scene_texture_pixels {
+        let within = Receiving::wait_limit(state.cfg.longest_silence());
         let mut held = held.lock().await;
-        tokio::select! {
+        let grown = tokio::select! {
+            biased;
             room = held.grow_texels(texels, within) => room,
             () = state.stopped() => Err(Full),
+        };
+        if grown.is_err() {
+            return Err(busy_decoding(state));
         }
-    };
-    if grown.is_err() {
-        return Err(busy(state));
     }
     let checked = tokio::task::spawn_blocking(move || {
         let mut assets = MemoryAssets::new();
@@ -848,7 +860,11 @@ async fn validate(
         Ok::<_, ApiError>((source, desc.width, desc.height, kept, rays))
     })
     .await
-    .map_err(panicked)??;
+    .map_err(panicked)?;
+    // The decoded textures are gone: their room is another submission's while this one is
+    // stored.
+    held.lock().await.release_texels();
+    let checked = checked?;
     let (source, width, height, kept, rays) = checked;
     // The service's own pick grows to the smallest edge that `--max-tiles` allows (a job
     // that asked for no size was refused for the service's choice); an edge the job or

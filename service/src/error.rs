@@ -170,12 +170,7 @@ pub async fn json_errors(req: Request, next: Next) -> Response {
 /// here with the same kind of message as a declared one, so that a client sees the limit
 /// either way. (No handler on these routes answers `413` for anything else.)
 pub async fn declared_length_within(limit: usize, req: Request, next: Next) -> Response {
-    let declared = req
-        .headers()
-        .get(axum::http::header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok());
-    match declared {
+    match declared_length(req.headers()) {
         Some(n) if n > limit as u64 => ApiError::new(
             StatusCode::PAYLOAD_TOO_LARGE,
             format!("the body is {n} bytes; the limit is {limit}"),
@@ -194,4 +189,12 @@ pub async fn declared_length_within(limit: usize, req: Request, next: Next) -> R
             }
         }
     }
+}
+
+/// The request's `Content-Length`, when it has a readable one.
+pub fn declared_length(headers: &axum::http::HeaderMap) -> Option<u64> {
+    headers
+        .get(axum::http::header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse().ok())
 }

@@ -498,6 +498,9 @@ impl Queue {
                 chunk * TILES_PER_INSERT,
                 rows,
             )))
+            // Text of its own for every job: kept out of the writer's cache of prepared
+            // statements (a hundred), where it pushed out the claim's and the result's.
+            .persistent(false)
             .bind(&job.id)
             .execute(&mut *tx)
             .await?;
@@ -1143,8 +1146,11 @@ impl Queue {
                  SELECT ?1, column1, column2 FROM (VALUES {values})
                  WHERE EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))"
             );
-            // Only placeholders are formatted in: the values are bound.
-            let mut q = sqlx::query(sqlx::AssertSqlSafe(sql)).bind(id);
+            // Only placeholders are formatted in: the values are bound. One text per group
+            // size: kept out of the writer's statement cache, as the tiles' insert is.
+            let mut q = sqlx::query(sqlx::AssertSqlSafe(sql))
+                .persistent(false)
+                .bind(id);
             let first = i64::from(first_seq) + (n * PER_STATEMENT) as i64;
             for (i, piece) in group.iter().enumerate() {
                 q = q.bind(first + i as i64).bind(*piece);

@@ -3,7 +3,7 @@
 //!
 //! A submission is read whole, then parsed and checked (its textures decoded) before anything
 //! is stored. `--max-body-bytes` bounds one body; nothing bounded how many were taken in at
-//! once (sixteen 64 MiB uploads held 1.6 GB), nor what their textures decode to (a 55 KB PNG
+//! once (sixteen 64 MiB uploads held 1.9 GB), nor what their textures decode to (a 55 KB PNG
 //! of one colour is 50 MB of texels: thirty-two small submissions held 3.6 GB). Each
 //! submission now holds a share of the budget ([`Held`]) that grows with what it holds:
 //!
@@ -22,8 +22,11 @@
 //! its share given back. Everything is given back when the submission is answered.
 //!
 //! **What it is not.** It does not limit connections, nor other routes' bodies (a tile's is
-//! bounded by its size), nor what a job costs once stored. Shares that wait on each other
-//! (bodies that fell silent and resumed) end at the wait limit, not in a deadlock.
+//! bounded by its size), nor what a job costs once stored. A client that keeps sending,
+//! however slowly (a byte a second), keeps its share, as it keeps its connection past the
+//! idle timeout: a rate floor would cut slow links too; put a proxy with one in front.
+//! Shares that wait on each other (bodies that fell silent and resumed) end at the wait
+//! limit, not in a deadlock.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -149,6 +152,11 @@ impl Held {
                 Err(Full)
             }
         }
+    }
+
+    /// Gives back the room taken for texels (the textures are decoded and dropped).
+    pub fn release_texels(&mut self) {
+        self.texels = None;
     }
 
     /// Grows the share to cover `bytes` in all, if it covers fewer (see [`Held::grow`]).

@@ -18,8 +18,13 @@ use tessera_worker::protocol::ClaimRequest;
 use tokio::sync::watch;
 
 async fn state(stopping: watch::Receiver<bool>) -> AppState {
+    state_with(Config::defaults(), stopping).await
+}
+
+async fn state_with(cfg: Config, stopping: watch::Receiver<bool>) -> AppState {
     AppState {
-        cfg: Arc::new(Config::defaults()),
+        receiving: Receiving::new(cfg.receiving_bytes(), cfg.max_scene_texture_pixels),
+        cfg: Arc::new(cfg),
         queue: Queue::open("sqlite::memory:")
             .await
             .expect("in-memory queue"),
@@ -27,12 +32,33 @@ async fn state(stopping: watch::Receiver<bool>) -> AppState {
         work: Arc::default(),
         ended: Arc::default(),
         progress: Arc::default(),
-        receiving: {
-            let cfg = Config::defaults();
-            Receiving::new(cfg.receiving_bytes(), cfg.max_scene_texture_pixels)
-        },
         stopping,
     }
+}
+
+/// A multipart submission of `scene` and PNG textures `t0.png`, `t1.png`, … of the given
+/// sizes.
+fn textured(scene: &str, sizes: &[(u32, u32)]) -> axum::extract::Request {
+    let mut body = Vec::new();
+    body.extend_from_slice(b"--XyZ\r\nContent-Disposition: form-data; name=\"scene\"\r\n\r\n");
+    body.extend_from_slice(scene.as_bytes());
+    for (i, &(w, h)) in sizes.iter().enumerate() {
+        let png = tessera_tracer::encode_png(w, h, &vec![9u8; (w * h * 3) as usize]).expect("png");
+        body.extend_from_slice(
+            format!(
+                "\r\n--XyZ\r\nContent-Disposition: form-data; name=\"asset\"; \
+                 filename=\"t{i}.png\"\r\n\r\n"
+            )
+            .as_bytes(),
+        );
+        body.extend_from_slice(&png);
+    }
+    body.extend_from_slice(b"\r\n--XyZ--\r\n");
+    axum::http::Request::post("/jobs")
+        .header("content-type", "multipart/form-data; boundary=XyZ")
+        .header("content-length", body.len())
+        .body(axum::body::Body::from(body))
+        .expect("a request")
 }
 
 /// Checks that `waiting` (a handler's task) is still waiting, stops the service, and returns
@@ -139,23 +165,57 @@ async fn a_submission_waiting_to_decode_its_textures_answers_when_the_service_st
     held.grow_texels(u64::MAX, Duration::from_secs(1))
         .await
         .expect("every texel");
-    let png = tessera_tracer::encode_png(4, 4, &[9u8; 4 * 4 * 3]).expect("png");
-    let scene = "[OBJECT]\ntype = sphere\ntexture = t.png\n[/OBJECT]\n";
-    let mut body = Vec::new();
-    body.extend_from_slice(b"--XyZ\r\nContent-Disposition: form-data; name=\"scene\"\r\n\r\n");
-    body.extend_from_slice(scene.as_bytes());
-    body.extend_from_slice(
-        b"\r\n--XyZ\r\nContent-Disposition: form-data; name=\"asset\"; filename=\"t.png\"\r\n\r\n",
+    let req = textured(
+        "[OBJECT]\ntype = sphere\ntexture = t0.png\n[/OBJECT]\n",
+        &[(4, 4)],
     );
-    body.extend_from_slice(&png);
-    body.extend_from_slice(b"\r\n--XyZ--\r\n");
-    let req = axum::http::Request::post("/jobs")
-        .header("content-type", "multipart/form-data; boundary=XyZ")
-        .header("content-length", body.len())
-        .body(axum::body::Body::from(body))
-        .expect("a request");
     let waiting = tokio::spawn(submit(State(state.clone()), req));
     let resp = answer_on_stop(stop, waiting).await.into_response();
     assert_eq!(resp.status(), StatusCode::SERVICE_UNAVAILABLE);
     drop(held);
+}
+
+/// Textures past a job's own limit (`--max-scene-texture-pixels`) are refused at once with
+/// the check's `400`, without waiting for room to decode them (they waited, ahead of every
+/// other submission, for every texel there is, to be refused after all).
+#[tokio::test]
+async fn textures_past_the_jobs_limit_are_refused_without_waiting() {
+    let (_stop, stopping) = watch::channel(false);
+    let mut cfg = Config::defaults();
+    cfg.max_scene_texture_pixels = 20;
+    let state = state_with(cfg, stopping).await;
+    let mut held = state.receiving.hold();
+    held.grow_texels(u64::MAX, Duration::from_secs(1))
+        .await
+        .expect("every texel");
+    let req = textured(
+        "[OBJECT]\ntype = sphere\ntexture = t0.png\n[/OBJECT]\n\
+         [OBJECT]\ntype = sphere\ntexture = t1.png\n[/OBJECT]\n",
+        &[(4, 4), (4, 4)],
+    );
+    let answer = tokio::time::timeout(Duration::from_secs(5), submit(State(state.clone()), req))
+        .await
+        .expect("answered without waiting for room");
+    let resp = answer.into_response();
+    assert_eq!(resp.status(), StatusCode::BAD_REQUEST);
+    drop(held);
+}
+
+/// A submission that needs no more room than there is goes on while the service stops:
+/// only one that must wait is answered `503` (a random pick between the two cut half the
+/// uploads under way).
+#[tokio::test]
+async fn a_submission_with_room_is_served_while_the_service_stops() {
+    let (stop, stopping) = watch::channel(false);
+    let state = state(stopping).await;
+    stop.send(true).expect("a receiver");
+    for i in 0..20 {
+        let scene = "[GLOBALS]\nwidth = 8\nheight = 8\n[/GLOBALS]\n";
+        let req = axum::http::Request::post("/jobs")
+            .header("content-length", scene.len())
+            .body(axum::body::Body::from(scene))
+            .expect("a request");
+        let resp = submit(State(state.clone()), req).await.into_response();
+        assert_eq!(resp.status(), StatusCode::CREATED, "submission {i}");
+    }
 }

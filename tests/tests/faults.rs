@@ -1387,8 +1387,9 @@ fn submissions_past_the_receiving_budget_wait_their_turn() {
     assert_eq!(post(padded(50 * KIB)).status(), 201);
     drop(silent);
 
-    // The first submission sends 50 KiB of its 60 and then a byte every 200 ms (the idle
-    // timeout is 5 s), holding 50 of the 96 KiB while the test waits on the others.
+    // The first submission sends 50 KiB of its 60 and then a byte every 200 ms (never
+    // silent for 2 s, nor for the idle timeout of 5 s), holding its declared 60 of the 96 KiB
+    // while the test waits on the others.
     let big = padded(60 * KIB);
     let mut first = connect();
     write!(

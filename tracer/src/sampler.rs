@@ -29,17 +29,17 @@ pub enum Sampler {
     /// nothing but smooth shading changes in the pixel and no neighbour's probe on the same
     /// surface differs from it by more than `threshold` (see
     /// [`Sampler::render_rect_probed`]). Elsewhere a first pass of one jittered ray per
-    /// pixel quadrant (the probe among them), then more where the image needs them, in stages that reuse every ray already traced, up to `max × max` stratified rays
-    /// (for even `max`, the very rays of `Jitter { n: max }`): where the first pass varies by
+    /// pixel quadrant (the probe among them), then more where the image needs them, in
+    /// stages that reuse every ray already traced, up to `max × max` stratified rays (for
+    /// even `max`, the very rays of `Jitter { n: max }`): where the first pass varies by
     /// more than `threshold` or meets two objects, where the scene's geometry says a solid
     /// the first pass did not see may show in the pixel ([`PixelGeometry::may_hide`]), or
     /// where a neighbour's first pass saw an edge, another object or another mean. For even
-    /// `max ≥ 6`, a pixel only a neighbour
-    /// asked for takes one more ray per quadrant first and stops there unless they disagree
-    /// (or the step between them went unseen by both: then both take every ray),
-    /// and a pixel at 16 rays (or, for `max/2` a power of two, 32, 64, …) stops there once
-    /// the standard error of its mean is at most `threshold` · √(rays/16) (see `refine` and
-    /// `se_bound` in this module).
+    /// `max ≥ 6`, a pixel only a neighbour asked for takes one more ray per quadrant first
+    /// and stops there unless they disagree (or the step between them went unseen by both:
+    /// then both take every ray), and a pixel at 16 rays (or, for `max/2` a power of two,
+    /// 32, 64, …) stops there once the standard error of its mean is at most `threshold` ·
+    /// √(rays/16) (see `refine` and `se_bound` in this module).
     Adaptive { max: u32, threshold: f64 },
 }
 
@@ -378,14 +378,19 @@ impl Tally {
         self.sum / f64::from(self.count)
     }
 
-    /// Whether the range of these samples and the range of `other`'s come within
-    /// `threshold` of each other in every channel. A step between two pixels that neither
-    /// saw leaves a gap between their ranges as high as the step; a smooth gradient leaves
-    /// only a small part of the difference between their means (each pixel's samples reach
-    /// towards the other's).
-    fn touches(&self, other: &Tally, threshold: f64) -> bool {
-        let t = Color::splat(threshold);
-        (self.min - t).cmple(other.max).all() && (other.min - t).cmple(self.max).all()
+    /// Whether a step between these samples' pixel and `other`'s went unseen by both: in
+    /// some channel the two means differ by more than `threshold`, and the two ranges of
+    /// samples stay apart by more than `threshold` and by more than [`UNSEEN_GAP`] of that
+    /// difference. An unseen step leaves a gap as high as the step itself (each pixel's
+    /// samples all on its own side); a smooth gradient leaves a third of the difference on
+    /// average (each pixel's samples reach towards the other's), and is no step at all.
+    fn unseen_step(&self, other: &Tally, threshold: f64) -> bool {
+        let (a, b) = (self.mean(), other.mean());
+        (0..3).any(|i| {
+            let difference = (a[i] - b[i]).abs();
+            let gap = (self.min[i] - other.max[i]).max(other.min[i] - self.max[i]);
+            difference > threshold && gap > threshold && gap > UNSEEN_GAP * difference
+        })
     }
 
     /// Whether the samples disagree: more than `threshold` apart in a channel, or on
@@ -586,6 +591,12 @@ fn first_pass<F: Fn(f64, f64) -> Sample>(
     }
     fp
 }
+
+/// The part of the difference between two neighbours' means that must lie between their
+/// ranges of samples for a step between them to count as unseen ([`Ask::Unseen`]). A step
+/// that neither saw leaves all of it (less the shading's spread); a linear gradient leaves
+/// a third on average, more only where both pixels' first rays fell near their centres.
+const UNSEEN_GAP: f64 = 0.75;
 
 /// Why a pixel takes more samples than its first pass (see [`refine`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -847,9 +858,9 @@ fn adaptive<F, G>(
                     // disagree with their neighbours'.
                     //
                     // A neighbour whose mean differs by more than `threshold` while the
-                    // ranges of the two first passes stay further apart than that (see
-                    // `Tally::touches`) has a step between them that neither saw, in one of
-                    // the two: a sliver of one pixel that four rays, and eight, can all
+                    // ranges of the two first passes stay apart by most of that difference
+                    // (see `Tally::unseen_step`) has a step between them that neither saw,
+                    // in one of the two: a sliver of one pixel that four rays, and eight, can all
                     // miss. Both take every ray (`Ask::Unseen`): stopping at eight agreeing
                     // rays there made `adaptive` 8×8 to 32×32 worse than `jitter` 4×4 along
                     // checker edges (a sixth of a pixel lost, 56 to 73 steps off). A step
@@ -866,7 +877,7 @@ fn adaptive<F, G>(
                         let other_object = nb.object != c.object;
                         let other_mean = (nb_mean - mean).abs().max_element() > threshold;
                         near |= nb.mixed || other_object || other_mean;
-                        unseen |= other_mean && !c.touches(&nb, threshold);
+                        unseen |= c.unseen_step(&nb, threshold);
                     }
                     let ask = if unseen {
                         Ask::Unseen
@@ -1233,6 +1244,31 @@ mod tests {
         let mut jitter = vec![Color::ZERO; 20];
         Sampler::Jitter { n: 6 }.render_rect(Rect::new(0, 0, 20, 1), step, &mut jitter);
         assert_eq!((out[10], out[11]), (jitter[10], jitter[11]));
+    }
+
+    /// A smooth ramp is no unseen step: neighbours' means differ by several thresholds, but
+    /// their first passes reach towards each other. Each pixel asks for itself (its four
+    /// rays span more than the threshold) and stops at 16 rays, whose standard error on a
+    /// ramp of slope `s` is about `s/√12/4`, under the threshold up to a slope of 13
+    /// thresholds a pixel. (Taken for unseen steps, ramps steeper than about three
+    /// thresholds a pixel took every ray: 53 to 62 a pixel at a cap of 8, 200 and more at 16.)
+    #[test]
+    fn a_smooth_ramp_is_not_an_unseen_step() {
+        let threshold = 0.02;
+        for max in [8, 16] {
+            for slope in [3.0, 5.0, 10.0] {
+                let ramp = |x: f64, _y: f64| Sample {
+                    color: Color::splat(slope * threshold * x),
+                    object: 0,
+                };
+                let s = Sampler::Adaptive { max, threshold };
+                let (_, rays) = traced(s, Rect::new(2, 0, 30, 1), ramp);
+                for x in 2..32 {
+                    let n = rays_in(&rays, x, 0).len();
+                    assert!(n <= 16, "cap {max}, slope {slope}: pixel {x} took {n} rays");
+                }
+            }
+        }
     }
 
     #[test]

@@ -327,16 +327,11 @@ fn plain_scene_at(cap: u32) {
     let (whole, stats) = s.render_rect_stats(Rect::full(w, h));
     let pixels = u64::from(w * h);
     // Without the smoothness test every pixel would take at least its four-ray first pass.
-    // At a cap of 4 an edge pixel takes at most 16 rays, so fewer than four a pixel means
-    // most pixels ended after one. (At 8, a pixel beside a colour step that neither it nor
-    // its neighbour saw takes all 64, which no bound on the mean would separate from this.)
-    if cap == 4 {
-        assert!(
-            stats.primary < 4 * pixels,
-            "{} primary rays for {pixels} pixels",
-            stats.primary
-        );
-    }
+    assert!(
+        stats.primary < 4 * pixels,
+        "cap {cap}: {} primary rays for {pixels} pixels",
+        stats.primary
+    );
     for tile in [3u32, 8, 19] {
         let mut assembled = vec![0u8; whole.len()];
         for r in tessera_tracer::tile::tiles(w, h, tile) {
