@@ -20,7 +20,7 @@ use tessera_tracer::{MemoryAssets, Sampler, Scene, SceneError, Texture, parse, t
 use crate::config::auto_tile;
 use crate::error::{ApiError, ok_json};
 use crate::queue::{Cancel, JobRow, NewJob};
-use crate::receiving::{Full, Held, RELEASE_AFTER_SILENCE, Receiving};
+use crate::receiving::{BODY_SILENCE, Full, Held, Receiving};
 use crate::{AppState, now_ms};
 
 /// Smallest and largest tile edge a job may ask for.
@@ -408,8 +408,16 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     };
     let (scene_bytes, file_name, uploads) = match read {
         Ok(read) => read,
-        Err(_) if held.lock().await.refused() => return Err(busy(&state)),
-        Err(e) => return Err(e),
+        Err(e) => {
+            let held = held.lock().await;
+            return Err(if held.refused() {
+                busy(&state)
+            } else if held.stalled() {
+                stalled(&state)
+            } else {
+                e
+            });
+        }
     };
     let source = tessera_tracer::scene_text(scene_bytes).map_err(|e| scene_error(&e))?;
     if source.trim().is_empty() {
@@ -480,71 +488,78 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
 
 /// The request with its body counted into the submission's share of the budget (see
 /// `receiving`): its declared length (the body limit if it declares none) before the first
-/// byte is read, all or nothing; the unsent rest given back whenever the client falls
-/// silent for [`RELEASE_AFTER_SILENCE`], and waited for in line when it sends again. A
-/// share that gets no room in time (or none while the service stops) ends the body with
-/// [`Full`], which [`submit`] answers `503`.
+/// byte is read, all or nothing, held until the submission is answered. A share that gets
+/// no room in time (or none while the service stops) ends the body with [`Full`], which
+/// [`submit`] answers `503`; a body silent for [`BODY_SILENCE`] (or a second under the
+/// idle timeout) ends with [`Stalled`], answered `408`.
 fn metered(req: Request, state: &AppState, held: Arc<tokio::sync::Mutex<Held>>) -> Request {
     use futures_util::StreamExt;
     let limit = state.cfg.max_body_bytes as u64;
     let want = crate::error::declared_length(req.headers()).map_or(limit, |n| n.min(limit));
     let within = Receiving::wait_limit(state.cfg.longest_silence());
+    let silence = BODY_SILENCE.min(state.cfg.longest_silence());
     let (parts, body) = req.into_parts();
     struct Meter {
         body: axum::body::BodyDataStream,
         held: Arc<tokio::sync::Mutex<Held>>,
         state: AppState,
-        received: u64,
-        /// Bytes to hold before each chunk: the declared length (after a silence, the rest
-        /// of it is waited for again, all or nothing).
-        want: u64,
-    }
-    impl Meter {
-        async fn hold(&mut self, within: Duration) -> Result<(), axum::Error> {
-            let mut held = self.held.lock().await;
-            // Biased: a share that needs no room goes on though the service is stopping (a
-            // random pick cut half the uploads under way with a 503).
-            tokio::select! {
-                biased;
-                room = held.grow_to(self.want, within) => room.map_err(axum::Error::new),
-                () = self.state.stopped() => {
-                    held.refuse();
-                    Err(axum::Error::new(Full))
-                }
-            }
-        }
+        /// Whether the share holds the body's room yet (taken at the first read).
+        holding: bool,
     }
     let meter = Meter {
         body: body.into_data_stream(),
         held,
         state: state.clone(),
-        received: 0,
-        want,
+        holding: false,
     };
     let chunks = futures_util::stream::unfold(Some(meter), move |meter| async move {
         let mut m = meter?;
-        if let Err(e) = m.hold(within).await {
-            return Some((Err(e), None));
-        }
-        let next = match tokio::time::timeout(RELEASE_AFTER_SILENCE, m.body.next()).await {
-            Ok(next) => next,
-            Err(_) => {
-                m.held.lock().await.shrink_to(m.received);
-                m.body.next().await
-            }
-        };
-        match next? {
-            Ok(chunk) => {
-                m.received += chunk.len() as u64;
-                match m.hold(within).await {
-                    Ok(()) => Some((Ok(chunk), Some(m))),
-                    Err(e) => Some((Err(e), None)),
+        if !m.holding {
+            let mut held = m.held.lock().await;
+            // Biased: a share that finds room goes on though the service is stopping (a
+            // random pick cut half the uploads under way with a 503).
+            let room = tokio::select! {
+                biased;
+                room = held.grow(want, within) => room,
+                () = m.state.stopped() => {
+                    held.refuse();
+                    Err(Full)
                 }
+            };
+            drop(held);
+            if let Err(e) = room {
+                return Some((Err(axum::Error::new(e)), None));
             }
-            Err(e) => Some((Err(e), None)),
+            m.holding = true;
+        }
+        match tokio::time::timeout(silence, m.body.next()).await {
+            Ok(Some(Ok(chunk))) => Some((Ok(chunk), Some(m))),
+            Ok(Some(Err(e))) => Some((Err(e), None)),
+            Ok(None) => None,
+            Err(_) => {
+                m.held.lock().await.stall();
+                Some((Err(axum::Error::new(Stalled)), None))
+            }
         }
     });
     Request::from_parts(parts, Body::from_stream(chunks))
+}
+
+/// A body that stopped arriving for [`BODY_SILENCE`].
+#[derive(Debug, thiserror::Error)]
+#[error("the body stopped arriving")]
+struct Stalled;
+
+/// The `408` of a submission whose body stopped arriving.
+fn stalled(state: &AppState) -> ApiError {
+    let secs = BODY_SILENCE.min(state.cfg.longest_silence()).as_secs();
+    ApiError::new(
+        StatusCode::REQUEST_TIMEOUT,
+        format!(
+            "the body stopped arriving for {secs} s; send it again (its room in \
+             --max-receiving-bytes is given to others meanwhile)"
+        ),
+    )
 }
 
 /// The `503` of a submission whose textures found no room to be decoded in time

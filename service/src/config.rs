@@ -153,7 +153,7 @@ pub struct Config {
     pub max_body_bytes: usize,
     /// Body bytes of all the submissions being received and checked at once (default twice
     /// `--max-body-bytes`; at least `--max-body-bytes`): each holds its declared length, and
-    /// only what it sent once its client falls silent. A submission that does not fit waits
+    /// a body silent for 10 s is cut (408). A submission that does not fit waits
     /// its turn, up to 30 s, then is answered 503 with Retry-After. (Textures being decoded
     /// are held to `--max-scene-texture-pixels` at once, the same way.)
     #[arg(long, env = "TESSERA_MAX_RECEIVING_BYTES")]

@@ -8,10 +8,11 @@
 //! submission now holds a share of the budget ([`Held`]) that grows with what it holds:
 //!
 //! - its body: its declared length (the body limit if it declares none) before any of it
-//!   is read, all or nothing, so that two bodies half received never wait on each other;
-//!   but a client that falls silent for [`RELEASE_AFTER_SILENCE`] keeps only what it sent
-//!   (a client that declared 64 MiB and stalled held it until the idle timeout: two such
-//!   shut every submission out), and waits in line for the rest when it sends again;
+//!   is read, all or nothing, so that no share ever waits while it holds part of a body
+//!   (shares that held part of one and waited for the rest shut each other out until the
+//!   wait limit); a body that stops arriving for [`BODY_SILENCE`] is cut (`408`) and its
+//!   share given back (a client that declared 64 MiB and fell silent held it until the
+//!   idle timeout: two such shut every submission out);
 //! - its textures' texels, counted from their headers before they are decoded, against a
 //!   budget of their own: at most one job's worth (`--max-scene-texture-pixels`) is
 //!   decoded at a time. (Counted in the same budget as bodies, shares holding their bodies
@@ -33,8 +34,9 @@ use std::time::Duration;
 
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 
-/// How long a body may fall silent before its share shrinks to the bytes it has sent.
-pub const RELEASE_AFTER_SILENCE: Duration = Duration::from_secs(2);
+/// How long a body being received may fall silent before it is cut (`408`) and its share
+/// given back (at most a second under the idle timeout, which would close it unanswered).
+pub const BODY_SILENCE: Duration = Duration::from_secs(10);
 
 /// The budget is counted in whole KiB: tokio's semaphore counts permits in `u32` per request.
 const UNIT: u64 = 1024;
@@ -60,6 +62,8 @@ pub struct Held {
     texels: Option<OwnedSemaphorePermit>,
     /// Whether a `grow` found no room in time: the submission's answer is `503`.
     refused: bool,
+    /// Whether the body fell silent past [`BODY_SILENCE`]: the answer is `408`.
+    stalled: bool,
 }
 
 /// The budget stayed full for as long as a submission may wait.
@@ -96,6 +100,7 @@ impl Receiving {
             room: None,
             texels: None,
             refused: false,
+            stalled: false,
         }
     }
 
@@ -159,26 +164,14 @@ impl Held {
         self.texels = None;
     }
 
-    /// Grows the share to cover `bytes` in all, if it covers fewer (see [`Held::grow`]).
-    pub async fn grow_to(&mut self, bytes: u64, within: Duration) -> Result<(), Full> {
-        match bytes.checked_sub(self.bytes) {
-            Some(more) if more > 0 => self.grow(more, within).await,
-            _ => Ok(()),
-        }
+    /// Marks the body cut for its silence.
+    pub fn stall(&mut self) {
+        self.stalled = true;
     }
 
-    /// Shrinks the share to cover `bytes` (if it covers more), giving the rest back.
-    pub fn shrink_to(&mut self, bytes: u64) {
-        if bytes >= self.bytes {
-            return;
-        }
-        let keep = bytes.div_ceil(UNIT) as usize;
-        if let Some(room) = &mut self.room
-            && room.num_permits() > keep
-        {
-            drop(room.split(room.num_permits() - keep));
-        }
-        self.bytes = bytes;
+    /// Whether the body was cut for its silence.
+    pub fn stalled(&self) -> bool {
+        self.stalled
     }
 
     /// Marks the share refused: its submission is answered `503` (the service is stopping).
@@ -242,30 +235,6 @@ mod tests {
         assert_eq!(got.bytes(), 600 * UNIT);
         drop((got, third, second));
         assert_eq!(budget.available(), 1000 * UNIT, "all room given back");
-    }
-
-    /// A share shrunk to what it holds gives the rest back, and grows again in line.
-    #[tokio::test]
-    async fn a_share_shrinks_to_what_it_holds() {
-        let budget = Receiving::new(100 * UNIT as usize, UNIT);
-        let mut share = budget.hold();
-        share.grow_to(64 * UNIT, LONG).await.expect("room");
-        assert_eq!(budget.available(), 36 * UNIT);
-        share.shrink_to(UNIT + 1);
-        assert_eq!(
-            budget.available(),
-            98 * UNIT,
-            "two units kept for 1 KiB and a byte"
-        );
-        assert_eq!(share.bytes(), UNIT + 1);
-        share.grow_to(UNIT, LONG).await.expect("covered already");
-        assert_eq!(budget.available(), 98 * UNIT);
-        let mut other = budget.hold();
-        other.grow(98 * UNIT, LONG).await.expect("room");
-        assert_eq!(share.grow_to(64 * UNIT, NOW).await, Err(Full));
-        drop(other);
-        share.grow_to(64 * UNIT, LONG).await.expect("room again");
-        assert_eq!(budget.available(), 36 * UNIT);
     }
 
     /// Texels come from a budget of their own: shares that hold their bodies while they
