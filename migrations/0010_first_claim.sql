@@ -9,8 +9,7 @@
 ALTER TABLE tiles ADD COLUMN claimed_at INTEGER;
 
 -- On `lease`, which only the claim sets to a value (a result sets `state`, not `lease`): a
--- trigger on `state` ran for every stored result too, and cost the queue a tenth of its
--- claims and results per second.
+-- trigger on `state` was entered for every stored result too, only to find it no claim.
 CREATE TRIGGER job_started AFTER UPDATE OF lease ON tiles
 WHEN NEW.state = 'leased'
 BEGIN
