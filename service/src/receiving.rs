@@ -25,9 +25,9 @@
 //! **What it is not.** It does not limit connections, nor other routes' bodies (a tile's is
 //! bounded by its size), nor what a job costs once stored. A client that keeps sending,
 //! however slowly (a byte a second), keeps its share, as it keeps its connection past the
-//! idle timeout: a rate floor would cut slow links too; put a proxy with one in front.
-//! Shares that wait on each other (bodies that fell silent and resumed) end at the wait
-//! limit, not in a deadlock.
+//! idle timeout: a rate floor would cut slow links too; put a proxy with one in front. A
+//! client that gives up while waiting for room is noticed only when its wait ends (nothing
+//! reads its connection meanwhile), so it can hold its place in line until then.
 
 use std::sync::Arc;
 use std::time::Duration;
