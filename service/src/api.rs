@@ -384,8 +384,8 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
             )));
         }
     };
-    // The submission's share of `--max-receiving-bytes`: it grows as the body arrives and
-    // before its textures are decoded, and is given back once it is answered.
+    // The submission's share of `--max-receiving-bytes`: its body's room, taken before the
+    // body is read, and its textures' before they are decoded; given back once answered.
     let held = Arc::new(tokio::sync::Mutex::new(state.receiving.hold()));
     let req = metered(req, &state, held.clone());
     // Media types are case-insensitive (RFC 9110): `Multipart/Form-Data` was read as a
@@ -565,8 +565,7 @@ fn stalled(state: &AppState) -> ApiError {
 /// The `503` of a submission whose textures found no room to be decoded in time
 /// (`--max-scene-texture-pixels` at once), or none while the service stops.
 fn busy_decoding(state: &AppState) -> ApiError {
-    ApiError::new(
-        StatusCode::SERVICE_UNAVAILABLE,
+    try_again_shortly(
         "the service is decoding as many textures as it takes at once \
          (--max-scene-texture-pixels); try again shortly",
     )
@@ -574,19 +573,21 @@ fn busy_decoding(state: &AppState) -> ApiError {
         "max_scene_texture_pixels",
         state.cfg.max_scene_texture_pixels,
     )
-    .retry_after(5)
 }
 
 /// The `503` of a submission that found no room in `--max-receiving-bytes` in time (or
 /// none while the service stops).
 fn busy(state: &AppState) -> ApiError {
-    ApiError::new(
-        StatusCode::SERVICE_UNAVAILABLE,
+    try_again_shortly(
         "the service is receiving and checking as many scenes as it takes at once \
          (--max-receiving-bytes); try again shortly",
     )
     .with("receiving_bytes", state.cfg.receiving_bytes())
-    .retry_after(5)
+}
+
+/// A `503` that a client may simply repeat a few seconds later.
+fn try_again_shortly(message: &str) -> ApiError {
+    ApiError::new(StatusCode::SERVICE_UNAVAILABLE, message).retry_after(5)
 }
 
 type Uploads = Vec<(String, Vec<u8>)>;
@@ -886,9 +887,7 @@ async fn validate(
     // `--tile` asked for is refused below instead, naming the smallest that fits.
     let tile = tile.unwrap_or_else(|| {
         let auto = auto_tile(width, height, rays);
-        (auto..=MAX_TILE)
-            .find(|&e| tile_count(width, height, e) <= state.cfg.max_tiles)
-            .unwrap_or(auto)
+        smallest_fitting_tile(width, height, auto, state.cfg.max_tiles).unwrap_or(auto)
     });
     check_tile_count(width, height, tile, state.cfg.max_tiles)?;
     let job = NewJob {
@@ -908,6 +907,13 @@ async fn validate(
     Ok((job, rects, kept))
 }
 
+/// The smallest tile edge from `from` up to [`MAX_TILE`] that cuts a `width × height` image
+/// into at most `max_tiles` tiles, if any does. The count only falls as the edge grows, so
+/// the first edge that fits is the smallest.
+fn smallest_fitting_tile(width: u32, height: u32, from: u32, max_tiles: u64) -> Option<u32> {
+    (from..=MAX_TILE).find(|&e| tile_count(width, height, e) <= max_tiles)
+}
+
 /// Refuses a job of more than `max_tiles` tiles (`--max-tiles`), naming the smallest tile
 /// edge that would do, if any does.
 fn check_tile_count(width: u32, height: u32, tile: u32, max_tiles: u64) -> Result<(), ApiError> {
@@ -915,8 +921,7 @@ fn check_tile_count(width: u32, height: u32, tile: u32, max_tiles: u64) -> Resul
     if count <= max_tiles {
         return Ok(());
     }
-    // The count only falls as the edge grows, so the first edge that fits is the smallest.
-    let fits = (tile..=MAX_TILE).find(|&e| tile_count(width, height, e) <= max_tiles);
+    let fits = smallest_fitting_tile(width, height, tile, max_tiles);
     let hint = match fits {
         Some(edge) => format!("; ask for tile={edge} or more"),
         None => format!("; no tile edge up to {MAX_TILE} makes so few"),

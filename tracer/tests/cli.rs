@@ -11,6 +11,16 @@ fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_tessera-render"))
 }
 
+/// `tessera-render SCENE -o OUTPUT`, run to its end.
+fn render_to(scene: &Path, output: &Path) -> std::process::Output {
+    bin()
+        .arg(scene)
+        .arg("-o")
+        .arg(output)
+        .output()
+        .expect("runs")
+}
+
 fn temp_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("tessera-cli-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
@@ -61,12 +71,7 @@ fn examples_render_to_the_same_png_as_the_library() {
 
 /// Renders `scene` into `dir`, expecting a refusal: returns what was printed.
 fn refused(scene: &Path, dir: &Path) -> String {
-    let out = bin()
-        .arg(scene)
-        .arg("-o")
-        .arg(dir.join("x.png"))
-        .output()
-        .expect("runs");
+    let out = render_to(scene, &dir.join("x.png"));
     assert!(!out.status.success());
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
@@ -164,12 +169,7 @@ fn texture_names_resolve_next_to_the_scene_and_errors_point_at_them() {
     };
     // `-o` naming one of the scene's textures replaced it with the render.
     std::fs::write(&scene, lit("maps/../t.ppm")).expect("write");
-    let out = bin()
-        .arg(&scene)
-        .arg("-o")
-        .arg(dir.join("t.ppm"))
-        .output()
-        .expect("runs");
+    let out = render_to(&scene, &dir.join("t.ppm"));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
         stderr.contains("it is the scene's texture `maps/../t.ppm`"),
@@ -203,12 +203,7 @@ fn texture_names_resolve_next_to_the_scene_and_errors_point_at_them() {
         "[OBJECT]\ntype = sphere\ntexture = missing.ppm\n[/OBJECT]\n",
     )
     .expect("write");
-    let out = bin()
-        .arg(&scene)
-        .arg("-o")
-        .arg(&png)
-        .output()
-        .expect("runs");
+    let out = render_to(&scene, &png);
     assert!(!out.status.success());
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
@@ -350,25 +345,14 @@ fn an_output_that_cannot_be_written_fails_before_the_render() {
     let kept = dir.join("kept.png");
     std::fs::write(&kept, b"old image").expect("write");
     for output in [&fresh, &kept] {
-        let out = bin()
-            .arg(&bad)
-            .arg("-o")
-            .arg(output)
-            .output()
-            .expect("runs");
-        assert!(!out.status.success());
+        assert!(!render_to(&bad, output).status.success());
     }
     assert!(!fresh.exists());
     assert_eq!(std::fs::read(&kept).expect("kept"), b"old image");
     // `-o` naming the scene replaced the scene with its picture: refused, here through `.`
     // and (Unix) through a hard link, where the paths have nothing in common.
     let refused_as_the_scene = |output: &Path| {
-        let out = bin()
-            .arg(&bad)
-            .arg("-o")
-            .arg(output)
-            .output()
-            .expect("runs");
+        let out = render_to(&bad, output);
         assert!(!out.status.success());
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert!(stderr.contains("it is the scene file"), "{stderr}");
