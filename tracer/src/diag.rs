@@ -251,18 +251,29 @@ impl fmt::Display for WithFile<'_> {
 }
 
 /// The known word closest to `word`, if it is close enough to be a plausible misspelling
-/// (optimal-string-alignment distance at most one third of the longer word, and at least 1).
+/// (optimal-string-alignment distance at most one third of the longer word, and at least 1)
+/// or another form of the same word (see [`same_stem`]: `rotation` for `rotate`).
 pub fn closest<'a>(word: &str, candidates: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
     let word = word.to_ascii_lowercase();
     let mut best: Option<(usize, &str)> = None;
     for c in candidates {
         let d = edit_distance(&word, c);
         let limit = (word.chars().count().max(c.len()) / 3).max(1);
-        if d <= limit && best.is_none_or(|(bd, _)| d < bd) {
+        if (d <= limit || same_stem(&word, c)) && best.is_none_or(|(bd, _)| d < bd) {
             best = Some((d, c));
         }
     }
     best.map(|(_, c)| c)
+}
+
+/// Whether `a` and `b` look like two forms of one word (`rotation` and `rotate`, `scaling`
+/// and `scale`): they share a prefix of at least four characters that leaves at most the last
+/// character of the shorter one out. Endings differ by more edits than a misspelling is
+/// allowed, so [`edit_distance`] alone misses these.
+fn same_stem(a: &str, b: &str) -> bool {
+    let shorter = a.chars().count().min(b.chars().count());
+    let common = a.chars().zip(b.chars()).take_while(|(x, y)| x == y).count();
+    common >= 4 && common + 1 >= shorter
 }
 
 /// Optimal string alignment distance (Levenshtein plus adjacent transpositions).
@@ -344,6 +355,19 @@ mod tests {
         assert_eq!(closest("MIROR", keys), Some("mirror"));
         assert_eq!(closest("tranlsate", keys), Some("translate"));
         assert_eq!(closest("zzz", keys), None);
+    }
+
+    /// Three edits apart, more than a misspelling of a six-letter word may be, but the same
+    /// word: suggested. A shared prefix that leaves more of the shorter word out is not.
+    #[test]
+    fn another_form_of_a_key_is_suggested() {
+        let keys = ["rotate", "scale", "translate", "color1"];
+        assert_eq!(closest("rotation", keys), Some("rotate"));
+        assert_eq!(closest("Scaling", keys), Some("scale"));
+        assert_eq!(closest("translation", keys), Some("translate"));
+        assert_eq!(closest("rotor", keys), None);
+        assert_eq!(closest("scarf", keys), None);
+        assert_eq!(closest("transmission", keys), None);
     }
 
     #[test]

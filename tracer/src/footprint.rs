@@ -578,6 +578,22 @@ impl<'s> Footprints<'s> {
             .is_some_and(|i| self.fitted[i] != NOTHING && self.fitted[i] != object)
     }
 
+    /// Whether pixel `(px, py)`'s square may cross an edge of `object`'s checker (a hit's
+    /// object, or [`Sample::BACKGROUND`]): the object is a checkered plane without a
+    /// texture, with two colours, and the square is not known to lie in one of its cells
+    /// ([`one_cell`], which also says no where a ray of the square misses the plane).
+    /// Every other pattern, and every other object, answers no: only a checker plane's
+    /// cells are known here. Asked of any pixel, inside the region or not (the answer
+    /// depends on the pixel alone).
+    pub fn crosses_pattern(&self, px: i64, py: i64, object: u32) -> bool {
+        let Some(obj) = self.scene.objects.get(object as usize) else {
+            return false;
+        };
+        let m = &obj.material;
+        let checker = m.color2.is_some_and(|c2| c2 != m.color1) && m.texture.is_none();
+        checker && matches!(obj.shape, Shape::Plane) && !one_cell(self.scene, obj, px, py)
+    }
+
     /// Pixel `(px, py)`'s place in the per-pixel records; `None` outside the region.
     fn index(&self, px: i64, py: i64) -> Option<usize> {
         let reg = self.region;
@@ -652,6 +668,10 @@ impl crate::sampler::PixelGeometry for Footprints<'_> {
 
     fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
         Footprints::may_hide(self, px, py, object)
+    }
+
+    fn crosses_pattern(&self, px: i64, py: i64, object: u32) -> bool {
+        Footprints::crosses_pattern(self, px, py, object)
     }
 }
 

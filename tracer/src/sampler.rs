@@ -240,6 +240,12 @@ pub trait PixelGeometry {
     /// `object` may have slipped between. Such a pixel is refined as if its own rays
     /// disagreed.
     fn may_hide(&self, px: i64, py: i64, object: u32) -> bool;
+
+    /// Whether pixel `(px, py)`'s square, where every ray of the first pass saw `object`,
+    /// crosses an edge of that object's own pattern (a checker's cell boundary). Rays that
+    /// agree there bound nothing about the part of the square beyond the edge, which they all
+    /// missed: such a pixel takes every ray. May say yes where no is true, never the reverse.
+    fn crosses_pattern(&self, px: i64, py: i64, object: u32) -> bool;
 }
 
 /// The geometry of renders without a footprint: nothing is known smooth, nothing hidden.
@@ -251,6 +257,10 @@ impl PixelGeometry for NoGeometry {
     }
 
     fn may_hide(&self, _: i64, _: i64, _: u32) -> bool {
+        false
+    }
+
+    fn crosses_pattern(&self, _: i64, _: i64, _: u32) -> bool {
         false
     }
 }
@@ -608,8 +618,8 @@ enum Ask {
     /// not see may show in it.
     Own,
     /// A neighbour's colour differs from this pixel's and neither saw the step between
-    /// them: it lies in one of the two, unseen, as a sliver that agreeing rays say nothing
-    /// about.
+    /// them, or the geometry says the pixel's square crosses an edge of the pattern its
+    /// rays all saw: a sliver that agreeing rays say nothing about lies in the pixel.
     Unseen,
 }
 
@@ -879,14 +889,24 @@ fn adaptive<F, G>(
                         near |= nb.mixed || other_object || other_mean;
                         unseen |= c.unseen_step(&nb, threshold);
                     }
-                    let ask = if unseen {
+                    // Rays that all saw one object and agree may still straddle an edge of
+                    // its pattern that they fell on one side of (a checker's corner in the
+                    // pixel, a diagonal edge past them, cells finer than their spacing);
+                    // the geometry knows where a checker plane's cells meet. Asked only
+                    // where nothing else refines the pixel with every ray already.
+                    let crossing = !own
+                        && !unseen
+                        && geometry.is_some_and(|g| {
+                            g.crosses_pattern(i64::from(x), i64::from(y), c.object)
+                        });
+                    let ask = if unseen || crossing {
                         Ask::Unseen
                     } else if own {
                         Ask::Own
                     } else {
                         Ask::Neighbour
                     };
-                    if own || near {
+                    if own || near || crossing {
                         refine(x, y, max, threshold, ask, fp, order, trace)
                     } else {
                         mean
@@ -909,13 +929,15 @@ mod tests {
         }
     }
 
-    /// A [`PixelGeometry`] from two closures: `smooth(px, py)` and `hides(px, py, object)`.
-    struct Geo<S, H>(S, H);
+    /// A [`PixelGeometry`] from three closures: `smooth(px, py)`, `hides(px, py, object)` and
+    /// `crosses(px, py, object)`.
+    struct Geo<S, H, C>(S, H, C);
 
-    impl<S, H> PixelGeometry for Geo<S, H>
+    impl<S, H, C> PixelGeometry for Geo<S, H, C>
     where
         S: Fn(i64, i64) -> bool,
         H: Fn(i64, i64, u32) -> bool,
+        C: Fn(i64, i64, u32) -> bool,
     {
         fn is_smooth(&self, px: i64, py: i64, _: f64, _: f64, _: &Sample) -> bool {
             (self.0)(px, py)
@@ -924,11 +946,20 @@ mod tests {
         fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
             (self.1)(px, py, object)
         }
+
+        fn crosses_pattern(&self, px: i64, py: i64, object: u32) -> bool {
+            (self.2)(px, py, object)
+        }
+    }
+
+    /// No pattern edge known anywhere.
+    fn no_crossing(_: i64, _: i64, _: u32) -> bool {
+        false
     }
 
     /// A geometry that knows nothing hidden, and smooth pixels by `smooth`.
     fn smooth_where(smooth: impl Fn(i64, i64) -> bool) -> impl PixelGeometry {
-        Geo(smooth, |_, _, _| false)
+        Geo(smooth, |_, _, _| false, no_crossing)
     }
 
     /// A vertical edge at x = 10.3: white to its left.
@@ -1246,6 +1277,66 @@ mod tests {
         assert_eq!((out[10], out[11]), (jitter[10], jitter[11]));
     }
 
+    /// A corner of a pattern cut off inside one pixel, missed by its first rays, beside
+    /// neighbours that all agree: nothing but the geometry can say the pixel holds an edge.
+    /// Where it says so the pixel takes every ray and estimates the corner as the stratified
+    /// set does; elsewhere nothing changes.
+    #[test]
+    fn a_pixel_the_geometry_says_crosses_a_pattern_edge_takes_every_ray() {
+        // Black where x + y > 11.4 inside pixel (5, 5) only: a triangle of legs 0.6, area
+        // 0.18, in the corner towards (6, 6). Elsewhere one white object.
+        let corner = |x: f64, y: f64| {
+            let black = x.floor() == 5.0 && y.floor() == 5.0 && x + y > 11.4;
+            Sample {
+                color: Color::splat(if black { 0.0 } else { 1.0 }),
+                object: 0,
+            }
+        };
+        let (max, threshold) = (8, 0.001);
+        let s = Sampler::Adaptive { max, threshold };
+        let rect = Rect::new(2, 2, 8, 8);
+        let render = |geometry: &dyn Fn(i64, i64, u32) -> bool| {
+            let rays = std::cell::RefCell::new(Vec::new());
+            let trace = |x: f64, y: f64| {
+                rays.borrow_mut().push((x, y));
+                corner(x, y)
+            };
+            let mut out = vec![Color::ZERO; rect.pixel_count()];
+            s.render_rect_probed(
+                rect,
+                trace,
+                &Geo(|_, _| false, |_, _, _| false, geometry),
+                &mut out,
+            );
+            (out, rays.into_inner())
+        };
+        let at = |px: u32, py: u32| ((py - rect.y) * rect.width + (px - rect.x)) as usize;
+
+        let (blind, rays) = render(&no_crossing);
+        let first = rays_in(&rays, 5, 5);
+        assert!(
+            first.len() == 4 && first.iter().all(|&(x, y)| x + y <= 11.4),
+            "the test needs a corner the first pass misses: {first:?}"
+        );
+        assert_eq!(blind[at(5, 5)], Color::ONE, "unseen without the geometry");
+
+        let (seen, rays) = render(&|px, py, object| (px, py) == (5, 5) && object == 0);
+        assert_eq!(rays_in(&rays, 5, 5).len(), 64);
+        let mut grid = vec![Color::ZERO; rect.pixel_count()];
+        Sampler::Jitter { n: max }.render_rect(rect, corner, &mut grid);
+        assert_eq!(seen[at(5, 5)], grid[at(5, 5)]);
+        assert!(
+            (seen[at(5, 5)].x - 0.82).abs() < 0.1,
+            "{:?}",
+            seen[at(5, 5)]
+        );
+        for (i, (a, b)) in seen.iter().zip(&blind).enumerate() {
+            if i != at(5, 5) {
+                assert_eq!(a, b, "pixel {i} changed");
+            }
+        }
+    }
+
     /// A smooth ramp is no unseen step: neighbours' means differ by several thresholds, but
     /// their first passes reach towards each other. Each pixel asks for itself (its four
     /// rays span more than the threshold) and stops at 16 rays, whose standard error on a
@@ -1488,6 +1579,7 @@ mod tests {
         let geometry = Geo(
             |px: i64, py: i64| (px * 7 + py * 3) % 5 != 0,
             |px: i64, py: i64, _| (px * 5 + py) % 4 == 0,
+            |px: i64, py: i64, _| (px + 2 * py) % 3 == 0,
         );
         let disc = |x: f64, y: f64| {
             let inside = (x - 8.3).powi(2) + (y - 5.1).powi(2) < 9.0;
@@ -1554,7 +1646,7 @@ mod tests {
             s.render_rect_probed(
                 Rect::new(4, 2, 2, 1),
                 trace,
-                &Geo(|_, _| false, hides),
+                &Geo(|_, _| false, hides, no_crossing),
                 &mut out,
             );
             let rays = rays.into_inner();
@@ -1596,6 +1688,7 @@ mod tests {
         let geometry = Geo(
             |_, _| false,
             |px, py, object| crosses(px, py) && object != 1,
+            no_crossing,
         );
         let mut flagged = vec![Color::ZERO; rect.pixel_count()];
         s.render_rect_probed(rect, line, &geometry, &mut flagged);
