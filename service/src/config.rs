@@ -140,16 +140,19 @@ pub struct Config {
     #[arg(long, env = "TESSERA_MAX_ATTEMPTS", default_value_t = 4,
           value_parser = clap::value_parser!(u32).range(1..))]
     pub max_attempts: u32,
-    /// Failures of one worker on one job after which it is kept away from the job.
-    #[arg(long, env = "TESSERA_KEEP_AWAY_AFTER", default_value_t = 2)]
+    /// Failures of one worker on one job after which it is kept away from the job (at
+    /// least 1).
+    #[arg(long, env = "TESSERA_KEEP_AWAY_AFTER", default_value_t = 2,
+          value_parser = clap::value_parser!(u32).range(1..))]
     pub keep_away_after: u32,
     /// How long a worker is kept away from a job it keeps failing, in seconds (at most
     /// 604,800, a week).
     #[arg(long, env = "TESSERA_KEEP_AWAY_SECS", default_value_t = 300,
           value_parser = clap::value_parser!(u64).range(0..=604_800))]
     pub keep_away_secs: u64,
-    /// Largest request body for POST /jobs (scene plus textures), in bytes.
-    #[arg(long, env = "TESSERA_MAX_BODY_BYTES", default_value_t = 64 << 20)]
+    /// Largest request body for POST /jobs (scene plus textures), in bytes (at least 1).
+    #[arg(long, env = "TESSERA_MAX_BODY_BYTES", default_value_t = 64 << 20,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     pub max_body_bytes: usize,
     /// Body bytes of all the submissions being received and checked at once (default twice
     /// `--max-body-bytes`; at least `--max-body-bytes`): each holds its declared length, and

@@ -588,6 +588,10 @@ fn service_flags_out_of_range_are_usage_errors() {
         ("--keep-away-secs", "604801", "0..=604800"),
         // The largest submission could never be received.
         ("--max-receiving-bytes", "1000", "at least --max-body-bytes"),
+        // A service that refuses every submission, and a keep-away after no failure at all
+        // (it was read as one).
+        ("--max-body-bytes", "0", "1.."),
+        ("--keep-away-after", "0", "1.."),
         // Found only when the service tried to listen (exit 1).
         ("--listen", "foo", "HOST:PORT"),
         ("--listen", "http://127.0.0.1:8080", "HOST:PORT"),
