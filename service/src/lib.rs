@@ -11,6 +11,7 @@ pub mod assemble;
 pub mod auth;
 pub mod cli;
 pub mod config;
+pub mod db_lock;
 pub mod error;
 pub mod idle;
 pub mod queue;
@@ -155,6 +156,8 @@ pub enum ServiceError {
     },
     #[error("{0}")]
     Config(String),
+    #[error(transparent)]
+    Lock(#[from] db_lock::LockError),
     #[error("server: {0}")]
     Io(#[from] std::io::Error),
 }
@@ -281,6 +284,9 @@ pub async fn serve(
             "--max-attempts must be at least 1".into(),
         ));
     }
+    // Before anything touches the queue: a second service's start requeued the first's
+    // local workers' tiles (see `db_lock`).
+    let _db_lock = db_lock::DbLock::take(&cfg.database)?;
     let queue = Queue::open(&cfg.database).await?;
     let local_count = local_worker_count(&cfg);
     // Unique to this run (host, pid, a random salt): no other worker's name starts with it

@@ -521,6 +521,46 @@ fn an_open_service_beyond_loopback_must_be_asked_for() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("--submit-token"));
 }
 
+/// One service per database: a second one on the same file refuses to start, before it
+/// touches the queue (it used to requeue the first's local workers' tiles as theirs had
+/// ended), and the first keeps serving. The lock goes with the process however it ends: after
+/// a SIGKILL the next service starts.
+#[test]
+fn a_second_service_on_the_same_database_refuses_to_start() {
+    let dir = TempDir::new("second");
+    let mut first = Service::start(&dir, &["--local-workers", "1"]);
+    let id = first.submit_id(&read("checker.ray"), "?tile=16");
+    let log = dir.path().join("second.log");
+    let mut second = std::process::Command::new(SERVICE)
+        .args([
+            "--listen",
+            "127.0.0.1:0",
+            "--local-workers",
+            "1",
+            "--database",
+        ])
+        .arg(format!("sqlite://{}", first.db.display()))
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(&log).expect("log file"))
+        .spawn()
+        .expect("runs");
+    let status = common::wait_exit(&mut second, Duration::from_secs(30));
+    if status.is_none() {
+        let _ = second.kill();
+    }
+    let stderr = std::fs::read_to_string(&log).unwrap_or_default();
+    assert_eq!(status.and_then(|s| s.code()), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("one service per database") && stderr.contains("-service.lock"),
+        "{stderr}"
+    );
+    let job = first.wait_finished(&id, Duration::from_secs(60));
+    assert_eq!(job["state"], "done", "{job}");
+    first.kill();
+    let third = Service::start(&dir, &["--local-workers", "0"]);
+    assert_eq!(third.get_json(&format!("/jobs/{id}"))["state"], "done");
+}
+
 /// A thread count past `MAX_THREADS` is refused before anything starts (a mistyped
 /// `--threads 100000` exhausted the process's threads).
 #[test]

@@ -1,0 +1,130 @@
+//! One service per database: an advisory lock on a file beside the database, taken before the
+//! service touches the queue and held for its life.
+//!
+//! A second service on the same file took the first's local workers for dead (it requeued
+//! their tiles at start, and renewed nothing of theirs), and its waits and progress never
+//! heard of the first's results. Now it refuses to start, naming the lock file.
+//!
+//! The lock is `flock` on `<database>-service.lock`, which the kernel releases when the
+//! process ends however it ends (SIGKILL, out of memory): a service that was killed never
+//! keeps the next one out, and the file left behind is empty and harmless. It is not taken on
+//! the database file itself: SQLite's own locks on that are POSIX record locks, which a
+//! process loses when it closes *any* descriptor of the file.
+//!
+//! What it is not: a guard against other programs using the database (SQLite's own locking
+//! keeps those consistent), nor against a service on another machine sharing the file over
+//! a network file system that does not honour `flock`. In-memory databases take no lock.
+
+use std::fs::{File, OpenOptions, TryLockError};
+use std::path::PathBuf;
+use std::str::FromStr;
+
+use sqlx::sqlite::SqliteConnectOptions;
+
+/// Why the lock could not be taken.
+#[derive(Debug, thiserror::Error)]
+pub enum LockError {
+    #[error(
+        "another tessera-service is using the database {database} (it holds {lock}): one \
+         service per database. Stop that one first, or give this one another --database."
+    )]
+    Held { database: PathBuf, lock: PathBuf },
+    #[error(
+        "cannot open {lock}, the lock file beside the database: {source} (the database's \
+         folder must exist and be writable)"
+    )]
+    Open {
+        lock: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// The lock, held until dropped (or the process ends).
+#[derive(Debug)]
+pub struct DbLock {
+    _file: File,
+}
+
+impl DbLock {
+    /// Takes the lock of the database at `url` (as `--database` gives it), without waiting.
+    /// `None` for an in-memory database, and for a URL the queue will refuse anyway (it
+    /// says why).
+    pub fn take(url: &str) -> Result<Option<DbLock>, LockError> {
+        let Some(database) = database_file(url) else {
+            return Ok(None);
+        };
+        let mut name = database.clone().into_os_string();
+        name.push("-service.lock");
+        let lock = PathBuf::from(name);
+        let file = OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&lock)
+            .map_err(|source| LockError::Open {
+                lock: lock.clone(),
+                source,
+            })?;
+        match file.try_lock() {
+            Ok(()) => Ok(Some(DbLock { _file: file })),
+            Err(TryLockError::WouldBlock) => Err(LockError::Held { database, lock }),
+            Err(TryLockError::Error(source)) => Err(LockError::Open { lock, source }),
+        }
+    }
+}
+
+/// The file a `--database` value names, as sqlx will open it; `None` in memory or unparsable.
+fn database_file(url: &str) -> Option<PathBuf> {
+    if url.contains(":memory:") || url.contains("mode=memory") {
+        return None;
+    }
+    let opts = SqliteConnectOptions::from_str(url).ok()?;
+    let path = opts.get_filename();
+    (!path.as_os_str().is_empty()).then(|| path.to_path_buf())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp(tag: &str) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("tessera-db-lock-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        dir
+    }
+
+    /// Held once per database, whichever way the URL names it; free again when dropped; a
+    /// second database beside it is another lock.
+    #[test]
+    fn one_holder_per_database_file() {
+        let dir = temp("one");
+        let db = dir.join("q.db");
+        let url = format!("sqlite://{}", db.display());
+        let first = DbLock::take(&url).expect("free").expect("a file");
+        match DbLock::take(db.to_str().expect("UTF-8 path")) {
+            Err(LockError::Held { lock, .. }) => {
+                assert_eq!(lock, dir.join("q.db-service.lock"));
+            }
+            other => panic!("taken twice: {other:?}"),
+        }
+        assert!(DbLock::take(&format!("{url}?mode=rwc")).is_err());
+        let other = DbLock::take(&format!("sqlite://{}", dir.join("r.db").display()));
+        assert!(matches!(other, Ok(Some(_))));
+        drop(first);
+        assert!(matches!(DbLock::take(&url), Ok(Some(_))));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn memory_takes_no_lock_and_a_missing_folder_says_so() {
+        assert!(matches!(DbLock::take("sqlite::memory:"), Ok(None)));
+        let dir = temp("missing");
+        let url = format!("sqlite://{}", dir.join("no/such/folder/q.db").display());
+        let e = DbLock::take(&url).expect_err("no folder");
+        assert!(e.to_string().contains("folder must exist"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
