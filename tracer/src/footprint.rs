@@ -578,20 +578,35 @@ impl<'s> Footprints<'s> {
             .is_some_and(|i| self.fitted[i] != NOTHING && self.fitted[i] != object)
     }
 
-    /// Whether pixel `(px, py)`'s square may cross an edge of `object`'s checker (a hit's
-    /// object, or [`Sample::BACKGROUND`]): the object is a checkered plane without a
-    /// texture, with two colours, and the square is not known to lie in one of its cells
-    /// ([`one_cell`], which also says no where a ray of the square misses the plane).
-    /// Every other pattern, and every other object, answers no: only a checker plane's
-    /// cells are known here. Asked of any pixel, inside the region or not (the answer
-    /// depends on the pixel alone).
-    pub fn crosses_pattern(&self, px: i64, py: i64, object: u32) -> bool {
+    /// The largest step in colour that an edge of `object`'s checker can make in pixel
+    /// `(px, py)`'s square on a side that none of the rays through image positions `seen`
+    /// (rays that all saw `object`) fell on: 0 where the square lies in one cell, where
+    /// those rays met cells of both colours, or for anything but a checkered plane without
+    /// a texture. The step is [`Scene::checker_step`]'s bound; a ray within rounding of a
+    /// cell's edge tells no side. Asked of any pixel, inside the region or not (the answer
+    /// depends on the pixel alone). Never below the truth: a square whose corners' rays
+    /// miss the plane counts as crossing an edge.
+    pub fn unseen_pattern_step(&self, px: i64, py: i64, object: u32, seen: &[(f64, f64)]) -> f64 {
         let Some(obj) = self.scene.objects.get(object as usize) else {
-            return false;
+            return 0.0;
         };
-        let m = &obj.material;
-        let checker = m.color2.is_some_and(|c2| c2 != m.color1) && m.texture.is_none();
-        checker && matches!(obj.shape, Shape::Plane) && !one_cell(self.scene, obj, px, py)
+        if obj.material.texture.is_some() || !matches!(obj.shape, Shape::Plane) {
+            return 0.0;
+        }
+        let step = self.scene.checker_step(obj);
+        if step == 0.0 || one_cell(self.scene, obj, px, py) {
+            return 0.0;
+        }
+        let mut parity = None;
+        for &(x, y) in seen {
+            if let Some(p) = cell_parity(self.scene, obj, x, y) {
+                if parity.is_some_and(|q| q != p) {
+                    return 0.0;
+                }
+                parity = Some(p);
+            }
+        }
+        step
     }
 
     /// Pixel `(px, py)`'s place in the per-pixel records; `None` outside the region.
@@ -636,6 +651,34 @@ impl<'s> Footprints<'s> {
 }
 
 impl Scene {
+    /// An upper bound on how far apart a checkered plane's two colours can shade at any
+    /// point a primary ray meets it, in the channel where they are farthest apart, after
+    /// clamping: `|c1 − c2| · (1 − mirror) · (ambient + diffuse · Σ colour)` over the lights
+    /// on the eye's side of the plane (the side every primary ray meets; a light on the other
+    /// side lights none of those points, `n · l ≤ 0`), at most 1. The mirrored part is the
+    /// same for both colours, and shadows only lower the sum. 0 for an object without a
+    /// checker, or whose colours are the same.
+    pub fn checker_step(&self, obj: &Object) -> f64 {
+        let m = &obj.material;
+        let Some(c2) = m.color2 else {
+            return 0.0;
+        };
+        let (p0, n) = plane_of(obj);
+        let eye = self.camera.ray(0.0, 0.0).origin;
+        let side = n.dot(eye - p0);
+        let mut light = self.ambient;
+        for l in &self.lights {
+            let d = l.position - p0;
+            // Lights on the plane, within rounding, or an eye on it: counted.
+            let margin = 1e-9 * (1.0 + d.length() + (eye - p0).length());
+            if side.abs() <= margin || n.dot(d) * side.signum() > -margin {
+                light += l.color * m.diffuse;
+            }
+        }
+        let step = (m.color1 - c2).abs() * light * (1.0 - m.mirror);
+        step.max_element().min(1.0)
+    }
+
     /// Whether object `o` shades smoothly: a sphere placed by a similarity or a plane,
     /// outside any CSG tree, plain (no texture or mirror, a checker only on a plane), with
     /// no shadow ray to trace.
@@ -670,8 +713,8 @@ impl crate::sampler::PixelGeometry for Footprints<'_> {
         Footprints::may_hide(self, px, py, object)
     }
 
-    fn crosses_pattern(&self, px: i64, py: i64, object: u32) -> bool {
-        Footprints::crosses_pattern(self, px, py, object)
+    fn unseen_pattern_step(&self, px: i64, py: i64, object: u32, seen: &[(f64, f64)]) -> f64 {
+        Footprints::unseen_pattern_step(self, px, py, object, seen)
     }
 }
 
@@ -715,6 +758,23 @@ fn one_cell(scene: &Scene, obj: &Object, px: i64, py: i64) -> bool {
     same(lo.x, hi.x) && same(lo.z, hi.z)
 }
 
+/// Which colour of checkered plane `obj` the primary ray through image position `(x, y)`
+/// meets (`false`: `color1`), as the shader picks it from the hit's own coordinates; `None`
+/// where the ray misses the plane or meets it within 1e-9 of a cell's edge (relative to the
+/// coordinates' magnitude: the shader's own hit may round to the other side there).
+fn cell_parity(scene: &Scene, obj: &Object, x: f64, y: f64) -> Option<bool> {
+    let ray = obj.transform.ray_to_object(&scene.camera.ray(x, y));
+    let t = -ray.origin.y / ray.dir.y;
+    if !(t > 0.0 && t.is_finite()) {
+        return None;
+    }
+    let p = ray.at(t) * obj.own_scale;
+    let pad = 1e-9 * (1.0 + p.x.abs().max(p.z.abs()));
+    let clear = |v: f64| v - v.floor() > pad && v.ceil() - v > pad;
+    (clear(p.x) && clear(p.z))
+        .then(|| (p.x.floor() as i64).wrapping_add(p.z.floor() as i64) & 1 != 0)
+}
+
 /// A plane object's world point and normal.
 fn plane_of(obj: &Object) -> (DVec3, DVec3) {
     let (p0, _) = obj.transform.point_to_world(DVec3::ZERO, DVec3::ZERO);
@@ -724,6 +784,98 @@ fn plane_of(obj: &Object) -> (DVec3, DVec3) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn scene(src: &str) -> Scene {
+        Scene::from_source(
+            src,
+            &crate::Limits::default(),
+            &crate::texture::MemoryAssets::new(),
+            &crate::texture::TextureLimits::default(),
+        )
+        .unwrap_or_else(|e| panic!("test scene does not build: {e}"))
+    }
+
+    /// A checker plane at y = 0, white and `color2`, ambient 0.2, one light of colour 1.5
+    /// above it at y = 5, seen from `eye`, with `extra` material keys.
+    fn lit_checker(eye: &str, color2: f64, extra: &str) -> Scene {
+        scene(&format!(
+            "[GLOBALS]\nwidth = 32\nheight = 24\nambient = 0.2\n[/GLOBALS]\n\
+             [CAMERA]\neye = {eye}\nlook_at = <0, 0, 0>\n[/CAMERA]\n\
+             [LIGHT]\nposition = <1, 5, 2>\ncolor = 1.5\n[/LIGHT]\n\
+             [OBJECT]\ntype = plane\ncolor1 = 1\ncolor2 = {color2}\n{extra}[/OBJECT]\n"
+        ))
+    }
+
+    /// The step between the two colours, worked out by hand from the shading formula: the
+    /// light counts only on the eye's side (from below, the points seen face away from it),
+    /// a mirror keeps its share of the difference, equal colours make none, and clamping
+    /// caps it at 1.
+    #[test]
+    fn a_checker_s_step_counts_the_lights_on_the_eye_s_side_only() {
+        let step = |eye: &str, extra: &str| {
+            let s = lit_checker(eye, 0.25, extra);
+            s.checker_step(&s.objects[0])
+        };
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        assert!(close(step("<0, 3, 6>", ""), 1.0), "0.75 · 1.7, clamped");
+        assert!(close(step("<0, -3, 6>", ""), 0.75 * 0.2));
+        assert!(close(
+            step("<0, 3, 6>", "diffuse = 0.2\n"),
+            0.75 * (0.2 + 0.3)
+        ));
+        assert!(close(
+            step("<0, 3, 6>", "diffuse = 0.2\nmirror = 0.5\n"),
+            0.75 * 0.5 * 0.5
+        ));
+        let same = lit_checker("<0, 3, 6>", 1.0, "");
+        assert_eq!(same.checker_step(&same.objects[0]), 0.0);
+        // A plane turned upside down (its normal −y): the eye's side is still the one lit.
+        assert!(close(
+            step("<0, 3, 6>", "diffuse = 0.2\nrotate = <180, 0, 0>\n"),
+            0.75 * 0.5
+        ));
+    }
+
+    /// Rays that met cells of both colours leave no side unseen; rays all in one colour
+    /// leave the other, where the square crosses an edge; a square inside one cell has none.
+    #[test]
+    fn the_unseen_step_is_the_side_no_first_ray_met() {
+        // Seen straight down, 20 units of the plane over the image's 24 rows, so a cell (2
+        // units) is 2.4 pixels wide, with the eye above a cell's corner at the image's
+        // centre (16, 12): cells meet at x = 13.6 and 16, y = 9.6 and 12. Pixel (13, 11)
+        // crosses the edge x = 13.6, pixel (14, 10) lies inside one cell.
+        let s = scene(
+            "[GLOBALS]\nwidth = 32\nheight = 24\nambient = 1\n[/GLOBALS]\n\
+             [CAMERA]\neye = <0, 10, 0>\nlook_at = <0, 0, 0>\nup = <0, 0, -1>\nfov = 90\n[/CAMERA]\n\
+             [OBJECT]\ntype = plane\ncolor1 = 1\ncolor2 = 0\nscale = 2\n[/OBJECT]\n",
+        );
+        let fp = Footprints::new(
+            &s,
+            PixelRegion {
+                x: 0,
+                y: 0,
+                width: 32,
+                height: 24,
+            },
+        );
+        let (a, b) = ((13.9, 11.5), (13.1, 11.5));
+        let parity = |(x, y): (f64, f64)| cell_parity(&s, &s.objects[0], x, y);
+        assert!(parity(a).is_some() && parity(b).is_some() && parity(a) != parity(b));
+        assert_eq!(fp.unseen_pattern_step(13, 11, 0, &[b, b, b, b]), 1.0);
+        assert_eq!(fp.unseen_pattern_step(13, 11, 0, &[a, a, a, a]), 1.0);
+        assert_eq!(fp.unseen_pattern_step(13, 11, 0, &[b, b, a, b]), 0.0);
+        assert_eq!(fp.unseen_pattern_step(14, 10, 0, &[(14.5, 10.5); 4]), 0.0);
+        // A ray on the edge tells no side: the others decide.
+        assert_eq!(parity((13.6, 11.5)), None);
+        assert_eq!(
+            fp.unseen_pattern_step(13, 11, 0, &[b, (13.6, 11.5), b, b]),
+            1.0
+        );
+        assert_eq!(
+            fp.unseen_pattern_step(13, 11, Sample::BACKGROUND, &[b; 4]),
+            0.0
+        );
+    }
 
     fn cone(axis: DVec3, half_angle: f64) -> Cone {
         // Aperture::new widens by 1e-6 relative and the margin; the tests below keep 1e-7

@@ -241,11 +241,13 @@ pub trait PixelGeometry {
     /// disagreed.
     fn may_hide(&self, px: i64, py: i64, object: u32) -> bool;
 
-    /// Whether pixel `(px, py)`'s square, where every ray of the first pass saw `object`,
-    /// crosses an edge of that object's own pattern (a checker's cell boundary). Rays that
-    /// agree there bound nothing about the part of the square beyond the edge, which they all
-    /// missed: such a pixel takes every ray. May say yes where no is true, never the reverse.
-    fn crosses_pattern(&self, px: i64, py: i64, object: u32) -> bool;
+    /// How large a step in colour an edge of `object`'s own pattern (a checker's cell
+    /// boundary) can make in pixel `(px, py)`'s square on a side that none of the first
+    /// pass's rays, through image positions `seen`, all of which saw `object`, fell on:
+    /// 0 where there is no such side. Rays that agree there, or differ by smooth shading
+    /// alone, bound nothing about the part of the square they all missed: where the step
+    /// exceeds the threshold, the pixel takes every ray. May overstate, never understate.
+    fn unseen_pattern_step(&self, px: i64, py: i64, object: u32, seen: &[(f64, f64)]) -> f64;
 }
 
 /// The geometry of renders without a footprint: nothing is known smooth, nothing hidden.
@@ -260,8 +262,8 @@ impl PixelGeometry for NoGeometry {
         false
     }
 
-    fn crosses_pattern(&self, _: i64, _: i64, _: u32) -> bool {
-        false
+    fn unseen_pattern_step(&self, _: i64, _: i64, _: u32, _: &[(f64, f64)]) -> f64 {
+        0.0
     }
 }
 
@@ -419,11 +421,13 @@ impl Tally {
     }
 }
 
-/// First-pass result of one pixel for the adaptive sampler: the tally of its four samples
-/// and, for even `n`, the cell offset each quadrant drew (see [`QuadrantOrder`]).
+/// First-pass result of one pixel for the adaptive sampler: the tally of its four samples,
+/// where they were taken, and, for even `n`, the cell offset each quadrant drew (see
+/// [`QuadrantOrder`]).
 #[derive(Clone, Copy)]
 struct FirstPass {
     tally: Tally,
+    positions: [(f64, f64); 4],
     offsets: [(u32, u32); 4],
 }
 
@@ -588,12 +592,14 @@ fn first_pass<F: Fn(f64, f64) -> Sample>(
 ) -> FirstPass {
     let mut fp = FirstPass {
         tally: Tally::new(),
+        positions: [(0.0, 0.0); 4],
         offsets: [(0, 0); 4],
     };
     let hashes = FirstHashes::new(x, y);
     for k in 0..4u32 {
         let ((sx, sy), offset) = first_position(x, y, n, order, k, &hashes);
         fp.offsets[k as usize] = offset;
+        fp.positions[k as usize] = (sx, sy);
         fp.tally.add(match probed {
             Some(s) if k == 0 => s,
             _ => trace(sx, sy),
@@ -889,15 +895,17 @@ fn adaptive<F, G>(
                         near |= nb.mixed || other_object || other_mean;
                         unseen |= c.unseen_step(&nb, threshold);
                     }
-                    // Rays that all saw one object and agree may still straddle an edge of
-                    // its pattern that they fell on one side of (a checker's corner in the
-                    // pixel, a diagonal edge past them, cells finer than their spacing);
-                    // the geometry knows where a checker plane's cells meet. Asked only
-                    // where nothing else refines the pixel with every ray already.
-                    let crossing = !own
-                        && !unseen
+                    // Rays that all saw one object may have fallen on one side of an edge of
+                    // its pattern (a checker's corner in the pixel, a diagonal edge past
+                    // them, cells finer than their spacing): agreeing, or differing only by
+                    // shading, they bound nothing about the other side, and the early stops
+                    // would end the pixel on theirs. The geometry knows where a checker
+                    // plane's cells meet and which cells the rays met.
+                    let crossing = !unseen
+                        && !c.mixed
                         && geometry.is_some_and(|g| {
-                            g.crosses_pattern(i64::from(x), i64::from(y), c.object)
+                            let (px, py) = (i64::from(x), i64::from(y));
+                            g.unseen_pattern_step(px, py, c.object, &fp.positions) > threshold
                         });
                     let ask = if unseen || crossing {
                         Ask::Unseen
@@ -930,14 +938,14 @@ mod tests {
     }
 
     /// A [`PixelGeometry`] from three closures: `smooth(px, py)`, `hides(px, py, object)` and
-    /// `crosses(px, py, object)`.
+    /// `step(px, py, object, seen)`.
     struct Geo<S, H, C>(S, H, C);
 
     impl<S, H, C> PixelGeometry for Geo<S, H, C>
     where
         S: Fn(i64, i64) -> bool,
         H: Fn(i64, i64, u32) -> bool,
-        C: Fn(i64, i64, u32) -> bool,
+        C: Fn(i64, i64, u32, &[(f64, f64)]) -> f64,
     {
         fn is_smooth(&self, px: i64, py: i64, _: f64, _: f64, _: &Sample) -> bool {
             (self.0)(px, py)
@@ -947,14 +955,14 @@ mod tests {
             (self.1)(px, py, object)
         }
 
-        fn crosses_pattern(&self, px: i64, py: i64, object: u32) -> bool {
-            (self.2)(px, py, object)
+        fn unseen_pattern_step(&self, px: i64, py: i64, object: u32, seen: &[(f64, f64)]) -> f64 {
+            (self.2)(px, py, object, seen)
         }
     }
 
     /// No pattern edge known anywhere.
-    fn no_crossing(_: i64, _: i64, _: u32) -> bool {
-        false
+    fn no_crossing(_: i64, _: i64, _: u32, _: &[(f64, f64)]) -> f64 {
+        0.0
     }
 
     /// A geometry that knows nothing hidden, and smooth pixels by `smooth`.
@@ -1277,29 +1285,41 @@ mod tests {
         assert_eq!((out[10], out[11]), (jitter[10], jitter[11]));
     }
 
-    /// A corner of a pattern cut off inside one pixel, missed by its first rays, beside
-    /// neighbours that all agree: nothing but the geometry can say the pixel holds an edge.
-    /// Where it says so the pixel takes every ray and estimates the corner as the stratified
-    /// set does; elsewhere nothing changes.
+    /// A corner of a pattern cut off inside one pixel, missed by its first rays, under shading
+    /// that varies across the pixel by more than the threshold: the pixel asks for itself,
+    /// and sixteen rays whose spread is the shading's end it there, on their side of the
+    /// edge. Only the geometry can say that the pixel holds an edge its rays all fell on one
+    /// side of. Where it says the step there exceeds the threshold the pixel takes every ray
+    /// and estimates the corner as the stratified set does; a step below the threshold, or
+    /// none, changes nothing. The geometry is told where the first rays went.
     #[test]
-    fn a_pixel_the_geometry_says_crosses_a_pattern_edge_takes_every_ray() {
-        // Black where x + y > 11.4 inside pixel (5, 5) only: a triangle of legs 0.6, area
-        // 0.18, in the corner towards (6, 6). Elsewhere one white object.
+    fn a_pattern_edge_the_first_rays_all_missed_is_searched_with_every_ray() {
+        // Black where x + y > 11.65 inside pixel (5, 5) only: a triangle of legs 0.35, area
+        // 0.061, in the corner towards (6, 6), which the pixel's first 16 rays all miss.
+        // Elsewhere one object, shaded 0.9 + 0.01 x.
         let corner = |x: f64, y: f64| {
-            let black = x.floor() == 5.0 && y.floor() == 5.0 && x + y > 11.4;
+            let black = x.floor() == 5.0 && y.floor() == 5.0 && x + y > 11.65;
             Sample {
-                color: Color::splat(if black { 0.0 } else { 1.0 }),
+                color: Color::splat(if black { 0.0 } else { 0.9 + 0.01 * x }),
                 object: 0,
             }
         };
         let (max, threshold) = (8, 0.001);
         let s = Sampler::Adaptive { max, threshold };
         let rect = Rect::new(2, 2, 8, 8);
-        let render = |geometry: &dyn Fn(i64, i64, u32) -> bool| {
+        let asked = std::cell::RefCell::new(Vec::new());
+        let render = |step: f64| {
             let rays = std::cell::RefCell::new(Vec::new());
             let trace = |x: f64, y: f64| {
                 rays.borrow_mut().push((x, y));
                 corner(x, y)
+            };
+            let geometry = |px, py, object, seen: &[(f64, f64)]| {
+                if (px, py, object) != (5, 5, 0) {
+                    return 0.0;
+                }
+                asked.borrow_mut().push(seen.to_vec());
+                step
             };
             let mut out = vec![Color::ZERO; rect.pixel_count()];
             s.render_rect_probed(
@@ -1312,24 +1332,35 @@ mod tests {
         };
         let at = |px: u32, py: u32| ((py - rect.y) * rect.width + (px - rect.x)) as usize;
 
-        let (blind, rays) = render(&no_crossing);
-        let first = rays_in(&rays, 5, 5);
+        let (blind, rays) = render(0.0);
+        let first = rays_in(&rays, 5, 5)[..4].to_vec();
         assert!(
-            first.len() == 4 && first.iter().all(|&(x, y)| x + y <= 11.4),
+            first.iter().all(|&(x, y)| x + y <= 11.65),
             "the test needs a corner the first pass misses: {first:?}"
         );
-        assert_eq!(blind[at(5, 5)], Color::ONE, "unseen without the geometry");
+        assert_eq!(
+            asked.borrow().last(),
+            Some(&first),
+            "told where the first rays went"
+        );
+        assert_eq!(
+            rays_in(&rays, 5, 5).len(),
+            16,
+            "stops early without the geometry"
+        );
+        assert!(blind[at(5, 5)].x > 0.9, "unseen: {:?}", blind[at(5, 5)]);
 
-        let (seen, rays) = render(&|px, py, object| (px, py) == (5, 5) && object == 0);
+        let (small, _) = render(threshold / 2.0);
+        assert_eq!(small, blind, "a step below the threshold changes nothing");
+
+        let (seen, rays) = render(0.5);
         assert_eq!(rays_in(&rays, 5, 5).len(), 64);
         let mut grid = vec![Color::ZERO; rect.pixel_count()];
         Sampler::Jitter { n: max }.render_rect(rect, corner, &mut grid);
-        assert_eq!(seen[at(5, 5)], grid[at(5, 5)]);
-        assert!(
-            (seen[at(5, 5)].x - 0.82).abs() < 0.1,
-            "{:?}",
-            seen[at(5, 5)]
-        );
+        // The same rays as jitter's, summed in another order.
+        let (a, b) = (seen[at(5, 5)], grid[at(5, 5)]);
+        assert!((a - b).abs().max_element() < 1e-12, "{a:?} against {b:?}");
+        assert!(a.x < blind[at(5, 5)].x - 0.02, "the corner is seen: {a:?}");
         for (i, (a, b)) in seen.iter().zip(&blind).enumerate() {
             if i != at(5, 5) {
                 assert_eq!(a, b, "pixel {i} changed");
@@ -1579,7 +1610,7 @@ mod tests {
         let geometry = Geo(
             |px: i64, py: i64| (px * 7 + py * 3) % 5 != 0,
             |px: i64, py: i64, _| (px * 5 + py) % 4 == 0,
-            |px: i64, py: i64, _| (px + 2 * py) % 3 == 0,
+            |px: i64, py: i64, _, _: &[(f64, f64)]| f64::from(u8::from((px + 2 * py) % 3 == 0)),
         );
         let disc = |x: f64, y: f64| {
             let inside = (x - 8.3).powi(2) + (y - 5.1).powi(2) < 9.0;

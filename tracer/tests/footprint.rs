@@ -298,6 +298,94 @@ fn surfaces_that_may_be_shadowed_are_never_smooth() {
     );
 }
 
+/// The third question: wherever a pixel's square shows a checkered plane's other colour
+/// at some point of the dense grid while four rays through it all met the plane in one
+/// colour, [`Footprints::unseen_pattern_step`] must name a step, so that the pixel is not
+/// ended on the rays' side. Same random scenes; the rays are random points of the square.
+#[test]
+fn a_checker_colour_the_rays_all_missed_is_never_overlooked() {
+    let mut rng = Rng(0xc0ffee);
+    let (mut unseen, mut crossed, mut both) = (0u32, 0u32, 0u32);
+    for case in 0..40 {
+        let src = random_scene(&mut rng);
+        let s = common::scene(&src);
+        let fp = Footprints::new(&s, past_the_image(&s));
+        for py in -2..s.height as i64 + 2 {
+            for px in -2..s.width as i64 + 2 {
+                let rays: Vec<(f64, f64)> = (0..4)
+                    .map(|_| (px as f64 + rng.unit(), py as f64 + rng.unit()))
+                    .collect();
+                let seen: Vec<(u32, i64)> =
+                    rays.iter().map(|&(x, y)| seen_cell(&s, x, y)).collect();
+                let (object, cell) = seen[0];
+                let checkered = s
+                    .objects
+                    .get(object as usize)
+                    .is_some_and(|o| o.material.color2.is_some() && o.shape == Shape::Plane);
+                if !checkered || seen.iter().any(|&o| o.0 != object) {
+                    continue;
+                }
+                if seen.iter().any(|&o| o.1 != cell) {
+                    both += 1;
+                    assert_eq!(fp.unseen_pattern_step(px, py, object, &rays), 0.0);
+                    continue;
+                }
+                let step = fp.unseen_pattern_step(px, py, object, &rays);
+                crossed += u32::from(step > 0.0);
+                let mut other = false;
+                for j in 0..=8 {
+                    for i in 0..=8 {
+                        let q = (px as f64 + i as f64 / 8.0, py as f64 + j as f64 / 8.0);
+                        other |= seen_cell(&s, q.0, q.1) == (object, 1 - cell);
+                    }
+                }
+                if other {
+                    unseen += 1;
+                    assert!(
+                        step > 0.0,
+                        "case {case}, pixel ({px}, {py}): the other colour shows, unreported\n{src}"
+                    );
+                }
+            }
+        }
+    }
+    // Each case is common, so the check is not vacuous.
+    assert!(
+        unseen > 100 && crossed >= unseen && both > 100,
+        "{unseen} unseen, {crossed} reported, {both} seen both"
+    );
+}
+
+/// A checker too faint to exceed the threshold anywhere (its colours 1e-4 apart, shading
+/// at most 1.2) is not searched for a step that could not matter: it costs about what the
+/// same plane costs plain (more only because a pixel crossing its cells cannot end after
+/// one ray, as on any checker), a small part of what a visible checker costs. (The first
+/// form of the rule took every ray there: 3.0 → 581 rays per pixel at a cap of 32.)
+#[test]
+fn a_checker_fainter_than_the_threshold_costs_nothing() {
+    let src = |color2: &str| {
+        format!(
+            "[GLOBALS]\nwidth = 40\nheight = 30\nambient = 0.2\nsampler = adaptive\nsamples = 16\n\
+             threshold = 0.02\n[/GLOBALS]\n[CAMERA]\neye = <0, 3, 8>\n[/CAMERA]\n\
+             [LIGHT]\nposition = <2, 10, 5>\n[/LIGHT]\n\
+             [OBJECT]\ntype = plane\ncolor1 = 0.5\n{color2}scale = 0.3\nrotate = <0, 30, 0>\n[/OBJECT]\n"
+        )
+    };
+    let rays = |src: &str| {
+        let s = common::scene(src);
+        s.render_rect_stats(Rect::full(s.width, s.height)).1.primary
+    };
+    let (faint, visible) = (
+        rays(&src("color2 = 0.5001\n")),
+        rays(&src("color2 = 0.1\n")),
+    );
+    let plain = rays(&src(""));
+    assert!(
+        faint as f64 <= 2.0 * plain as f64 && visible as f64 > 8.0 * faint as f64,
+        "faint checker {faint} primary rays, plain plane {plain}, visible checker {visible}"
+    );
+}
+
 /// In a scene of plain spheres on the background, the adaptive sampler ends most pixels
 /// after one ray, and its image assembles from tiles byte for byte, at caps of 4 (refined
 /// in one step) and 8 (in stages).
