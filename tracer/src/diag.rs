@@ -252,7 +252,7 @@ impl fmt::Display for WithFile<'_> {
 
 /// The known word closest to `word`, if it is close enough to be a plausible misspelling
 /// (optimal-string-alignment distance at most one third of the longer word, and at least 1)
-/// or another form of the same word (see [`same_stem`]: `rotation` for `rotate`).
+/// or another form of the same word (`rotation` for `rotate`: see `same_stem`).
 pub fn closest<'a>(word: &str, candidates: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
     let word = word.to_ascii_lowercase();
     let mut best: Option<(usize, &str)> = None;
