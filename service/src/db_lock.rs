@@ -13,7 +13,10 @@
 //!
 //! What it is not: a guard against other programs using the database (SQLite's own locking
 //! keeps those consistent), nor against a service on another machine sharing the file over
-//! a network file system that does not honour `flock`. In-memory databases take no lock.
+//! a network file system that does not honour `flock`. In-memory databases take no lock. It
+//! is released when `serve` returns: in the binary the process ends then, but a program
+//! that calls `serve` itself should let the runtime's remaining tasks end before it starts
+//! another service on the file.
 
 use std::fs::{File, OpenOptions, TryLockError};
 use std::path::PathBuf;
@@ -76,7 +79,10 @@ impl DbLock {
 
 /// The file a `--database` value names, as sqlx will open it; `None` in memory or unparsable.
 fn database_file(url: &str) -> Option<PathBuf> {
-    if url.contains(":memory:") || url.contains("mode=memory") {
+    let other_scheme = url
+        .split_once("://")
+        .is_some_and(|(scheme, _)| scheme != "sqlite");
+    if other_scheme || url.contains(":memory:") || url.contains("mode=memory") {
         return None;
     }
     let opts = SqliteConnectOptions::from_str(url).ok()?;
@@ -121,6 +127,8 @@ mod tests {
     #[test]
     fn memory_takes_no_lock_and_a_missing_folder_says_so() {
         assert!(matches!(DbLock::take("sqlite::memory:"), Ok(None)));
+        // The queue refuses other schemes with its own message ("SQLite only").
+        assert!(matches!(DbLock::take("postgres://u@h/db"), Ok(None)));
         let dir = temp("missing");
         let url = format!("sqlite://{}", dir.join("no/such/folder/q.db").display());
         let e = DbLock::take(&url).expect_err("no folder");

@@ -279,6 +279,11 @@ pub async fn serve(
             cfg.max_body_bytes
         )));
     }
+    if cfg.max_body_bytes == 0 {
+        return Err(ServiceError::Config(
+            "--max-body-bytes must be at least 1".into(),
+        ));
+    }
     if cfg.max_attempts == 0 {
         return Err(ServiceError::Config(
             "--max-attempts must be at least 1".into(),

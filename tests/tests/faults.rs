@@ -551,7 +551,9 @@ fn a_second_service_on_the_same_database_refuses_to_start() {
     let stderr = std::fs::read_to_string(&log).unwrap_or_default();
     assert_eq!(status.and_then(|s| s.code()), Some(1), "{stderr}");
     assert!(
-        stderr.contains("one service per database") && stderr.contains("-service.lock"),
+        stderr.contains("one service per database")
+            && stderr.contains("-service.lock")
+            && !stderr.contains("requeued"),
         "{stderr}"
     );
     let job = first.wait_finished(&id, Duration::from_secs(60));

@@ -255,15 +255,23 @@ impl fmt::Display for WithFile<'_> {
 /// or another form of the same word (`rotation` for `rotate`: see `same_stem`).
 pub fn closest<'a>(word: &str, candidates: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
     let word = word.to_ascii_lowercase();
+    // The nearest misspelling; failing one, the one word of the same stem (two, as `samples`
+    // and `sampler` for `sample_count`, are no suggestion).
     let mut best: Option<(usize, &str)> = None;
+    let mut stems: Vec<&str> = Vec::new();
     for c in candidates {
         let d = edit_distance(&word, c);
         let limit = (word.chars().count().max(c.len()) / 3).max(1);
-        if (d <= limit || same_stem(&word, c)) && best.is_none_or(|(bd, _)| d < bd) {
-            best = Some((d, c));
+        if d <= limit {
+            if best.is_none_or(|(bd, _)| d < bd) {
+                best = Some((d, c));
+            }
+        } else if same_stem(&word, c) {
+            stems.push(c);
         }
     }
     best.map(|(_, c)| c)
+        .or_else(|| (stems.len() == 1).then(|| stems[0]))
 }
 
 /// Whether `a` and `b` look like two forms of one word (`rotation` and `rotate`, `scaling`
@@ -368,6 +376,7 @@ mod tests {
         assert_eq!(closest("rotor", keys), None);
         assert_eq!(closest("scarf", keys), None);
         assert_eq!(closest("transmission", keys), None);
+        assert_eq!(closest("sample_count", ["sampler", "samples"]), None);
     }
 
     #[test]

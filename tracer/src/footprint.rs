@@ -284,6 +284,8 @@ pub struct Footprints<'s> {
     fitted: Vec<u32>,
     /// The planes (world point, normal, object), tested per pixel.
     planes: Vec<(DVec3, DVec3, u32)>,
+    /// How many objects mirror, counted when a checker's step is first asked for.
+    mirrors: std::cell::OnceCell<usize>,
 }
 
 /// A pixel no solid may show in.
@@ -328,6 +330,7 @@ impl<'s> Footprints<'s> {
             shown: vec![NOTHING; n],
             fitted: vec![NOTHING; n],
             planes: Vec::new(),
+            mirrors: std::cell::OnceCell::new(),
         };
         // The prims that may show in the region: every prim, or those the BVH finds whose
         // boxes' projections meet it, with the ones it leaves out.
@@ -593,7 +596,11 @@ impl<'s> Footprints<'s> {
         if obj.material.texture.is_some() || !matches!(obj.shape, Shape::Plane) {
             return 0.0;
         }
-        let step = self.scene.checker_step(obj);
+        let mirrors = *self.mirrors.get_or_init(|| {
+            let objects = &self.scene.objects;
+            objects.iter().filter(|o| o.material.mirror > 0.0).count()
+        });
+        let step = self.scene.checker_step_among(obj, mirrors);
         if step == 0.0 || one_cell(self.scene, obj, px, py) {
             return 0.0;
         }
@@ -654,15 +661,33 @@ impl Scene {
     /// An upper bound on how far apart a checkered plane's two colours can shade at any
     /// point a primary ray meets it, in the channel where they are farthest apart, after
     /// clamping: `|c1 − c2| · (1 − mirror) · (ambient + diffuse · Σ colour)` over the lights
-    /// on the eye's side of the plane (the side every primary ray meets; a light on the other
-    /// side lights none of those points, `n · l ≤ 0`), at most 1. The mirrored part is the
-    /// same for both colours, and shadows only lower the sum. 0 for an object without a
-    /// checker, or whose colours are the same.
+    /// on the eye's side of the plane, at most 1. Every point of a whole plane that any ray
+    /// from the eye reaches, by mirrors or not, faces the eye's side (a ray cannot cross the
+    /// plane without meeting it), and a light on the other side lights none of them
+    /// (`n · l ≤ 0`); shadows only lower the sum. The mirrored part is the same for both
+    /// colours unless the mirrored ray can come back to the plane by another mirror: then the
+    /// difference `D` along any ray obeys `D ≤ (1 − m) S + m D`, so `D ≤ S`, and the factor
+    /// `1 − mirror` is dropped; and for a plane in a CSG tree, whose gaps let a returning ray
+    /// meet it from the other side, every light counts. 0 for an object without a checker,
+    /// or whose colours are the same. Scans the scene's objects for mirrors; see
+    /// [`Scene::checker_step_among`] to count them once.
     pub fn checker_step(&self, obj: &Object) -> f64 {
+        let mirrors = self
+            .objects
+            .iter()
+            .filter(|o| o.material.mirror > 0.0)
+            .count();
+        self.checker_step_among(obj, mirrors)
+    }
+
+    /// [`Scene::checker_step`] in a scene of `mirrors` objects with `mirror > 0`.
+    pub fn checker_step_among(&self, obj: &Object, mirrors: usize) -> f64 {
         let m = &obj.material;
         let Some(c2) = m.color2 else {
             return 0.0;
         };
+        // Whether a ray the plane mirrors can come back to it (by another mirror).
+        let returns = m.mirror > 0.0 && mirrors > 1;
         let (p0, n) = plane_of(obj);
         let eye = self.camera.ray(0.0, 0.0).origin;
         let side = n.dot(eye - p0);
@@ -671,11 +696,13 @@ impl Scene {
             let d = l.position - p0;
             // Lights on the plane, within rounding, or an eye on it: counted.
             let margin = 1e-9 * (1.0 + d.length() + (eye - p0).length());
-            if side.abs() <= margin || n.dot(d) * side.signum() > -margin {
+            let eye_side = side.abs() <= margin || n.dot(d) * side.signum() > -margin;
+            if eye_side || (returns && obj.in_csg) {
                 light += l.color * m.diffuse;
             }
         }
-        let step = (m.color1 - c2).abs() * light * (1.0 - m.mirror);
+        let kept = if returns { 1.0 } else { 1.0 - m.mirror };
+        let step = (m.color1 - c2).abs() * light * kept;
         step.max_element().min(1.0)
     }
 
