@@ -59,7 +59,7 @@ use glam::DVec3;
 use crate::bvh;
 use crate::csg::Prim;
 use crate::math::Aabb;
-use crate::sampler::Sample;
+use crate::sampler::{Sample, UnseenPattern};
 use crate::shape::Shape;
 use crate::world::{Object, Scene};
 
@@ -581,39 +581,47 @@ impl<'s> Footprints<'s> {
             .is_some_and(|i| self.fitted[i] != NOTHING && self.fitted[i] != object)
     }
 
-    /// The largest step in colour that an edge of `object`'s checker can make in pixel
-    /// `(px, py)`'s square on a side that none of the rays through image positions `seen`
-    /// (rays that all saw `object`) fell on: 0 where the square lies in one cell, where
-    /// those rays met cells of both colours, or for anything but a checkered plane without
-    /// a texture. The step is [`Scene::checker_step`]'s bound; a ray within rounding of a
-    /// cell's edge tells no side. Asked of any pixel, inside the region or not (the answer
-    /// depends on the pixel alone). Never below the truth: a square whose corners' rays
-    /// miss the plane counts as crossing an edge.
-    pub fn unseen_pattern_step(&self, px: i64, py: i64, object: u32, seen: &[(f64, f64)]) -> f64 {
-        let Some(obj) = self.scene.objects.get(object as usize) else {
-            return 0.0;
-        };
+    /// What an edge of `object`'s checker can hide in pixel `(px, py)`'s square on a side
+    /// that none of the rays through image positions `seen` (rays that all saw `object`) fell
+    /// on: the step between the two colours there ([`Scene::checker_step`]'s bound) and how
+    /// many cell edges may cross the square (see `cell_edges`; unknown where a corner's ray
+    /// misses the plane). `None` where the square lies in one cell, where those rays met
+    /// cells of both colours, or for anything but a checkered plane without a texture. A ray
+    /// within rounding of a cell's edge tells no side. Asked of any pixel, inside the region
+    /// or not (the answer depends on the pixel alone). Never below the truth.
+    pub fn unseen_pattern(
+        &self,
+        px: i64,
+        py: i64,
+        object: u32,
+        seen: &[(f64, f64)],
+    ) -> Option<UnseenPattern> {
+        let obj = self.scene.objects.get(object as usize)?;
         if obj.material.texture.is_some() || !matches!(obj.shape, Shape::Plane) {
-            return 0.0;
+            return None;
         }
         let mirrors = *self.mirrors.get_or_init(|| {
             let objects = &self.scene.objects;
             objects.iter().filter(|o| o.material.mirror > 0.0).count()
         });
         let step = self.scene.checker_step_among(obj, mirrors);
-        if step == 0.0 || one_cell(self.scene, obj, px, py) {
-            return 0.0;
+        if step == 0.0 {
+            return None;
+        }
+        let edges = cell_edges(self.scene, obj, px, py);
+        if edges == Some(0) {
+            return None;
         }
         let mut parity = None;
         for &(x, y) in seen {
             if let Some(p) = cell_parity(self.scene, obj, x, y) {
                 if parity.is_some_and(|q| q != p) {
-                    return 0.0;
+                    return None;
                 }
                 parity = Some(p);
             }
         }
-        step
+        Some(UnseenPattern { step, edges })
     }
 
     /// Pixel `(px, py)`'s place in the per-pixel records; `None` outside the region.
@@ -740,8 +748,14 @@ impl crate::sampler::PixelGeometry for Footprints<'_> {
         Footprints::may_hide(self, px, py, object)
     }
 
-    fn unseen_pattern_step(&self, px: i64, py: i64, object: u32, seen: &[(f64, f64)]) -> f64 {
-        Footprints::unseen_pattern_step(self, px, py, object, seen)
+    fn unseen_pattern(
+        &self,
+        px: i64,
+        py: i64,
+        object: u32,
+        seen: &[(f64, f64)],
+    ) -> Option<UnseenPattern> {
+        Footprints::unseen_pattern(self, px, py, object, seen)
     }
 }
 
@@ -767,6 +781,16 @@ fn covers(obj: &Object, cone: &Cone) -> bool {
 /// cell when the corners' bounds, widened by 1e-9 of their magnitude (against the rounding
 /// of these intersections and of the renderer's), fit between the same integers.
 fn one_cell(scene: &Scene, obj: &Object, px: i64, py: i64) -> bool {
+    cell_edges(scene, obj, px, py) == Some(0)
+}
+
+/// How many lines between cells (`x` or `z` an integer) may cross pixel `(px, py)`'s square
+/// on checkered plane `obj`: those between the bounds of its corners' images, widened as in
+/// [`one_cell`]; `None` where a corner's ray misses the plane (the square may then hold the
+/// horizon, and any number). Each such line is straight in the image too (a projective map
+/// keeps lines), so it passes through at most `2m − 1` cells of an `m × m` grid over the
+/// square.
+fn cell_edges(scene: &Scene, obj: &Object, px: i64, py: i64) -> Option<u32> {
     let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
     for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)] {
         let ray = obj
@@ -774,15 +798,16 @@ fn one_cell(scene: &Scene, obj: &Object, px: i64, py: i64) -> bool {
             .ray_to_object(&scene.camera.ray(px as f64 + dx, py as f64 + dy));
         let t = -ray.origin.y / ray.dir.y;
         if !(t > 0.0 && t.is_finite()) {
-            return false;
+            return None;
         }
         let p = ray.at(t) * obj.own_scale;
         lo = lo.min(p);
         hi = hi.max(p);
     }
     let pad = 1e-9 * (1.0 + lo.abs().max(hi.abs()).max_element());
-    let same = |a: f64, b: f64| (a - pad).floor() == (b + pad).floor();
-    same(lo.x, hi.x) && same(lo.z, hi.z)
+    // Floors of huge coordinates saturate; so does the count.
+    let lines = |a: f64, b: f64| ((b + pad).floor() - (a - pad).floor()).clamp(0.0, 1e9) as u32;
+    Some(lines(lo.x, hi.x).saturating_add(lines(lo.z, hi.z)))
 }
 
 /// Which colour of checkered plane `obj` the primary ray through image position `(x, y)`
@@ -869,8 +894,8 @@ mod tests {
     fn the_unseen_step_is_the_side_no_first_ray_met() {
         // Seen straight down, 20 units of the plane over the image's 24 rows, so a cell (2
         // units) is 2.4 pixels wide, with the eye above a cell's corner at the image's
-        // centre (16, 12): cells meet at x = 13.6 and 16, y = 9.6 and 12. Pixel (13, 11)
-        // crosses the edge x = 13.6, pixel (14, 10) lies inside one cell.
+        // centre (16, 12): cells meet at x = 13.6 and 16, y = 9.6 and 12. Pixel (13, 10)
+        // crosses the edge x = 13.6 alone, pixel (14, 10) lies inside one cell.
         let s = scene(
             "[GLOBALS]\nwidth = 32\nheight = 24\nambient = 1\n[/GLOBALS]\n\
              [CAMERA]\neye = <0, 10, 0>\nlook_at = <0, 0, 0>\nup = <0, 0, -1>\nfov = 90\n[/CAMERA]\n\
@@ -885,23 +910,27 @@ mod tests {
                 height: 24,
             },
         );
-        let (a, b) = ((13.9, 11.5), (13.1, 11.5));
+        let (a, b) = ((13.9, 10.5), (13.1, 10.5));
         let parity = |(x, y): (f64, f64)| cell_parity(&s, &s.objects[0], x, y);
         assert!(parity(a).is_some() && parity(b).is_some() && parity(a) != parity(b));
-        assert_eq!(fp.unseen_pattern_step(13, 11, 0, &[b, b, b, b]), 1.0);
-        assert_eq!(fp.unseen_pattern_step(13, 11, 0, &[a, a, a, a]), 1.0);
-        assert_eq!(fp.unseen_pattern_step(13, 11, 0, &[b, b, a, b]), 0.0);
-        assert_eq!(fp.unseen_pattern_step(14, 10, 0, &[(14.5, 10.5); 4]), 0.0);
+        let one_edge = Some(UnseenPattern {
+            step: 1.0,
+            edges: Some(1),
+        });
+        assert_eq!(fp.unseen_pattern(13, 10, 0, &[b, b, b, b]), one_edge);
+        assert_eq!(fp.unseen_pattern(13, 10, 0, &[a, a, a, a]), one_edge);
+        assert_eq!(fp.unseen_pattern(13, 10, 0, &[b, b, a, b]), None);
+        assert_eq!(fp.unseen_pattern(14, 10, 0, &[(14.5, 10.5); 4]), None);
+        // Pixel (13, 9) holds a corner: the edges x = 13.6 and y = 9.6.
+        let corner = fp.unseen_pattern(13, 9, 0, &[(13.1, 9.1); 4]);
+        assert_eq!(corner.and_then(|p| p.edges), Some(2));
         // A ray on the edge tells no side: the others decide.
-        assert_eq!(parity((13.6, 11.5)), None);
+        assert_eq!(parity((13.6, 10.5)), None);
         assert_eq!(
-            fp.unseen_pattern_step(13, 11, 0, &[b, (13.6, 11.5), b, b]),
-            1.0
+            fp.unseen_pattern(13, 10, 0, &[b, (13.6, 10.5), b, b]),
+            one_edge
         );
-        assert_eq!(
-            fp.unseen_pattern_step(13, 11, Sample::BACKGROUND, &[b; 4]),
-            0.0
-        );
+        assert_eq!(fp.unseen_pattern(13, 10, Sample::BACKGROUND, &[b; 4]), None);
     }
 
     fn cone(axis: DVec3, half_angle: f64) -> Cone {

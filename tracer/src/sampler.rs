@@ -241,13 +241,45 @@ pub trait PixelGeometry {
     /// disagreed.
     fn may_hide(&self, px: i64, py: i64, object: u32) -> bool;
 
-    /// How large a step in colour an edge of `object`'s own pattern (a checker's cell
-    /// boundary) can make in pixel `(px, py)`'s square on a side that none of the first
-    /// pass's rays, through image positions `seen`, all of which saw `object`, fell on:
-    /// 0 where there is no such side. Rays that agree there, or differ by smooth shading
-    /// alone, bound nothing about the part of the square they all missed: where the step
-    /// exceeds the threshold, the pixel takes every ray. May overstate, never understate.
-    fn unseen_pattern_step(&self, px: i64, py: i64, object: u32, seen: &[(f64, f64)]) -> f64;
+    /// What an edge of `object`'s own pattern (a checker's cell boundary) can hide in pixel
+    /// `(px, py)`'s square on a side that none of the first pass's rays, through image
+    /// positions `seen`, all of which saw `object`, fell on; `None` where there is no such
+    /// side. Rays that agree there, or differ by smooth shading alone, bound nothing about
+    /// the part of the square they all missed: the pixel is refined until a stratified set
+    /// of its rays bounds it ([`UnseenPattern::error_bound`]). May overstate, never
+    /// understate.
+    fn unseen_pattern(
+        &self,
+        px: i64,
+        py: i64,
+        object: u32,
+        seen: &[(f64, f64)],
+    ) -> Option<UnseenPattern>;
+}
+
+/// A pattern's edges in a pixel's square that its first rays may have missed (see
+/// [`PixelGeometry::unseen_pattern`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UnseenPattern {
+    /// The largest step in colour across an edge, in any channel.
+    pub step: f64,
+    /// How many straight edges may cross the square; `None`: unknown (any number).
+    pub edges: Option<u32>,
+}
+
+impl UnseenPattern {
+    /// The largest error the pattern's edges can leave in the mean of an `m × m` stratified
+    /// set of rays over the square (one ray in each cell of the grid, anywhere in it): a
+    /// straight edge passes through at most `2m − 1` cells, each ray on the wrong side of
+    /// one errs by at most the step over `m²` of the pixel, and a cell no edge crosses shows
+    /// one colour to its ray. Where the edges are unknown, the step itself.
+    pub fn error_bound(&self, m: u32) -> f64 {
+        let Some(edges) = self.edges else {
+            return self.step;
+        };
+        let m = f64::from(m);
+        self.step * (f64::from(edges) * (2.0 * m - 1.0) / (m * m)).min(1.0)
+    }
 }
 
 /// The geometry of renders without a footprint: nothing is known smooth, nothing hidden.
@@ -262,8 +294,8 @@ impl PixelGeometry for NoGeometry {
         false
     }
 
-    fn unseen_pattern_step(&self, _: i64, _: i64, _: u32, _: &[(f64, f64)]) -> f64 {
-        0.0
+    fn unseen_pattern(&self, _: i64, _: i64, _: u32, _: &[(f64, f64)]) -> Option<UnseenPattern> {
+        None
     }
 }
 
@@ -615,7 +647,7 @@ fn first_pass<F: Fn(f64, f64) -> Sample>(
 const UNSEEN_GAP: f64 = 0.75;
 
 /// Why a pixel takes more samples than its first pass (see [`refine`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 enum Ask {
     /// Only a neighbour asked: it saw an edge, or differs from this pixel with the edge
     /// seen inside one of the two.
@@ -624,9 +656,12 @@ enum Ask {
     /// not see may show in it.
     Own,
     /// A neighbour's colour differs from this pixel's and neither saw the step between
-    /// them, or the geometry says the pixel's square crosses an edge of the pattern its
-    /// rays all saw: a sliver that agreeing rays say nothing about lies in the pixel.
+    /// them: a sliver that agreeing rays say nothing about lies in one of the two.
     Unseen,
+    /// The geometry says the pixel's square crosses edges of the pattern its first rays
+    /// all met on one side of: the pixel stops only where a stratified set of its rays
+    /// bounds what those edges can hide to the threshold (and its standard error allows).
+    Pattern(UnseenPattern),
 }
 
 /// The estimate of a pixel whose first pass, or a neighbour's, asked for more samples
@@ -641,6 +676,11 @@ enum Ask {
 ///   two (32, 64, … rays): the pixel stops at such a stage if the standard error of its mean
 ///   is at most the stage's bound (see [`se_bound`]), unless the edge is unseen
 ///   ([`Ask::Unseen`]: rays that agree bound nothing about a sliver they all missed);
+/// - for [`Ask::Pattern`], with `n/2` a power of two: the stages of `4^k` ranks per
+///   quadrant (16, 64, 256 rays), whose rays are a stratified set over a grid of `m × m`
+///   cells (`m = 2^(k+1)`, see [`QuadrantOrder`]): the pixel stops at such a stage if the
+///   pattern's error bound for that grid is at most `threshold` and the standard error at
+///   most the stage's bound;
 /// - `n²/4` (all `n × n` cells).
 ///
 /// Odd `n`: `n × n` stratified samples besides the first pass, count-weighted with it.
@@ -684,7 +724,21 @@ fn refine<F: Fn(f64, f64) -> Sample>(
             return tally.mean();
         }
     }
-    if h >= 3 && ask != Ask::Unseen {
+    if let Ask::Pattern(pattern) = ask {
+        if h.is_power_of_two() {
+            let (mut stage, mut m) = (4, 4);
+            while stage < all {
+                take(&mut tally, ranks, stage);
+                ranks = stage;
+                if pattern.error_bound(m) <= threshold
+                    && tally.standard_error() <= se_bound(threshold, 4 * stage)
+                {
+                    return tally.mean();
+                }
+                (stage, m) = (stage * 4, m * 2);
+            }
+        }
+    } else if h >= 3 && ask != Ask::Unseen {
         let mut stage = 4;
         while stage < all {
             take(&mut tally, ranks, stage);
@@ -901,20 +955,25 @@ fn adaptive<F, G>(
                     // shading, they bound nothing about the other side, and the early stops
                     // would end the pixel on theirs. The geometry knows where a checker
                     // plane's cells meet and which cells the rays met.
-                    let crossing = !unseen
-                        && !c.mixed
-                        && geometry.is_some_and(|g| {
+                    // The first pass is itself a stratified set over the 2 × 2 quadrants:
+                    // where that already bounds the edges' error, nothing changes.
+                    let pattern = (!unseen && !c.mixed)
+                        .then(|| {
                             let (px, py) = (i64::from(x), i64::from(y));
-                            g.unseen_pattern_step(px, py, c.object, &fp.positions) > threshold
-                        });
-                    let ask = if unseen || crossing {
+                            geometry?.unseen_pattern(px, py, c.object, &fp.positions)
+                        })
+                        .flatten()
+                        .filter(|p| p.error_bound(2) > threshold);
+                    let ask = if unseen {
                         Ask::Unseen
+                    } else if let Some(p) = pattern {
+                        Ask::Pattern(p)
                     } else if own {
                         Ask::Own
                     } else {
                         Ask::Neighbour
                     };
-                    if own || near || crossing {
+                    if own || near || pattern.is_some() {
                         refine(x, y, max, threshold, ask, fp, order, trace)
                     } else {
                         mean
@@ -945,7 +1004,7 @@ mod tests {
     where
         S: Fn(i64, i64) -> bool,
         H: Fn(i64, i64, u32) -> bool,
-        C: Fn(i64, i64, u32, &[(f64, f64)]) -> f64,
+        C: Fn(i64, i64, u32, &[(f64, f64)]) -> Option<UnseenPattern>,
     {
         fn is_smooth(&self, px: i64, py: i64, _: f64, _: f64, _: &Sample) -> bool {
             (self.0)(px, py)
@@ -955,14 +1014,20 @@ mod tests {
             (self.1)(px, py, object)
         }
 
-        fn unseen_pattern_step(&self, px: i64, py: i64, object: u32, seen: &[(f64, f64)]) -> f64 {
+        fn unseen_pattern(
+            &self,
+            px: i64,
+            py: i64,
+            object: u32,
+            seen: &[(f64, f64)],
+        ) -> Option<UnseenPattern> {
             (self.2)(px, py, object, seen)
         }
     }
 
     /// No pattern edge known anywhere.
-    fn no_crossing(_: i64, _: i64, _: u32, _: &[(f64, f64)]) -> f64 {
-        0.0
+    fn no_crossing(_: i64, _: i64, _: u32, _: &[(f64, f64)]) -> Option<UnseenPattern> {
+        None
     }
 
     /// A geometry that knows nothing hidden, and smooth pixels by `smooth`.
@@ -1288,12 +1353,14 @@ mod tests {
     /// A corner of a pattern cut off inside one pixel, missed by its first rays, under shading
     /// that varies across the pixel by more than the threshold: the pixel asks for itself,
     /// and sixteen rays whose spread is the shading's end it there, on their side of the
-    /// edge. Only the geometry can say that the pixel holds an edge its rays all fell on one
-    /// side of. Where it says the step there exceeds the threshold the pixel takes every ray
-    /// and estimates the corner as the stratified set does; a step below the threshold, or
-    /// none, changes nothing. The geometry is told where the first rays went.
+    /// edge. Only the geometry can say that the pixel holds edges its rays all fell on one
+    /// side of. Where it does, the pixel goes on until a stratified stage of its rays bounds
+    /// what the edges can hide (`UnseenPattern::error_bound`): at a strict threshold, every
+    /// ray, estimating the corner as jitter's set does; at a loose one with one edge, 256 of
+    /// a cap of 32's 1,024; with the edges unknown, every ray. A step the first pass already
+    /// bounds changes nothing. The geometry is told where the first rays went.
     #[test]
-    fn a_pattern_edge_the_first_rays_all_missed_is_searched_with_every_ray() {
+    fn a_pattern_edge_the_first_rays_all_missed_is_searched_until_bounded() {
         // Black where x + y > 11.65 inside pixel (5, 5) only: a triangle of legs 0.35, area
         // 0.061, in the corner towards (6, 6), which the pixel's first 16 rays all miss.
         // Elsewhere one object, shaded 0.9 + 0.01 x.
@@ -1304,11 +1371,9 @@ mod tests {
                 object: 0,
             }
         };
-        let (max, threshold) = (8, 0.001);
-        let s = Sampler::Adaptive { max, threshold };
         let rect = Rect::new(2, 2, 8, 8);
         let asked = std::cell::RefCell::new(Vec::new());
-        let render = |step: f64| {
+        let render = |max: u32, threshold: f64, pattern: Option<UnseenPattern>| {
             let rays = std::cell::RefCell::new(Vec::new());
             let trace = |x: f64, y: f64| {
                 rays.borrow_mut().push((x, y));
@@ -1316,23 +1381,21 @@ mod tests {
             };
             let geometry = |px, py, object, seen: &[(f64, f64)]| {
                 if (px, py, object) != (5, 5, 0) {
-                    return 0.0;
+                    return None;
                 }
                 asked.borrow_mut().push(seen.to_vec());
-                step
+                pattern
             };
             let mut out = vec![Color::ZERO; rect.pixel_count()];
-            s.render_rect_probed(
-                rect,
-                trace,
-                &Geo(|_, _| false, |_, _, _| false, geometry),
-                &mut out,
-            );
+            let s = Sampler::Adaptive { max, threshold };
+            let geometry = Geo(|_, _| false, |_, _, _| false, geometry);
+            s.render_rect_probed(rect, trace, &geometry, &mut out);
             (out, rays.into_inner())
         };
+        let pattern = |step: f64, edges: Option<u32>| Some(UnseenPattern { step, edges });
         let at = |px: u32, py: u32| ((py - rect.y) * rect.width + (px - rect.x)) as usize;
 
-        let (blind, rays) = render(0.0);
+        let (blind, rays) = render(8, 0.001, None);
         let first = rays_in(&rays, 5, 5)[..4].to_vec();
         assert!(
             first.iter().all(|&(x, y)| x + y <= 11.65),
@@ -1350,13 +1413,14 @@ mod tests {
         );
         assert!(blind[at(5, 5)].x > 0.9, "unseen: {:?}", blind[at(5, 5)]);
 
-        let (small, _) = render(threshold / 2.0);
-        assert_eq!(small, blind, "a step below the threshold changes nothing");
+        // 0.0005 · 2 edges · 3/4 ≤ 0.001: the quadrants bound it.
+        let (small, _) = render(8, 0.001, pattern(0.0005, Some(2)));
+        assert_eq!(small, blind, "a step the first pass bounds changes nothing");
 
-        let (seen, rays) = render(0.5);
+        let (seen, rays) = render(8, 0.001, pattern(0.5, Some(2)));
         assert_eq!(rays_in(&rays, 5, 5).len(), 64);
         let mut grid = vec![Color::ZERO; rect.pixel_count()];
-        Sampler::Jitter { n: max }.render_rect(rect, corner, &mut grid);
+        Sampler::Jitter { n: 8 }.render_rect(rect, corner, &mut grid);
         // The same rays as jitter's, summed in another order.
         let (a, b) = (seen[at(5, 5)], grid[at(5, 5)]);
         assert!((a - b).abs().max_element() < 1e-12, "{a:?} against {b:?}");
@@ -1366,6 +1430,18 @@ mod tests {
                 assert_eq!(a, b, "pixel {i} changed");
             }
         }
+
+        // 0.5 · (2m − 1)/m² at m = 4, 8, 16: 0.22, 0.12, 0.06, first within 0.1 at 256 rays.
+        let (_, rays) = render(32, 0.1, pattern(0.5, Some(1)));
+        assert_eq!(rays_in(&rays, 5, 5).len(), 256);
+        let (_, rays) = render(32, 0.1, pattern(0.5, None));
+        assert_eq!(rays_in(&rays, 5, 5).len(), 1024);
+        let (_, rays) = render(32, 0.1, None);
+        assert_eq!(
+            rays_in(&rays, 5, 5).len(),
+            4,
+            "nothing asks without the geometry"
+        );
     }
 
     /// A smooth ramp is no unseen step: neighbours' means differ by several thresholds, but
@@ -1610,7 +1686,12 @@ mod tests {
         let geometry = Geo(
             |px: i64, py: i64| (px * 7 + py * 3) % 5 != 0,
             |px: i64, py: i64, _| (px * 5 + py) % 4 == 0,
-            |px: i64, py: i64, _, _: &[(f64, f64)]| f64::from(u8::from((px + 2 * py) % 3 == 0)),
+            |px: i64, py: i64, _, _: &[(f64, f64)]| {
+                ((px + 2 * py) % 3 == 0).then_some(UnseenPattern {
+                    step: 1.0,
+                    edges: Some(1 + (px % 2) as u32),
+                })
+            },
         );
         let disc = |x: f64, y: f64| {
             let inside = (x - 8.3).powi(2) + (y - 5.1).powi(2) < 9.0;

@@ -300,7 +300,7 @@ fn surfaces_that_may_be_shadowed_are_never_smooth() {
 
 /// The third question: wherever a pixel's square shows a checkered plane's other colour
 /// at some point of the dense grid while four rays through it all met the plane in one
-/// colour, [`Footprints::unseen_pattern_step`] must name a step, so that the pixel is not
+/// colour, [`Footprints::unseen_pattern`] must name a step and edges, so that the pixel is not
 /// ended on the rays' side. Same random scenes; the rays are random points of the square.
 #[test]
 fn a_checker_colour_the_rays_all_missed_is_never_overlooked() {
@@ -327,10 +327,10 @@ fn a_checker_colour_the_rays_all_missed_is_never_overlooked() {
                 }
                 if seen.iter().any(|&o| o.1 != cell) {
                     both += 1;
-                    assert_eq!(fp.unseen_pattern_step(px, py, object, &rays), 0.0);
+                    assert_eq!(fp.unseen_pattern(px, py, object, &rays), None);
                     continue;
                 }
-                let step = fp.unseen_pattern_step(px, py, object, &rays);
+                let named = fp.unseen_pattern(px, py, object, &rays);
                 let mut other = false;
                 for j in 0..=8 {
                     for i in 0..=8 {
@@ -341,7 +341,7 @@ fn a_checker_colour_the_rays_all_missed_is_never_overlooked() {
                 if other {
                     unseen += 1;
                     assert!(
-                        step > 0.0,
+                        named.is_some_and(|p| p.step > 0.0 && p.edges != Some(0)),
                         "case {case}, pixel ({px}, {py}): the other colour shows, unreported\n{src}"
                     );
                 }
@@ -478,6 +478,37 @@ fn a_checker_fainter_than_the_threshold_costs_nothing() {
     assert!(
         faint as f64 <= 2.0 * plain as f64 && visible as f64 > 8.0 * faint as f64,
         "faint checker {faint} primary rays, plain plane {plain}, visible checker {visible}"
+    );
+}
+
+/// A checker whose step barely exceeds the threshold is searched only as far as its bound
+/// needs: its colours 0.02 apart under ambient 0.1 and one light (a step of at most 0.022),
+/// threshold 0.02, a cap of 32. The first pass (a 2 × 2 stratified set) bounds one edge
+/// (0.022 · 3/4 ≤ 0.02), sixteen rays (4 × 4) two (0.022 · 2 · 7/16 ≤ 0.02); with no horizon
+/// in view no pixel holds more, so no pixel needs more than 16 rays for the pattern. The
+/// light grazes the plane, so the colours really shade far less apart than the bound and
+/// no neighbours differ by the threshold: only the pattern's rule asks for rays here. (With
+/// every ray taken wherever the first pass did not bound the edges, 120 rays per pixel
+/// against 5.5; on a black-box tester's scene 7.7 → 246.)
+#[test]
+fn a_checker_just_above_the_threshold_is_searched_only_as_far_as_its_bound() {
+    let rays_per_pixel = |color2: f64| {
+        let s = common::scene(&format!(
+            "[GLOBALS]\nwidth = 48\nheight = 36\nambient = 0.1\nsampler = adaptive\n\
+             samples = 32\nthreshold = 0.02\n[/GLOBALS]\n\
+             [CAMERA]\neye = <0, 6, 4>\nfov = 45\n[/CAMERA]\n\
+             [LIGHT]\nposition = <40, 1, 0>\n[/LIGHT]\n\
+             [OBJECT]\ntype = plane\ncolor1 = 0.5\ncolor2 = {color2}\nscale = 0.4\n\
+             rotate = <0, 30, 0>\n[/OBJECT]\n"
+        ));
+        let rays = s.render_rect_stats(Rect::full(s.width, s.height)).1.primary;
+        rays as f64 / f64::from(s.width * s.height)
+    };
+    let (barely, strong) = (rays_per_pixel(0.52), rays_per_pixel(0.58));
+    // Not vacuous: a step four times larger sends the crossing pixels further.
+    assert!(
+        barely <= 16.0 && strong > 2.0 * barely,
+        "{barely} rays per pixel, {strong} with a step four times larger"
     );
 }
 
