@@ -576,6 +576,13 @@ fn degenerate_cameras_and_transforms_are_errors() {
         1,
         &["same point"],
     );
+    // Apart by 1e-300: the squared distance underflows (it said "the same point").
+    one_error(
+        "[CAMERA]\neye = <0, 0, 1e-300>\nlook_at = <0, 0, 0>\n[/CAMERA]\n",
+        1,
+        1,
+        &["too close together", "1e-300 apart"],
+    );
     one_error(
         "[CAMERA]\neye = <0, 10, 0>\nlook_at = <0, 0, 0>\nup = <0, 2, 0>\n[/CAMERA]\n",
         4,

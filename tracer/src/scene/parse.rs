@@ -883,8 +883,19 @@ impl Parser<'_> {
             }
         }
         let forward = cam.look_at - cam.eye;
-        if !(forward.length_squared() > 0.0 && forward.is_finite()) {
+        if forward == DVec3::ZERO {
             self.err(b.pos, "the camera's `eye` and `look_at` are the same point");
+        } else if !(forward.length_squared() > 0.0 && forward.is_finite()) {
+            // Apart, but by less than about 1e-154: the squared distance underflows and no
+            // direction can be computed.
+            self.err(
+                b.pos,
+                format!(
+                    "the camera's `eye` and `look_at` are too close together for a view \
+                     direction ({:e} apart); place them farther apart",
+                    forward.abs().max_element()
+                ),
+            );
         } else if cam.up.length_squared() == 0.0
             || forward.normalize().cross(cam.up.normalize()).length() < 1e-9
         {
