@@ -57,6 +57,7 @@ impl DbLock {
         let Some(database) = database_file(url) else {
             return Ok(None);
         };
+        let database = real_path(database);
         let mut name = database.clone().into_os_string();
         name.push("-service.lock");
         let lock = PathBuf::from(name);
@@ -74,6 +75,25 @@ impl DbLock {
             Err(TryLockError::WouldBlock) => Err(LockError::Held { database, lock }),
             Err(TryLockError::Error(source)) => Err(LockError::Open { lock, source }),
         }
+    }
+}
+
+/// The path of the file itself, through symbolic links and `..`, so that every name of one
+/// database takes one lock (a link to the file took a lock of its own, and a second service
+/// started beside the first); for a database not created yet, its folder's real path and
+/// its name. As written where even the folder cannot be resolved (opening the lock then
+/// says why). Hard links are other paths to the same file and are not recognised.
+fn real_path(database: PathBuf) -> PathBuf {
+    if let Ok(real) = std::fs::canonicalize(&database) {
+        return real;
+    }
+    let folder = match database.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => std::path::Path::new("."),
+    };
+    match (std::fs::canonicalize(folder), database.file_name()) {
+        (Ok(folder), Some(name)) => folder.join(name),
+        _ => database,
     }
 }
 
@@ -121,6 +141,36 @@ mod tests {
         assert!(matches!(other, Ok(Some(_))));
         drop(first);
         assert!(matches!(DbLock::take(&url), Ok(Some(_))));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A symbolic link to the database, or a path through `..`, is the same database: one
+    /// lock, whether the file exists yet or not.
+    #[test]
+    fn other_names_of_one_database_share_its_lock() {
+        let dir = temp("names");
+        std::fs::create_dir_all(dir.join("sub")).expect("sub folder");
+        let db = dir.join("q.db");
+        let _first = DbLock::take(db.to_str().expect("UTF-8"))
+            .expect("free")
+            .expect("a file");
+        let dotted = dir.join("sub/../q.db");
+        assert!(matches!(
+            DbLock::take(dotted.to_str().expect("UTF-8")),
+            Err(LockError::Held { .. })
+        ));
+        std::fs::write(&db, b"").expect("the database file");
+        let link = dir.join("link.db");
+        std::os::unix::fs::symlink(&db, &link).expect("symlink");
+        match DbLock::take(&format!("sqlite://{}", link.display())) {
+            Err(LockError::Held { lock, .. }) => assert_eq!(
+                lock,
+                std::fs::canonicalize(&dir)
+                    .expect("real")
+                    .join("q.db-service.lock")
+            ),
+            other => panic!("a link took its own lock: {other:?}"),
+        }
         let _ = std::fs::remove_dir_all(&dir);
     }
 
