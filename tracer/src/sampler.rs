@@ -955,6 +955,7 @@ fn adaptive<F, G>(
                     // shading, they bound nothing about the other side, and the early stops
                     // would end the pixel on theirs. The geometry knows where a checker
                     // plane's cells meet and which cells the rays met.
+                    //
                     // The first pass is itself a stratified set over the 2 × 2 quadrants:
                     // where that already bounds the edges' error, nothing changes.
                     let pattern = (!unseen && !c.mixed)
