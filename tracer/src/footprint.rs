@@ -637,10 +637,32 @@ impl<'s> Footprints<'s> {
     /// shadow edge: its exact value then differs from that ray's only by smooth shading.
     /// Pixels outside the region are never known smooth.
     pub fn is_smooth(&self, px: i64, py: i64, x: f64, y: f64, seen: &Sample) -> bool {
+        self.shows_alone(px, py, x, y, seen.object, true)
+    }
+
+    /// [`Footprints::is_smooth`] but for a checker's cells: whether pixel `(px, py)`, where
+    /// the primary ray through `(x, y)` saw `object`, holds no edge, texture, reflection or
+    /// shadow edge other than the edges between a checkered plane's cells, which
+    /// [`Footprints::unseen_pattern`] bounds. A step between it and a neighbour that neither
+    /// saw is then a cell edge, in the neighbour unless the pattern puts one here.
+    pub fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool {
+        self.shows_alone(px, py, x, y, object, false)
+    }
+
+    /// [`Footprints::is_smooth`], with a checker's cell edges allowed unless `one_cell`.
+    fn shows_alone(
+        &self,
+        px: i64,
+        py: i64,
+        x: f64,
+        y: f64,
+        object: u32,
+        one_cell_too: bool,
+    ) -> bool {
         let Some(i) = self.index(px, py) else {
             return false;
         };
-        let hit = (seen.object != Sample::BACKGROUND).then_some(seen.object);
+        let hit = (object != Sample::BACKGROUND).then_some(object);
         let alone = match self.shown[i] {
             NOTHING => true,
             SEVERAL => false,
@@ -654,7 +676,9 @@ impl<'s> Footprints<'s> {
         if let Some(o) = hit {
             let obj = &self.scene.objects[o as usize];
             if !covers(obj, &cone)
-                || (obj.material.color2.is_some() && !one_cell(self.scene, obj, px, py))
+                || (one_cell_too
+                    && obj.material.color2.is_some()
+                    && !one_cell(self.scene, obj, px, py))
             {
                 return false;
             }
@@ -746,6 +770,10 @@ impl crate::sampler::PixelGeometry for Footprints<'_> {
 
     fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
         Footprints::may_hide(self, px, py, object)
+    }
+
+    fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool {
+        Footprints::pattern_alone(self, px, py, x, y, object)
     }
 
     fn unseen_pattern(

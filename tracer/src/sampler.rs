@@ -255,6 +255,13 @@ pub trait PixelGeometry {
         object: u32,
         seen: &[(f64, f64)],
     ) -> Option<UnseenPattern>;
+
+    /// Whether pixel `(px, py)`, where the primary ray through `(x, y)` saw `object`, is
+    /// known to hold nothing that changes but smooth shading and its object's pattern:
+    /// a step between it and a neighbour that neither saw is then a pattern edge, and
+    /// [`PixelGeometry::unseen_pattern`] bounds what this pixel can hide. May say no where
+    /// yes is true, never the reverse.
+    fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool;
 }
 
 /// A pattern's edges in a pixel's square that its first rays may have missed (see
@@ -296,6 +303,10 @@ impl PixelGeometry for NoGeometry {
 
     fn unseen_pattern(&self, _: i64, _: i64, _: u32, _: &[(f64, f64)]) -> Option<UnseenPattern> {
         None
+    }
+
+    fn pattern_alone(&self, _: i64, _: i64, _: f64, _: f64, _: u32) -> bool {
+        false
     }
 }
 
@@ -949,6 +960,16 @@ fn adaptive<F, G>(
                         near |= nb.mixed || other_object || other_mean;
                         unseen |= c.unseen_step(&nb, threshold);
                     }
+                    // Where nothing but smooth shading and a checker's cells can change in
+                    // the pixel, an unseen step beside it is a cell edge: the pattern's own
+                    // bound below decides how far this pixel is searched, and an edge that
+                    // lies in the neighbour costs this pixel nothing.
+                    let (px, py) = (i64::from(x), i64::from(y));
+                    if unseen && !c.mixed {
+                        let (sx, sy) = fp.positions[0];
+                        unseen =
+                            !geometry.is_some_and(|g| g.pattern_alone(px, py, sx, sy, c.object));
+                    }
                     // Rays that all saw one object may have fallen on one side of an edge of
                     // its pattern (a checker's corner in the pixel, a diagonal edge past
                     // them, cells finer than their spacing): agreeing, or differing only by
@@ -959,10 +980,7 @@ fn adaptive<F, G>(
                     // The first pass is itself a stratified set over the 2 × 2 quadrants:
                     // where that already bounds the edges' error, nothing changes.
                     let pattern = (!unseen && !c.mixed)
-                        .then(|| {
-                            let (px, py) = (i64::from(x), i64::from(y));
-                            geometry?.unseen_pattern(px, py, c.object, &fp.positions)
-                        })
+                        .then(|| geometry?.unseen_pattern(px, py, c.object, &fp.positions))
                         .flatten()
                         .filter(|p| p.error_bound(2) > threshold);
                     let ask = if unseen {
@@ -1023,6 +1041,10 @@ mod tests {
             seen: &[(f64, f64)],
         ) -> Option<UnseenPattern> {
             (self.2)(px, py, object, seen)
+        }
+
+        fn pattern_alone(&self, _: i64, _: i64, _: f64, _: f64, _: u32) -> bool {
+            false
         }
     }
 
