@@ -99,10 +99,7 @@ fn real_path(database: PathBuf) -> PathBuf {
 
 /// The file a `--database` value names, as sqlx will open it; `None` in memory or unparsable.
 fn database_file(url: &str) -> Option<PathBuf> {
-    let other_scheme = url
-        .split_once("://")
-        .is_some_and(|(scheme, _)| scheme != "sqlite");
-    if other_scheme || url.contains(":memory:") || url.contains("mode=memory") {
+    if !crate::queue::is_sqlite(url) || url.contains(":memory:") || url.contains("mode=memory") {
         return None;
     }
     let opts = SqliteConnectOptions::from_str(url).ok()?;

@@ -289,16 +289,19 @@ const CLAIM_SQL: &str =
       ORDER BY t.idx LIMIT 1)
   RETURNING job_id, idx, x, y, w, h";
 
+/// Whether `url` can name a SQLite database: `sqlite:` or no scheme at all (a bare path).
+pub fn is_sqlite(url: &str) -> bool {
+    url.split_once("://")
+        .is_none_or(|(scheme, _)| scheme == "sqlite")
+}
+
 impl Queue {
     /// Opens (creating if missing) the database at `url` (`sqlite://path`, or
     /// `sqlite::memory:`) and brings its schema up to date.
     pub async fn open(url: &str) -> Result<Queue> {
         // sqlx reads any other scheme as a file name ("unable to open database file"). A bare
         // path (`tessera.db`) is a SQLite file, as it always was.
-        if url
-            .split_once("://")
-            .is_some_and(|(scheme, _)| scheme != "sqlite")
-        {
+        if !is_sqlite(url) {
             return Err(QueueError::Url {
                 url: url.to_string(),
                 reason: "the queue is SQLite only: give sqlite://PATH (for example \

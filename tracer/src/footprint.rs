@@ -284,8 +284,6 @@ pub struct Footprints<'s> {
     fitted: Vec<u32>,
     /// The planes (world point, normal, object), tested per pixel.
     planes: Vec<(DVec3, DVec3, u32)>,
-    /// How many objects mirror, counted when a checker's step is first asked for.
-    mirrors: std::cell::OnceCell<usize>,
 }
 
 /// A pixel no solid may show in.
@@ -330,7 +328,6 @@ impl<'s> Footprints<'s> {
             shown: vec![NOTHING; n],
             fitted: vec![NOTHING; n],
             planes: Vec::new(),
-            mirrors: std::cell::OnceCell::new(),
         };
         // The prims that may show in the region: every prim, or those the BVH finds whose
         // boxes' projections meet it, with the ones it leaves out.
@@ -600,11 +597,7 @@ impl<'s> Footprints<'s> {
         if obj.material.texture.is_some() || !matches!(obj.shape, Shape::Plane) {
             return None;
         }
-        let mirrors = *self.mirrors.get_or_init(|| {
-            let objects = &self.scene.objects;
-            objects.iter().filter(|o| o.material.mirror > 0.0).count()
-        });
-        let step = self.scene.checker_step_among(obj, mirrors);
+        let step = self.scene.checker_step(obj);
         if step == 0.0 {
             return None;
         }
@@ -701,25 +694,14 @@ impl Scene {
     /// difference `D` along any ray obeys `D ≤ (1 − m) S + m D`, so `D ≤ S`, and the factor
     /// `1 − mirror` is dropped; and for a plane in a CSG tree, whose gaps let a returning ray
     /// meet it from the other side, every light counts. 0 for an object without a checker,
-    /// or whose colours are the same. Scans the scene's objects for mirrors; see
-    /// [`Scene::checker_step_among`] to count them once.
+    /// or whose colours are the same.
     pub fn checker_step(&self, obj: &Object) -> f64 {
-        let mirrors = self
-            .objects
-            .iter()
-            .filter(|o| o.material.mirror > 0.0)
-            .count();
-        self.checker_step_among(obj, mirrors)
-    }
-
-    /// [`Scene::checker_step`] in a scene of `mirrors` objects with `mirror > 0`.
-    pub fn checker_step_among(&self, obj: &Object, mirrors: usize) -> f64 {
         let m = &obj.material;
         let Some(c2) = m.color2 else {
             return 0.0;
         };
         // Whether a ray the plane mirrors can come back to it (by another mirror).
-        let returns = m.mirror > 0.0 && mirrors > 1;
+        let returns = m.mirror > 0.0 && self.mirrors > 1;
         let (p0, n) = plane_of(obj);
         let eye = self.camera.ray(0.0, 0.0).origin;
         let side = n.dot(eye - p0);
@@ -821,14 +803,7 @@ fn one_cell(scene: &Scene, obj: &Object, px: i64, py: i64) -> bool {
 fn cell_edges(scene: &Scene, obj: &Object, px: i64, py: i64) -> Option<u32> {
     let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
     for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)] {
-        let ray = obj
-            .transform
-            .ray_to_object(&scene.camera.ray(px as f64 + dx, py as f64 + dy));
-        let t = -ray.origin.y / ray.dir.y;
-        if !(t > 0.0 && t.is_finite()) {
-            return None;
-        }
-        let p = ray.at(t) * obj.own_scale;
+        let p = plane_point(scene, obj, px as f64 + dx, py as f64 + dy)?;
         lo = lo.min(p);
         hi = hi.max(p);
     }
@@ -843,16 +818,19 @@ fn cell_edges(scene: &Scene, obj: &Object, px: i64, py: i64) -> Option<u32> {
 /// where the ray misses the plane or meets it within 1e-9 of a cell's edge (relative to the
 /// coordinates' magnitude: the shader's own hit may round to the other side there).
 fn cell_parity(scene: &Scene, obj: &Object, x: f64, y: f64) -> Option<bool> {
-    let ray = obj.transform.ray_to_object(&scene.camera.ray(x, y));
-    let t = -ray.origin.y / ray.dir.y;
-    if !(t > 0.0 && t.is_finite()) {
-        return None;
-    }
-    let p = ray.at(t) * obj.own_scale;
+    let p = plane_point(scene, obj, x, y)?;
     let pad = 1e-9 * (1.0 + p.x.abs().max(p.z.abs()));
     let clear = |v: f64| v - v.floor() > pad && v.ceil() - v > pad;
     (clear(p.x) && clear(p.z))
         .then(|| (p.x.floor() as i64).wrapping_add(p.z.floor() as i64) & 1 != 0)
+}
+
+/// Where the primary ray through image position `(x, y)` meets plane `obj`, in the plane's
+/// own coordinates scaled to its checker's unit cells (`y` is 0); `None` where it misses.
+fn plane_point(scene: &Scene, obj: &Object, x: f64, y: f64) -> Option<DVec3> {
+    let ray = obj.transform.ray_to_object(&scene.camera.ray(x, y));
+    let t = -ray.origin.y / ray.dir.y;
+    (t > 0.0 && t.is_finite()).then(|| ray.at(t) * obj.own_scale)
 }
 
 /// A plane object's world point and normal.

@@ -452,6 +452,9 @@ pub struct Scene {
     /// Per light, the lone convex objects whose surface passes through it (see
     /// [`Scene::lights_on`]).
     lights_on: Vec<Vec<(u32, DVec3)>>,
+    /// How many objects mirror (`mirror > 0`): whether a mirrored ray can come back to a
+    /// checkered plane (see [`Scene::checker_step`]).
+    pub(crate) mirrors: usize,
 }
 
 /// Below this many bounded prims a scene tests every prim for every ray: a BVH's box tests
@@ -640,6 +643,7 @@ impl Scene {
             accel,
             clear_lights,
             lights_on,
+            mirrors: objects.iter().filter(|o| o.material.mirror > 0.0).count(),
             objects,
             prims,
         })
