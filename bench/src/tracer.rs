@@ -346,10 +346,17 @@ fn scaling(args: &Args, layout: Layout, repeats: usize) -> Result<()> {
     let name = layout.name();
     println!("BVH scaling ({name}): N random spheres + ground plane, {w}x{h}, one thread:");
     println!(
-        "{:>6} {:>10} {:>12} {:>8} {:>14} {:>11}",
-        "N", "rays", "BVH ns/ray", "× N=16", "linear ns/ray", "linear/BVH"
+        "{:>6} {:>10} {:>12} {:>8} {:>15} {:>8} {:>14} {:>11}",
+        "N",
+        "rays",
+        "BVH ns/ray",
+        "× N=16",
+        "no tables ns/ray",
+        "× N=16",
+        "linear ns/ray",
+        "linear/BVH"
     );
-    let mut at16 = None;
+    let (mut at16, mut plain16) = (None, None);
     // The scene at N = 16 and the last one after it, for the headline pairs.
     let (mut small, mut large): (Option<Scene>, Option<(usize, Scene)>) = (None, None);
     for &n in sizes {
@@ -369,10 +376,17 @@ fn scaling(args: &Args, layout: Layout, repeats: usize) -> Result<()> {
         let full = Rect::full(w, h);
         let (secs, stats) = time_render(&scene, full, repeats);
         let ns = secs * 1e9 / stats.total() as f64;
+        // The same BVH with every ray walking it: what the eye's and the lights' tables
+        // (tessera_tracer::point_index) save.
+        let plain = scene.clone().without_point_tables();
+        let (psecs, pstats) = time_render(&plain, full, repeats);
+        let pns = psecs * 1e9 / pstats.total() as f64;
         if n == 16 {
             at16 = Some(ns);
+            plain16 = Some(pns);
         }
         let ratio = at16.map_or("-".to_string(), |b| format!("{:.2}", ns / b));
+        let pratio = plain16.map_or("-".to_string(), |b| format!("{:.2}", pns / b));
         let (lin, gain) = if !args.no_linear && linear_at.contains(&n) {
             let lin = scene.clone().without_acceleration();
             let (lsecs, lstats) = time_render(&lin, full, repeats);
@@ -382,7 +396,7 @@ fn scaling(args: &Args, layout: Layout, repeats: usize) -> Result<()> {
             ("-".to_string(), "-".to_string())
         };
         println!(
-            "{n:>6} {:>10} {ns:>12.0} {ratio:>8} {lin:>14} {gain:>11}",
+            "{n:>6} {:>10} {ns:>12.0} {ratio:>8} {pns:>15.0} {pratio:>8} {lin:>14} {gain:>11}",
             stats.total()
         );
         if n == 16 {
@@ -397,17 +411,25 @@ fn scaling(args: &Args, layout: Layout, repeats: usize) -> Result<()> {
         // leaves it, and a pair sees the same host.
         let full = Rect::full(w, h);
         let pairs = if args.quick { 1 } else { 9 };
-        let ratios: Vec<f64> = (0..pairs)
-            .map(|_| {
-                let (a, sa) = time_render(&small, full, 1);
-                let (b, sb) = time_render(&large, full, 1);
-                (b / sb.total() as f64) / (a / sa.total() as f64)
-            })
-            .collect();
-        let r = Spread::of(ratios);
+        let pair_ratios = |small: &Scene, large: &Scene| {
+            let ratios: Vec<f64> = (0..pairs)
+                .map(|_| {
+                    let (a, sa) = time_render(small, full, 1);
+                    let (b, sb) = time_render(large, full, 1);
+                    (b / sb.total() as f64) / (a / sa.total() as f64)
+                })
+                .collect();
+            Spread::of(ratios)
+        };
+        let r = pair_ratios(&small, &large);
         println!(
             "per-ray cost at N={n} is {:.2}× that at N=16 in the {name} (median of {} back-to-back pairs, {:.2}–{:.2}; target: within 3×)",
             r.median, r.count, r.lo, r.hi
+        );
+        let p = pair_ratios(&small.without_point_tables(), &large.without_point_tables());
+        println!(
+            "  without the eye's and the lights' tables (every ray walks the BVH): {:.2}× ({:.2}–{:.2})",
+            p.median, p.lo, p.hi
         );
     }
     Ok(())

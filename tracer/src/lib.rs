@@ -34,6 +34,7 @@ pub mod exact;
 pub mod footprint;
 pub mod math;
 pub mod png_out;
+pub mod point_index;
 pub mod render;
 pub mod sampler;
 pub mod scene;

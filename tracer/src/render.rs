@@ -202,7 +202,7 @@ impl Scene {
                         // lights lie on nothing: their search is the plain one.
                         let lies_on = self.lights_on(li);
                         let blocked = if lies_on.is_empty() {
-                            self.occluded(&shadow_ray, end, self_skip)
+                            self.occluded_towards(li, &shadow_ray, end, self_skip, &[])
                         } else {
                             let mut on: arrayvec::ArrayVec<u32, 4> = arrayvec::ArrayVec::new();
                             for &(o, n) in lies_on {
@@ -215,7 +215,7 @@ impl Scene {
                                     break;
                                 }
                             }
-                            self.occluded_skipping(&shadow_ray, end, self_skip, &on)
+                            self.occluded_towards(li, &shadow_ray, end, self_skip, &on)
                         };
                         if blocked {
                             v = 1.0 - self.shadow;

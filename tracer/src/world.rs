@@ -20,6 +20,7 @@ use crate::camera::Camera;
 use crate::csg::{Csg, Prim};
 use crate::diag::{Diagnostic, SceneError};
 use crate::math::{Aabb, Color, Ray};
+use crate::point_index::{self, PointIndex};
 use crate::sampler::Sampler;
 use crate::scene::{self, Light, Limits, MaterialDesc, Node, SceneDesc};
 use crate::shadow::ClearLights;
@@ -447,6 +448,8 @@ pub struct Scene {
     pub prims: Vec<Prim>,
     /// How rays find the prims they may hit (built from `prims` by [`Scene::build`]).
     accel: Accel,
+    /// What rays through the eye or a light find instead of walking the BVH.
+    points: PointTables,
     /// The lights each object's shadow rays need not be traced to (see [`crate::shadow`]).
     clear_lights: ClearLights,
     /// Per light, the lone convex objects whose surface passes through it (see
@@ -505,6 +508,106 @@ enum Accel {
     },
 }
 
+/// Each bounded prim with its box and what testing it costs, in prim order.
+fn bounded_prims(prims: &[Prim], objects: &[Object]) -> Vec<(u32, Aabb, f64)> {
+    prims
+        .iter()
+        .enumerate()
+        .filter_map(|(i, p)| {
+            Some((
+                u32::try_from(i).ok()?,
+                p.bounds(objects)?,
+                prim_cost(p, objects),
+            ))
+        })
+        .collect()
+}
+
+/// What the BVH is built over: each bounded prim's box, or a long object's slices (see
+/// [`Object::pieces`]), in prim order.
+fn bvh_items(prims: &[Prim], objects: &[Object], bounded: &[(u32, Aabb, f64)]) -> Vec<Item> {
+    let mut items: Vec<Item> = Vec::with_capacity(bounded.len());
+    for &(id, bounds, cost) in bounded {
+        let pieces = match &prims[id as usize] {
+            Prim::Object(o) => objects[*o as usize].pieces(),
+            Prim::Csg(_) => Vec::new(),
+        };
+        if pieces.is_empty() {
+            items.push(Item { id, bounds, cost });
+        } else {
+            items.extend(pieces.into_iter().map(|bounds| Item { id, bounds, cost }));
+        }
+    }
+    items
+}
+
+/// The tables of rays through the eye and through each light (see [`crate::point_index`]),
+/// beside the BVH they stand in for.
+#[derive(Debug, Clone, Default)]
+struct PointTables {
+    eye: Option<PointIndex>,
+    /// Per light (the first [`point_index::MAX_LIGHTS`]).
+    lights: Vec<Option<PointIndex>>,
+    /// Per prim: a similarity sphere's centre and squared radius (`r2 = ∞` for any other
+    /// prim), for the quick test of listed prims (see [`sphere_certainly_missed`]).
+    quick: Vec<(DVec3, f64)>,
+}
+
+impl PointTables {
+    /// The tables a scene with this BVH gains from: with `Auto`, when it has at least
+    /// [`point_index::MIN_PRIMS`] bounded prims; with `Always`, whenever it has a BVH.
+    fn new(
+        prims: &[Prim],
+        objects: &[Object],
+        accel: &Accel,
+        eye: DVec3,
+        lights: &[Light],
+        mode: Acceleration,
+    ) -> PointTables {
+        if accel.bvh().is_none() {
+            return PointTables::default();
+        }
+        let bounded = bounded_prims(prims, objects);
+        let wanted = match mode {
+            Acceleration::Off => false,
+            Acceleration::Auto => bounded.len() >= point_index::MIN_PRIMS,
+            Acceleration::Always => true,
+        };
+        if !wanted {
+            return PointTables::default();
+        }
+        // The BVH's own boxes: padded as it pads them, those it leaves out left out here too.
+        let items: Vec<(u32, Aabb, f64)> = bvh_items(prims, objects, &bounded)
+            .iter()
+            .filter_map(|it| Some((it.id, crate::bvh::padded(&it.bounds)?, it.cost)))
+            .collect();
+        let quick = prims
+            .iter()
+            .map(|p| match p {
+                Prim::Object(o) => objects[*o as usize].sphere,
+                Prim::Csg(_) => None,
+            })
+            .map(|s| s.unwrap_or((DVec3::ZERO, f64::INFINITY)))
+            .collect();
+        // The eye's first, then the lights' in order, while the entries last.
+        let mut left = point_index::MAX_ENTRIES;
+        let mut build = |p: DVec3| {
+            let table = PointIndex::build(p, &items, left)?;
+            left -= table.size().1;
+            Some(table)
+        };
+        PointTables {
+            eye: build(eye),
+            lights: lights
+                .iter()
+                .take(point_index::MAX_LIGHTS)
+                .map(|l| build(l.position))
+                .collect(),
+            quick,
+        }
+    }
+}
+
 /// What testing a prim costs in the BVH's SAH, in units of one node visit (the two-lane
 /// test of two boxes, about 50 instructions). A sphere placed by a similarity is mostly
 /// rejected by its packed pre-test before its object is touched, and is costed as one
@@ -533,18 +636,7 @@ impl Accel {
     }
 
     fn new(prims: &[Prim], objects: &[Object], mode: Acceleration) -> Accel {
-        // Each bounded prim with its box and what testing it costs.
-        let bounded: Vec<(u32, Aabb, f64)> = prims
-            .iter()
-            .enumerate()
-            .filter_map(|(i, p)| {
-                Some((
-                    u32::try_from(i).ok()?,
-                    p.bounds(objects)?,
-                    prim_cost(p, objects),
-                ))
-            })
-            .collect();
+        let bounded = bounded_prims(prims, objects);
         let wanted = match mode {
             Acceleration::Off => false,
             Acceleration::Auto => {
@@ -558,18 +650,7 @@ impl Accel {
         if !wanted || u32::try_from(prims.len()).is_err() {
             return Accel::Linear;
         }
-        let mut items: Vec<Item> = Vec::with_capacity(bounded.len());
-        for &(id, bounds, cost) in &bounded {
-            let pieces = match &prims[id as usize] {
-                Prim::Object(o) => objects[*o as usize].pieces(),
-                Prim::Csg(_) => Vec::new(),
-            };
-            if pieces.is_empty() {
-                items.push(Item { id, bounds, cost });
-            } else {
-                items.extend(pieces.into_iter().map(|bounds| Item { id, bounds, cost }));
-            }
-        }
+        let items = bvh_items(prims, objects, &bounded);
         let (bvh, mut unbounded) = Bvh::build_items(&items);
         unbounded.extend(
             prims
@@ -625,6 +706,14 @@ impl Scene {
         let (objects, prims) = Self::place(desc, assets, texture_limits)?;
         let accel = Accel::new(&prims, &objects, Acceleration::Auto);
         let clear_lights = ClearLights::find(&objects, &prims, &desc.lights, accel.bvh());
+        let points = PointTables::new(
+            &prims,
+            &objects,
+            &accel,
+            desc.camera.eye,
+            &desc.lights,
+            Acceleration::Auto,
+        );
         let lights_on = desc
             .lights
             .iter()
@@ -641,6 +730,7 @@ impl Scene {
             camera: Camera::new(&desc.camera, desc.width, desc.height),
             lights: desc.lights.clone(),
             accel,
+            points,
             clear_lights,
             lights_on,
             mirrors: objects.iter().filter(|o| o.material.mirror > 0.0).count(),
@@ -728,9 +818,34 @@ impl Scene {
             }
         }
         self.accel = Accel::new(&self.prims, &self.objects, mode);
+        self.points = PointTables::new(
+            &self.prims,
+            &self.objects,
+            &self.accel,
+            self.camera.eye(),
+            &self.lights,
+            mode,
+        );
         self.clear_lights =
             ClearLights::find(&self.objects, &self.prims, &self.lights, self.accel.bvh());
         self
+    }
+
+    /// The same scene with its BVH but without the tables of rays through the eye and the
+    /// lights ([`crate::point_index`]): every ray walks the tree. The reference the tables'
+    /// tests and the benchmark compare against (the images are the same).
+    pub fn without_point_tables(mut self) -> Scene {
+        self.points = PointTables::default();
+        self
+    }
+
+    /// Whether rays through the eye, and through how many lights, look up a table of their
+    /// own (see [`crate::point_index`]).
+    pub fn point_tables(&self) -> (bool, usize) {
+        (
+            self.points.eye.is_some(),
+            self.points.lights.iter().filter(|l| l.is_some()).count(),
+        )
     }
 
     /// The same scene tracing every shadow ray, even those [`crate::shadow`] knows cannot be
@@ -799,8 +914,81 @@ impl Scene {
                 bvh,
                 unbounded,
                 quick,
-            } => self.intersect_bvh(bvh, unbounded, quick, ray, t_max, skip),
+            } => {
+                if let Some(eye) = &self.points.eye
+                    && ray.origin == eye.point()
+                    && let Some(listed) = eye.lookup(ray.dir)
+                {
+                    return self.intersect_listed(
+                        eye.always(),
+                        listed,
+                        unbounded,
+                        ray,
+                        t_max,
+                        skip,
+                    );
+                }
+                self.intersect_bvh(bvh, unbounded, quick, ray, t_max, skip)
+            }
         }
+    }
+
+    /// Offers prim `i` to a nearest-hit search whose best so far is `best` at `t_best`,
+    /// unless a quick test already `rejected` it; with the tie rule of
+    /// [`Self::intersect_bvh`].
+    #[inline(always)]
+    fn consider(
+        &self,
+        best: &mut Option<(Hit, u32)>,
+        t_best: &mut f64,
+        i: u32,
+        rejected: bool,
+        ray: &Ray,
+        skip: Option<u32>,
+    ) {
+        if !rejected {
+            let limit = match *best {
+                Some((_, b)) if i < b => t_best.next_up(),
+                _ => *t_best,
+            };
+            if let Some(h) = self.prim_hit(&self.prims[i as usize], ray, limit, skip) {
+                *t_best = h.local.t;
+                *best = Some((h, i));
+            }
+        }
+    }
+
+    /// The unbounded prims, the table's `always` prims, then its `listed` ones (sorted by
+    /// their boxes' distance from the eye), until the next box is farther than the best hit.
+    /// The same answer as [`Self::intersect_bvh`]: every prim the BVH would offer and could
+    /// report a hit is offered, with the same tie rule.
+    #[inline(never)]
+    fn intersect_listed(
+        &self,
+        always: &[u32],
+        listed: &[point_index::Entry],
+        unbounded: &[u32],
+        ray: &Ray,
+        t_max: f64,
+        skip: Option<u32>,
+    ) -> Option<Hit> {
+        let mut best: Option<(Hit, u32)> = None;
+        let mut t_best = t_max;
+        for &i in unbounded.iter().chain(always) {
+            self.consider(&mut best, &mut t_best, i, false, ray, skip);
+        }
+        let dd = ray.dir.length_squared();
+        for e in listed {
+            // A hit at `t` lies `t·|d|` from the eye, inside the box: not nearer than the
+            // box. The factor covers the rounding of `t²·|d|²` (see `point_index`).
+            if f64::from(e.near_sq) > t_best * t_best * dd * (1.0 + 1e-9) {
+                break;
+            }
+            let (c, r2) = self.points.quick[e.prim as usize];
+            let rejected = sphere_certainly_missed(c, r2, ray);
+            self.consider(&mut best, &mut t_best, e.prim, rejected, ray, skip);
+        }
+        best.map(|(h, _)| h)
     }
 
     /// Every prim in order: a prim replaces the best hit only when strictly nearer.
@@ -837,27 +1025,14 @@ impl Scene {
     ) -> Option<Hit> {
         let mut best: Option<(Hit, u32)> = None;
         let mut t_best = t_max;
-        // Tests prim `i` unless the quick test already rejected it; returns the new limit.
-        let mut consider = |i: u32, rejected: bool| {
-            if !rejected {
-                let limit = match best {
-                    Some((_, b)) if i < b => t_best.next_up(),
-                    _ => t_best,
-                };
-                if let Some(h) = self.prim_hit(&self.prims[i as usize], ray, limit, skip) {
-                    t_best = h.local.t;
-                    best = Some((h, i));
-                }
-            }
-            t_best
-        };
         for &i in unbounded {
-            consider(i, false);
+            self.consider(&mut best, &mut t_best, i, false, ray, skip);
         }
         bvh.traverse(ray.origin, ray.inv_dir(), t_max, |slot| {
             let q = &quick[slot];
             let rejected = sphere_certainly_missed(q.centre, q.r2, ray);
-            ControlFlow::Continue(consider(q.prim, rejected))
+            self.consider(&mut best, &mut t_best, q.prim, rejected, ray, skip);
+            ControlFlow::Continue(t_best)
         });
         best.map(|(h, _)| h)
     }
@@ -920,6 +1095,62 @@ impl Scene {
             return self.occluded(ray, t_max, skip);
         }
         self.occluded_unless(ray, t_max, move |i| skip == Some(i) || also.contains(&i))
+    }
+
+    /// [`Self::occluded_skipping`] for a shadow ray towards light `light`. A ray built as the
+    /// renderer builds them, `Ray::new(o, L − o)` for the light's position `L` with
+    /// `t_max < 1` (see [`crate::render::SHADOW_END_REL`]), looks its candidates up in the
+    /// light's table when there is one (see [`crate::point_index`]); any other ray, or a light
+    /// without a table, walks the BVH. The answer is the same either way.
+    #[inline]
+    pub fn occluded_towards(
+        &self,
+        light: usize,
+        ray: &Ray,
+        t_max: f64,
+        skip: Option<u32>,
+        also: &[u32],
+    ) -> bool {
+        if let Accel::Bvh { unbounded, .. } = &self.accel
+            && let Some(Some(table)) = self.points.lights.get(light)
+            && t_max < 1.0
+            && ray.dir == table.point() - ray.origin
+            && table.shadow_lookup_ok(ray.dir)
+            && let Some(listed) = table.lookup(-ray.dir)
+        {
+            let skip = move |i| skip == Some(i) || also.contains(&i);
+            return self.occluded_listed(table.always(), listed, unbounded, ray, t_max, skip);
+        }
+        self.occluded_skipping(ray, t_max, skip, also)
+    }
+
+    /// The unbounded prims, a table's `always` prims and its `listed` ones, until one blocks.
+    #[inline(never)]
+    fn occluded_listed(
+        &self,
+        always: &[u32],
+        listed: &[point_index::Entry],
+        unbounded: &[u32],
+        ray: &Ray,
+        t_max: f64,
+        skip: impl Fn(u32) -> bool + Copy,
+    ) -> bool {
+        // A point of the segment is at most `|d|` from the light (`t ≥ 0`; the rounding of
+        // `d` adds 2⁻⁵³ of it, which the factor covers): listed boxes farther away, beyond
+        // the ray's origin, cannot block it.
+        let reach = ray.dir.length_squared() * (1.0 + 1e-9);
+        unbounded
+            .iter()
+            .chain(always)
+            .any(|&i| self.prim_blocks(&self.prims[i as usize], ray, t_max, skip))
+            || listed
+                .iter()
+                .take_while(|e| f64::from(e.near_sq) <= reach)
+                .any(|e| {
+                    let (c, r2) = self.points.quick[e.prim as usize];
+                    !sphere_certainly_missed(c, r2, ray)
+                        && self.prim_blocks(&self.prims[e.prim as usize], ray, t_max, skip)
+                })
     }
 
     /// The any-hit search, leaving out the lone objects `skip` names. Generic so that the

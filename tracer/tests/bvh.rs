@@ -452,3 +452,198 @@ fn big_csg_trees_answer_the_same_with_and_without_their_index() {
         "{hits} hits, {blocked} blocked of {rays}"
     );
 }
+
+/// A shadow ray from `o` to light `li` as the renderer builds it, with its segment's end.
+fn shadow_ray(s: &Scene, li: usize, o: DVec3) -> (Ray, f64) {
+    let ray = Ray::new(o, s.lights[li].position - o);
+    let scale = o.length() / ray.dir.length() + 1.0;
+    (ray, 1.0 - tessera_tracer::render::SHADOW_END_REL * scale)
+}
+
+/// Rays through the eye look their candidates up in the eye's table, shadow rays in their
+/// light's (see `tessera_tracer::point_index`): the same nearest hits and the same shadow
+/// answers, bit for bit, as testing every prim. The eye and the lights sit where they
+/// usually do, inside a solid, on a box's corner and on a solid's surface; the rays go
+/// everywhere, to box corners and cube-face edges, axis-parallel with `±0` components.
+#[test]
+fn rays_through_the_eye_and_the_lights_answer_as_every_prim_does() {
+    let mut rng = Rng(808);
+    let (mut hits, mut blocked, mut shadow_rays) = (0, 0, 0);
+    for round in 0..18 {
+        let n = [40, 150, 600][round % 3];
+        let extent = [4.0, 8.0][round % 2];
+        let mut src = random_scene(&mut rng, n, extent, round % 4 != 0);
+        let base = common::scene(&src);
+        // Where the eye and the first light go: their usual places, a solid's centre (inside
+        // it), or a corner of a solid's box.
+        let k = rng.below(base.objects.len() as u64) as usize;
+        let centre = base.objects[k].transform.to_world().translation;
+        match round % 3 {
+            1 => {
+                src = src.replace(
+                    &format!("eye = <3, 5, {}>", extent * 2.5),
+                    &format!("eye = {}\nlook_at = {}", v(centre), v(centre + DVec3::ONE)),
+                );
+                src = src.replace(
+                    "position = <10, 20, 15>",
+                    &format!("position = {}", v(centre)),
+                );
+            }
+            2 => {
+                if let Some(b) = base.objects[k].bounds {
+                    src = src.replace(
+                        "position = <10, 20, 15>",
+                        &format!("position = {}", v(b.max)),
+                    );
+                }
+            }
+            _ => {}
+        }
+        let linear = common::scene(&src).without_acceleration();
+        let tables = common::scene(&src).with_acceleration(Acceleration::Always);
+        if !tables.uses_bvh() {
+            continue;
+        }
+        assert_eq!(tables.point_tables(), (true, 2), "round {round}");
+        let eye = tables.camera.eye();
+        for _ in 0..1500 {
+            let target = match rng.below(5) {
+                0 => {
+                    let o = &linear.objects[rng.below(linear.objects.len() as u64) as usize];
+                    o.transform.to_world().translation
+                }
+                1 => {
+                    let o = &linear.objects[rng.below(linear.objects.len() as u64) as usize];
+                    match o.bounds {
+                        Some(b) if rng.below(2) == 0 => b.min,
+                        Some(b) => b.max,
+                        None => rng.vec(extent),
+                    }
+                }
+                _ => eye + rng.vec(1.0),
+            };
+            let mut d = target - eye;
+            match rng.below(8) {
+                0 => d.x = 0.0,
+                1 => d.y = -0.0,
+                // A cube-face edge and a cube corner, seen from the eye.
+                2 => d.y = d.x,
+                3 => d = DVec3::splat(d.x),
+                _ => {}
+            }
+            if d == DVec3::ZERO {
+                continue;
+            }
+            let r = Ray::new(eye, d.normalize());
+            let (a, b) = (
+                linear.intersect(&r, f64::INFINITY, None),
+                tables.intersect(&r, f64::INFINITY, None),
+            );
+            assert_eq!(
+                a.map(|h| (h.object, h.local)),
+                b.map(|h| (h.object, h.local)),
+                "round {round}: primary {r:?}\n{src}"
+            );
+            hits += usize::from(a.is_some());
+            // Shadow rays from the hit (lifted off the surface as the renderer does, or
+            // not), from inside solids and from anywhere, to every light.
+            let from = match (a, rng.below(3)) {
+                (Some(h), 0) => r.origin + r.dir * h.local.t,
+                (Some(h), 1) => r.origin + r.dir * (h.local.t * (1.0 - 1e-9)),
+                _ => rng.vec(extent * 2.0),
+            };
+            for li in 0..tables.lights.len() {
+                let (sr, end) = shadow_ray(&tables, li, from);
+                let skip = a
+                    .map(|h| h.object)
+                    .filter(|&o| !linear.objects[o as usize].in_csg && rng.below(2) == 0);
+                let want = linear.occluded(&sr, end, skip);
+                assert_eq!(
+                    tables.occluded_towards(li, &sr, end, skip, &[]),
+                    want,
+                    "round {round}: shadow ray {sr:?} to light {li}, end {end}, skip {skip:?}\n{src}"
+                );
+                shadow_rays += 1;
+                blocked += usize::from(want);
+            }
+        }
+    }
+    eprintln!("{hits} primary hits, {blocked} of {shadow_rays} shadow rays blocked");
+    assert!(hits > 5000 && blocked > 5000 && shadow_rays - blocked > 5000);
+}
+
+/// A shadow ray from very far away misses its light by the rounding of `L − o`, more than
+/// a small solid near the light is wide: the light's table must not be asked for it (see
+/// `point_index`'s module comment). Here the ray passes 0.07 from the light and runs through
+/// a sphere 56 units before it, in another direction from the light than the ray's own.
+#[test]
+fn a_shadow_ray_from_far_away_still_finds_its_blocker() {
+    let light = DVec3::new(0.3, 0.7, 0.1);
+    let mut src = format!(
+        "[GLOBALS]\nwidth = 8\nheight = 6\nlight = {}\n[/GLOBALS]\n\
+         [OBJECT]\ntype = sphere\nscale = 0.01\ntranslate = <-39.75, -39.25, 0.1>\n[/OBJECT]\n",
+        v(light)
+    );
+    let mut rng = Rng(12);
+    for _ in 0..300 {
+        src += &format!(
+            "[OBJECT]\ntype = sphere\nscale = 0.01\ntranslate = {}\n[/OBJECT]\n",
+            v(light + rng.vec(1.0).normalize() * rng.range(5.0, 40.0))
+        );
+    }
+    let s = common::scene(&src);
+    assert_eq!(s.point_tables(), (true, 1));
+    let (ray, end) = shadow_ray(&s, 0, DVec3::new(-1e15, -1e15, 0.0));
+    let linear = s.clone().without_acceleration();
+    assert!(
+        linear.occluded(&ray, end, None),
+        "the sphere blocks the segment"
+    );
+    assert!(s.occluded_towards(0, &ray, end, None, &[]));
+}
+
+/// The cloud the scaling benchmark renders: the tables are built from `point_index::MIN_PRIMS`
+/// solids on, and whole images, by every sampler, are the same bytes with and without them.
+#[test]
+fn images_are_identical_with_and_without_the_point_tables() {
+    let mut rng = Rng(4242);
+    let min = tessera_tracer::point_index::MIN_PRIMS;
+    for (n, sampler) in [
+        (min - 1, "sampler = center"),
+        (min, "sampler = center"),
+        (400, "sampler = jitter\nsamples = 2"),
+        (400, "sampler = adaptive\nsamples = 6\nthreshold = 0.05"),
+    ] {
+        let mut src = format!(
+            "[GLOBALS]\nwidth = 48\nheight = 36\nambient = 0.1\nshadow = 0.8\n{sampler}\n[/GLOBALS]\n\
+             [CAMERA]\neye = <0, 4, 30>\nlook_at = <0, 2, 0>\nfov = 40\n[/CAMERA]\n\
+             [LIGHT]\nposition = <20, 30, 10>\n[/LIGHT]\n\
+             [LIGHT]\nposition = <0, 3, 0>\ncolor = 0.3\n[/LIGHT]\n\
+             [OBJECT]\ntype = plane\ncolor1 = 0.9\ncolor2 = 0.2\n[/OBJECT]\n"
+        );
+        let r = 3.0 / (n as f64).sqrt();
+        for _ in 0..n {
+            let at = DVec3::new(
+                rng.range(-10.0, 10.0),
+                rng.range(0.0, 8.0),
+                rng.range(-10.0, 10.0),
+            );
+            src += &format!(
+                "[OBJECT]\ntype = sphere\nscale = {r}\ntranslate = {}\n[/OBJECT]\n",
+                v(at)
+            );
+        }
+        let s = common::scene(&src);
+        assert_eq!(
+            s.point_tables(),
+            if n < min { (false, 0) } else { (true, 2) },
+            "{n} spheres"
+        );
+        let plain = s.clone().without_point_tables();
+        let rect = Rect::full(s.width, s.height);
+        let ((a, sa), (b, sb)) = (s.render_rect_stats(rect), plain.render_rect_stats(rect));
+        assert_eq!(sa, sb, "{n} spheres, {sampler}");
+        assert!(sa.shadow > 1000, "{sa:?}");
+        assert!(a == b, "{n} spheres, {sampler}: images differ");
+    }
+}

@@ -1,0 +1,718 @@
+//! Rays through one point: a table from direction to the solids a ray in that direction may
+//! meet, for the rays that all pass through one known point. Every primary ray leaves the
+//! eye, and every shadow ray ends at its light.
+//!
+//! **What it is for.** In a cloud of many small solids a BVH search does not stay short.
+//! A ray crossing a sparse cloud of `n` solids enters about `n^(1/3)` node boxes, whatever
+//! the tree. Each visit's outcome is a branch no predictor guesses, and the nodes spill out of
+//! the cache. For rays through a fixed point `P`, this table answers from the direction
+//! alone, with no tree walk.
+//!
+//! The directions from `P` are cut into cells on the six faces of a cube around `P`, as in a
+//! cube map: a direction `w` lies on the face of its largest component, at
+//! `(u, v) = (w_j, w_k) / |w_i|` in `[-1, 1]²`. Each cell lists, nearest first, the solids
+//! whose (padded) box some direction of the cell points at. A query looks up its
+//! direction's cell and tests that list, where a BVH would walk its tree.
+//!
+//! This is the light buffer of Haines and Greenberg (1986), applied to the eye as well.
+//! The cells of a face cover only the part of the face the boxes cover. There are about two
+//! cells per solid there, so a cell of a sparse cloud lists one or two solids.
+//!
+//! **Why a listed cell is never short of a solid.** A ray can be offered a solid only if the
+//! ray passes through the solid's padded box: the BVH drops solids on the same condition (see
+//! [`crate::bvh::SLACK`]). If the ray's line passes through `P`, every point `q` of it in the
+//! box gives a direction `q − P` inside the box's range of directions. That range is bounded
+//! per face from the box corners:
+//! - the differences `corner − P` are widened by their rounding;
+//! - the quotients are widened by [`PAD`], and then clamped to the face;
+//! - the cell of a coordinate is `floor((u − u₀)·s)` clamped to the face's grid. That map is
+//!   monotone in `u`, so the cells of a range's two ends bound the cell of every `u`
+//!   between them.
+//!
+//! The query's own quotient rounds by an ulp or two, which [`PAD`] covers by nine orders of
+//! magnitude.
+//!
+//! - A **primary ray** starts exactly at the eye, so its direction is the direction of each
+//!   of its points.
+//! - A **shadow ray** is `o + t·d` with `d = fl(L − o)` and `t < 1 − 10⁻¹⁴`. Its line misses
+//!   the light by the rounding `e` of `d`, with `|e| ≤ 2⁻⁵³·|d|`. Seen from `L`, a point of
+//!   the segment at distance `s` from `L` lies in the direction `−d` turned by at most
+//!   `2⁻⁵³·|d|/s`, which moves a face coordinate by at most four times that. A box nearer
+//!   the light than [`NEAR`] of the scene's radius is tested by every query instead of being
+//!   listed. The rest are at least `s_min` away, so the lookup is sound while
+//!   `|d| ≤ PAD·s_min·2⁵⁰` ([`PointIndex::shadow_lookup_ok`]). That holds for every segment
+//!   up to about a hundred times the scene's radius; a longer one takes the BVH.
+//!
+//! A cell whose list would cost more to test than a tree walk (cost above [`CELL_COST_MAX`])
+//! is marked for the BVH, as is every direction with a zero, infinite or NaN component.
+//!
+//! **What it is not.** It decides nothing about which solid is hit. The caller tests the
+//! listed solids exactly as it tests the BVH's candidates, with the same tie rule, so the
+//! answers are the same bit for bit (`tests/bvh.rs`). It does not hold unbounded solids
+//! (planes), which the caller tests every time. It is not used for rays through any other
+//! point (mirror rays), and not for scenes too small to gain ([`MIN_PRIMS`]).
+
+use glam::DVec3;
+
+use crate::math::Aabb;
+
+/// Widening of every face coordinate range, in face units (`u, v ∈ [-1, 1]`). It covers the
+/// rounding of the query's quotient (about 2⁻⁵² here) and the shadow ray's miss of its
+/// light while [`PointIndex::shadow_lookup_ok`] holds.
+pub const PAD: f64 = 1e-7;
+
+/// Boxes within this fraction of the scene's radius (the farthest box corner from the point)
+/// of the point are tested by every query: seen from so near, a box covers much of the cube,
+/// and a shadow ray's rounding turns it too far.
+pub const NEAR: f64 = 1e-6;
+
+/// Fewest bounded solids for which a scene builds tables: the one for its eye, and the ones
+/// for its first [`MAX_LIGHTS`] lights. With fewer the BVH search is a couple of node visits,
+/// and a lookup gains nothing (measured on the cloud bench scenes: see PERFORMANCE.md).
+pub const MIN_PRIMS: usize = 64;
+
+/// Lights with a table of their own; the others' shadow rays take the BVH.
+pub const MAX_LIGHTS: usize = 64;
+
+/// Most entries (solid, cell, eight bytes each) all the tables of one scene may hold
+/// together, and most cells (eight bytes each) of one table: 32 MB and 8 MB. A table that
+/// would hold more than what is left is built coarser, and after a few tries not at all (the
+/// BVH serves its rays).
+pub const MAX_ENTRIES: usize = 1 << 22;
+const MAX_CELLS: usize = 1 << 20;
+
+/// Cells per listed solid on a face, before [`MAX_CELLS`].
+const CELLS_PER_SOLID: f64 = 2.0;
+
+/// A cell whose solids cost more than this to test (in the SAH's units: a similarity sphere
+/// 1, another object 2, see `world::prim_cost`) takes the BVH instead: some twenty node visits
+/// of a deep tree cost about as much as sixteen spheres' quick tests.
+pub const CELL_COST_MAX: f64 = 16.0;
+
+/// A cell marked for the BVH (its `len`).
+const FALLBACK: u32 = u32::MAX;
+
+/// One listed solid: the caller's prim index, and a lower bound on the square of its padded
+/// box's distance from the point, rounded down to `f32` (lists are sorted by it, nearest
+/// first). Eight bytes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Entry {
+    pub prim: u32,
+    pub near_sq: f32,
+}
+
+/// One face's grid: the cells over its window `[u0, u1] × [v0, v1]`, the union of the
+/// footprints on the face.
+#[derive(Debug, Clone, Copy, Default)]
+struct Face {
+    u0: f64,
+    u1: f64,
+    su: f64,
+    nu: u32,
+    v0: f64,
+    v1: f64,
+    sv: f64,
+    nv: u32,
+    /// Index of the face's first cell.
+    start: u32,
+}
+
+impl Face {
+    /// The cell of face coordinates `(u, v)` inside the window: monotone in each (`as`
+    /// truncates, which is `floor` for the non-negative offsets from the window's corner, and
+    /// saturates), clamped to the grid.
+    #[inline]
+    fn cell(&self, u: f64, v: f64) -> u32 {
+        let cu = (((u - self.u0) * self.su) as u32).min(self.nu - 1);
+        let cv = (((v - self.v0) * self.sv) as u32).min(self.nv - 1);
+        self.start + cv * self.nu + cu
+    }
+}
+
+/// The table of one point.
+#[derive(Debug, Clone)]
+pub struct PointIndex {
+    point: DVec3,
+    faces: [Face; 6],
+    /// Per cell: first entry and count, or `FALLBACK`.
+    cells: Vec<(u32, u32)>,
+    entries: Vec<Entry>,
+    /// Prims with a box within [`NEAR`] of the point, tested by every query.
+    always: Vec<u32>,
+    /// Square of the longest shadow-ray direction the lookup is sound for.
+    shadow_len_sq: f64,
+}
+
+/// The face a direction lies on (`2·axis + negative`) and its coordinates there, or `None`
+/// for a direction with a zero, infinite or NaN largest component, or a NaN anywhere. The
+/// coordinates are `w_j · (1/|w_i|)`: two roundings, well inside [`PAD`].
+#[inline]
+fn face_of(w: DVec3) -> Option<(usize, f64, f64)> {
+    let a = w.abs();
+    // The axes after `i` in cyclic order: (y, z) on the x faces, (z, x) and (x, y).
+    let (face, m, u, v) = if a.x >= a.y && a.x >= a.z {
+        (usize::from(w.x < 0.0), a.x, w.y, w.z)
+    } else if a.y >= a.z {
+        (2 + usize::from(w.y < 0.0), a.y, w.z, w.x)
+    } else {
+        (4 + usize::from(w.z < 0.0), a.z, w.x, w.y)
+    };
+    if !(m > 0.0 && m < f64::INFINITY) {
+        return None;
+    }
+    let inv = 1.0 / m;
+    let (u, v) = (u * inv, v * inv);
+    // A NaN in another component (with a finite largest one) fails here.
+    if u.is_nan() || v.is_nan() {
+        return None;
+    }
+    Some((face, u, v))
+}
+
+/// `[lo, hi]` widened to hold the exact difference of two doubles whose rounded difference
+/// it is: `fl(a − b)` is within half an ulp of `a − b`, at most `2⁻⁵³·(|a| + |b|)`.
+fn widened(lo: f64, hi: f64, scale: f64) -> (f64, f64) {
+    let e = scale * f64::EPSILON;
+    (lo - e, hi + e)
+}
+
+/// The range of `y/x` over `x ∈ [a, b] ∩ (0, ∞)` (with `b > 0`) and `y ∈ [c, d]`,
+/// before widening and clamping; infinite ends where `x` reaches 0.
+fn quotient_range(a: f64, b: f64, c: f64, d: f64) -> (f64, f64) {
+    let lo = if c >= 0.0 {
+        c / b
+    } else if a > 0.0 {
+        c / a
+    } else {
+        f64::NEG_INFINITY
+    };
+    let hi = if d <= 0.0 {
+        d / b
+    } else if a > 0.0 {
+        d / a
+    } else {
+        f64::INFINITY
+    };
+    (lo, hi)
+}
+
+/// One box's footprint on one face, in face coordinates: `[ul, uh] × [vl, vh]`.
+#[derive(Debug, Clone, Copy)]
+struct Footprint {
+    prim: u32,
+    face: usize,
+    u: (f64, f64),
+    v: (f64, f64),
+}
+
+impl PointIndex {
+    /// The table of `point` over `items`: each a prim index with one of its padded boxes (in
+    /// prim order; a prim may come once per piece) and what testing it costs. `None` when the
+    /// table would hold more than `max_entries` however coarse, or there is nothing to list.
+    pub fn build(
+        point: DVec3,
+        items: &[(u32, Aabb, f64)],
+        max_entries: usize,
+    ) -> Option<PointIndex> {
+        if !point.is_finite() || items.is_empty() {
+            return None;
+        }
+        // Each box's exact offset from the point, as a widened interval per axis.
+        let offsets: Vec<(DVec3, DVec3)> = items
+            .iter()
+            .map(|(_, b, _)| {
+                let mut lo = DVec3::ZERO;
+                let mut hi = DVec3::ZERO;
+                for k in 0..3 {
+                    let scale = b.min[k].abs().max(b.max[k].abs()) + point[k].abs();
+                    (lo[k], hi[k]) = widened(b.min[k] - point[k], b.max[k] - point[k], scale);
+                }
+                (lo, hi)
+            })
+            .collect();
+        let radius = offsets
+            .iter()
+            .map(|(lo, hi)| lo.abs().max(hi.abs()).length())
+            .fold(0.0, f64::max);
+        if !(radius < f64::INFINITY) {
+            return None;
+        }
+        let near = NEAR * radius;
+        let mut always: Vec<u32> = Vec::new();
+        let mut near_sq = vec![0.0; items.len()];
+        for (i, (lo, hi)) in offsets.iter().enumerate() {
+            // The nearest point of the box: per axis, the gap to the interval (0 inside).
+            let gap = DVec3::ZERO.max(*lo).max(-*hi);
+            // Rounded down by far more than the three products' and two sums' rounding.
+            near_sq[i] = gap.length_squared() * (1.0 - 1e-12);
+            if near_sq[i] < near * near {
+                always.push(items[i].0);
+            }
+        }
+        always.dedup();
+        // A prim in `always` is not listed, for any of its pieces.
+        let listed = |prim: u32| always.binary_search(&prim).is_err();
+        let mut s_min_sq = f64::INFINITY;
+        let mut prints: Vec<Footprint> = Vec::new();
+        for (i, (lo, hi)) in offsets.iter().enumerate() {
+            let prim = items[i].0;
+            if !listed(prim) {
+                continue;
+            }
+            s_min_sq = s_min_sq.min(near_sq[i]);
+            for face in 0..6 {
+                let axis = face / 2;
+                let (j, k) = ((axis + 1) % 3, (axis + 2) % 3);
+                // Along the face's own axis, pointing out of the face.
+                let (a, b) = if face % 2 == 0 {
+                    (lo[axis], hi[axis])
+                } else {
+                    (-hi[axis], -lo[axis])
+                };
+                if !(b > 0.0) {
+                    continue;
+                }
+                let face_range = |c: f64, d: f64| {
+                    let (l, h) = quotient_range(a, b, c, d);
+                    ((l - PAD).max(-1.0), (h + PAD).min(1.0))
+                };
+                let u = face_range(lo[j], hi[j]);
+                let v = face_range(lo[k], hi[k]);
+                if u.0 <= u.1 && v.0 <= v.1 {
+                    prints.push(Footprint { prim, face, u, v });
+                }
+            }
+        }
+        if prints.is_empty() && always.is_empty() {
+            return None;
+        }
+        let cost_of = {
+            let mut costs: Vec<(u32, f64)> = items.iter().map(|&(p, _, c)| (p, c)).collect();
+            costs.dedup_by_key(|(p, _)| *p);
+            costs
+        };
+        let cost = |prim: u32| {
+            cost_of
+                .binary_search_by_key(&prim, |&(p, _)| p)
+                .map_or(1.0, |i| cost_of[i].1)
+        };
+        let mut scale = 1.0;
+        for _ in 0..4 {
+            let near_sq = near_sq_of(items, &near_sq);
+            if let Some(mut index) = Self::grid(&prints, &near_sq, scale, max_entries) {
+                index.point = point;
+                index.always = always.clone();
+                // See the module comment: a shadow ray's miss of the light, seen from `s`
+                // away, turns a face coordinate by at most 4·2⁻⁵³·|d|/s ≤ PAD/2.
+                let max_len = PAD * s_min_sq.sqrt() * 2f64.powi(50);
+                index.shadow_len_sq = max_len * max_len;
+                index.mark_fallbacks(cost);
+                return Some(index);
+            }
+            scale *= 0.25;
+        }
+        None
+    }
+
+    /// The grid over `prints` with `scale` times the usual number of cells, or `None` past
+    /// the entry budget.
+    fn grid(
+        prints: &[Footprint],
+        near_sq: &impl Fn(u32) -> f64,
+        scale: f64,
+        max_entries: usize,
+    ) -> Option<PointIndex> {
+        // Each face's window (the union of its footprints) and how many prims it lists.
+        let mut window = [(
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ); 6];
+        let mut count = [0usize; 6];
+        for p in prints {
+            let w = &mut window[p.face];
+            *w = (
+                w.0.min(p.u.0),
+                w.1.max(p.u.1),
+                w.2.min(p.v.0),
+                w.3.max(p.v.1),
+            );
+            count[p.face] += 1;
+        }
+        let total: usize = count.iter().sum();
+        let budget = (MAX_CELLS as f64).min(CELLS_PER_SOLID * total as f64 * scale);
+        // A face without footprints keeps an empty window, which no direction is in.
+        let mut faces = [Face {
+            u0: f64::INFINITY,
+            u1: f64::NEG_INFINITY,
+            ..Face::default()
+        }; 6];
+        let mut cells = 0u32;
+        for f in 0..6 {
+            if count[f] == 0 {
+                continue;
+            }
+            let (u0, u1, v0, v1) = window[f];
+            debug_assert!(u0 <= u1 && v0 <= v1);
+            let want = (budget * count[f] as f64 / total as f64).max(1.0);
+            // Cells about square in face units, the window's aspect kept.
+            let (wu, wv) = ((u1 - u0).max(1e-12), (v1 - v0).max(1e-12));
+            let nu = (want * wu / wv).sqrt().round().clamp(1.0, 4096.0);
+            let nv = (want / nu).round().clamp(1.0, 4096.0);
+            faces[f] = Face {
+                u0,
+                u1,
+                su: nu / wu,
+                nu: nu as u32,
+                v0,
+                v1,
+                sv: nv / wv,
+                nv: nv as u32,
+                start: cells,
+            };
+            cells += (nu * nv) as u32;
+        }
+        // Count, then fill, each prim once per cell however many of its pieces cover it.
+        let mut len = vec![0u32; cells as usize];
+        let mut stamp = vec![u32::MAX; cells as usize];
+        let mut entries = 0usize;
+        let each_cell = |p: &Footprint, f: &mut dyn FnMut(usize)| {
+            let face = &faces[p.face];
+            let (c0, c1) = (face.cell(p.u.0, p.v.0), face.cell(p.u.1, p.v.1));
+            let (cu0, cv0) = ((c0 - face.start) % face.nu, (c0 - face.start) / face.nu);
+            let (cu1, cv1) = ((c1 - face.start) % face.nu, (c1 - face.start) / face.nu);
+            for cv in cv0..=cv1 {
+                for cu in cu0..=cu1 {
+                    f((face.start + cv * face.nu + cu) as usize);
+                }
+            }
+        };
+        for p in prints {
+            each_cell(p, &mut |c| {
+                if stamp[c] != p.prim {
+                    stamp[c] = p.prim;
+                    len[c] += 1;
+                    entries += 1;
+                }
+            });
+            if entries > max_entries {
+                return None;
+            }
+        }
+        let mut starts = Vec::with_capacity(cells as usize);
+        let mut at = 0u32;
+        for &l in &len {
+            starts.push(at);
+            at += l;
+        }
+        let mut out = vec![
+            Entry {
+                prim: 0,
+                near_sq: 0.0,
+            };
+            entries
+        ];
+        let mut fill = starts.clone();
+        stamp.fill(u32::MAX);
+        for p in prints {
+            each_cell(p, &mut |c| {
+                if stamp[c] != p.prim {
+                    stamp[c] = p.prim;
+                    out[fill[c] as usize] = Entry {
+                        prim: p.prim,
+                        near_sq: crate::bvh::round_out(near_sq(p.prim), false),
+                    };
+                    fill[c] += 1;
+                }
+            });
+        }
+        let cells: Vec<(u32, u32)> = starts.into_iter().zip(len).collect();
+        for &(s, l) in &cells {
+            out[s as usize..(s + l) as usize]
+                .sort_unstable_by(|a, b| a.near_sq.total_cmp(&b.near_sq).then(a.prim.cmp(&b.prim)));
+        }
+        Some(PointIndex {
+            point: DVec3::ZERO,
+            faces,
+            cells,
+            entries: out,
+            always: Vec::new(),
+            shadow_len_sq: 0.0,
+        })
+    }
+
+    /// Marks the cells whose lists cost more than [`CELL_COST_MAX`] for the BVH.
+    fn mark_fallbacks(&mut self, cost: impl Fn(u32) -> f64) {
+        for cell in &mut self.cells {
+            let (s, l) = *cell;
+            let c: f64 = self.entries[s as usize..(s + l) as usize]
+                .iter()
+                .map(|e| cost(e.prim))
+                .sum();
+            if c > CELL_COST_MAX {
+                cell.1 = FALLBACK;
+            }
+        }
+    }
+
+    /// The point the table is for.
+    pub fn point(&self) -> DVec3 {
+        self.point
+    }
+
+    /// The prims every query must test besides its cell's (boxes within [`NEAR`] of the
+    /// point), in prim order.
+    pub fn always(&self) -> &[u32] {
+        &self.always
+    }
+
+    /// The listed prims a ray through the point in direction `w` (from the point) may meet,
+    /// nearest first; `None` where the caller must search its BVH instead.
+    #[inline]
+    pub fn lookup(&self, w: DVec3) -> Option<&[Entry]> {
+        let (f, u, v) = face_of(w)?;
+        let face = &self.faces[f];
+        // Outside the window no footprint holds the direction (each is widened by `PAD`
+        // already); a face without footprints has an empty window.
+        if !(u >= face.u0 && u <= face.u1 && v >= face.v0 && v <= face.v1) {
+            return Some(&[]);
+        }
+        let (s, l) = self.cells[face.cell(u, v) as usize];
+        if l == FALLBACK {
+            return None;
+        }
+        Some(&self.entries[s as usize..(s + l) as usize])
+    }
+
+    /// Whether a shadow ray with direction `d = fl(L − o)` towards this table's light misses
+    /// the light by little enough for [`Self::lookup`] of `−d` (see the module comment).
+    #[inline]
+    pub fn shadow_lookup_ok(&self, d: DVec3) -> bool {
+        d.length_squared() <= self.shadow_len_sq
+    }
+
+    /// Cells and entries, for tests and the benchmark's report.
+    pub fn size(&self) -> (usize, usize) {
+        (self.cells.len(), self.entries.len())
+    }
+}
+
+/// A prim's squared distance lower bound: the least over its pieces.
+fn near_sq_of<'a>(items: &'a [(u32, Aabb, f64)], near_sq: &'a [f64]) -> impl Fn(u32) -> f64 + 'a {
+    move |prim| {
+        let start = items.partition_point(|it| it.0 < prim);
+        items[start..]
+            .iter()
+            .zip(&near_sq[start..])
+            .take_while(|(it, _)| it.0 == prim)
+            .map(|(_, &d)| d)
+            .fold(f64::INFINITY, f64::min)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shape::test_support::Rng;
+
+    /// Whether the table, asked for direction `w`, offers `prim` (or leaves the question to
+    /// the BVH, or tests it every time).
+    fn offers(t: &PointIndex, w: DVec3, prim: u32) -> bool {
+        t.always().contains(&prim) || t.lookup(w).is_none_or(|l| l.iter().any(|e| e.prim == prim))
+    }
+
+    /// A point of the box: inside, on a face, an edge or a corner.
+    fn point_in(rng: &mut Rng, b: &Aabb) -> DVec3 {
+        let mut p = DVec3::ZERO;
+        for k in 0..3 {
+            p[k] = match rng.next_u64() % 4 {
+                0 => b.min[k],
+                1 => b.max[k],
+                _ => rng.range(b.min[k], b.max[k]),
+            };
+        }
+        p
+    }
+
+    fn random_boxes(rng: &mut Rng, n: usize, point: DVec3) -> Vec<(u32, Aabb, f64)> {
+        (0..n as u32)
+            .map(|i| {
+                // Small and large boxes, some on the point's axis planes or around it, some
+                // centred on a cube edge or corner direction from it.
+                let c = match rng.next_u64() % 5 {
+                    0 => point + DVec3::splat(rng.range(-5.0, 5.0)),
+                    1 => point + DVec3::new(rng.range(-5.0, 5.0), 0.0, rng.range(-5.0, 5.0)),
+                    2 => point + DVec3::new(rng.range(-5.0, 5.0), rng.range(-5.0, 5.0), 0.0),
+                    _ => point + rng.in_ball(20.0),
+                };
+                let h = DVec3::new(rng.unit(), rng.unit(), rng.unit())
+                    * [1e-4, 0.01, 0.5, 3.0][(rng.next_u64() % 4) as usize];
+                (i, Aabb::new(c - h, c + h), 1.0)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn every_direction_into_a_box_is_offered_it() {
+        let mut rng = Rng::new(41);
+        let (mut listed, mut looked_up) = (0, 0);
+        for round in 0..40 {
+            let point = [DVec3::ZERO, rng.in_ball(1e3), DVec3::new(1e6, -3.0, 0.25)][round % 3];
+            let items = random_boxes(&mut rng, [10, 200, 2000][round % 3], point);
+            let t = PointIndex::build(point, &items, MAX_ENTRIES).expect("a table");
+            for _ in 0..4000 {
+                let (prim, b, _) = items[(rng.next_u64() % items.len() as u64) as usize];
+                let q = point_in(&mut rng, &b);
+                let w = q - point;
+                if w == DVec3::ZERO {
+                    continue;
+                }
+                assert!(
+                    offers(&t, w, prim),
+                    "round {round}: {w:?} into {b:?} not offered"
+                );
+                if let Some(l) = t.lookup(w) {
+                    looked_up += 1;
+                    listed += l.len();
+                }
+            }
+        }
+        // The lists are short (the point of the table): about two solids a lookup here.
+        assert!(looked_up > 100_000, "{looked_up} lookups answered");
+        assert!(
+            listed < 8 * looked_up,
+            "{listed} listed over {looked_up} lookups"
+        );
+    }
+
+    #[test]
+    fn lists_are_sorted_by_a_lower_bound_of_the_distance() {
+        let mut rng = Rng::new(7);
+        let point = DVec3::new(0.5, -2.0, 3.0);
+        let items = random_boxes(&mut rng, 500, point);
+        let t = PointIndex::build(point, &items, MAX_ENTRIES).expect("a table");
+        for &(s, l) in &t.cells {
+            if l == FALLBACK {
+                continue;
+            }
+            let list = &t.entries[s as usize..(s + l) as usize];
+            assert!(list.windows(2).all(|w| w[0].near_sq <= w[1].near_sq));
+            for e in list {
+                let b = items[e.prim as usize].1;
+                // The box's nearest point, computed directly.
+                let nearest = point.clamp(b.min, b.max);
+                let exact = (nearest - point).length_squared();
+                assert!(f64::from(e.near_sq) <= exact);
+                assert!(f64::from(e.near_sq) >= exact * (1.0 - 1e-6));
+            }
+        }
+    }
+
+    #[test]
+    fn boxes_around_or_beside_the_point_are_tested_every_time() {
+        let point = DVec3::new(1.0, 2.0, 3.0);
+        let mut items: Vec<(u32, Aabb, f64)> = (0..100)
+            .map(|i| {
+                let c = point + DVec3::new(f64::from(i) - 50.0, 7.0, 0.0);
+                (i, Aabb::new(c - 0.1, c + 0.1), 1.0)
+            })
+            .collect();
+        // One box holds the point, one touches it at a corner.
+        items.push((100, Aabb::new(point - 1.0, point + 2.0), 1.0));
+        items.push((101, Aabb::new(point, point + 0.5), 1.0));
+        let t = PointIndex::build(point, &items, MAX_ENTRIES).expect("a table");
+        assert_eq!(t.always(), &[100, 101]);
+        for e in &t.entries {
+            assert!(e.prim < 100);
+        }
+    }
+
+    #[test]
+    fn a_table_over_its_budget_is_built_coarser_or_not_at_all() {
+        let mut rng = Rng::new(19);
+        let items = random_boxes(&mut rng, 2000, DVec3::ZERO);
+        let full = PointIndex::build(DVec3::ZERO, &items, MAX_ENTRIES).expect("a table");
+        let (cells, entries) = full.size();
+        let coarse = PointIndex::build(DVec3::ZERO, &items, entries / 2).expect("a coarser one");
+        assert!(coarse.size().0 < cells && coarse.size().1 <= entries / 2);
+        // Still sound: every direction into a box is offered it.
+        for _ in 0..2000 {
+            let (prim, b, _) = items[(rng.next_u64() % items.len() as u64) as usize];
+            let w = point_in(&mut rng, &b);
+            assert!(w == DVec3::ZERO || offers(&coarse, w, prim));
+        }
+        assert!(PointIndex::build(DVec3::ZERO, &items, 100).is_none());
+    }
+
+    #[test]
+    fn zero_infinite_and_nan_directions_take_the_tree() {
+        let mut rng = Rng::new(3);
+        let items = random_boxes(&mut rng, 50, DVec3::ZERO);
+        let t = PointIndex::build(DVec3::ZERO, &items, MAX_ENTRIES).expect("a table");
+        for w in [
+            DVec3::ZERO,
+            DVec3::new(-0.0, 0.0, -0.0),
+            DVec3::new(f64::INFINITY, 1.0, 0.0),
+            DVec3::new(1.0, f64::NAN, 0.0),
+            DVec3::new(f64::NAN, f64::NAN, f64::NAN),
+        ] {
+            assert!(t.lookup(w).is_none(), "{w:?}");
+        }
+        // ±0 components and exact cube-edge directions are ordinary directions.
+        for w in [
+            DVec3::new(1.0, -0.0, 0.0),
+            DVec3::new(-1.0, 1.0, 1.0),
+            DVec3::X * 1e-300,
+        ] {
+            assert!(t.lookup(w).is_some(), "{w:?}");
+        }
+    }
+
+    #[test]
+    fn cells_that_cost_more_than_a_walk_take_the_tree() {
+        // Forty boxes one behind the other along +x: the cell that sees them all lists
+        // more than CELL_COST_MAX, the cells beside them nothing.
+        let items: Vec<(u32, Aabb, f64)> = (0..40)
+            .map(|i| {
+                let c = DVec3::new(2.0 + f64::from(i), 0.0, 0.0);
+                (i, Aabb::new(c - 0.2, c + 0.2), 1.0)
+            })
+            .collect();
+        let t = PointIndex::build(DVec3::ZERO, &items, MAX_ENTRIES).expect("a table");
+        assert!(t.lookup(DVec3::X).is_none());
+        // At the rim of the nearest box only the nearest few are listed.
+        let rim = t.lookup(DVec3::new(1.0, 0.1, 0.0)).expect("a short list");
+        assert!(!rim.is_empty() && rim.len() < 16, "{rim:?}");
+    }
+
+    /// A shadow ray from far away misses its light by the rounding of `L − o`, which can be
+    /// far more than a box near the light is wide: seen from the light, a box on the ray can
+    /// lie in another direction than `−d`, and the table must not be asked.
+    #[test]
+    fn a_shadow_ray_from_far_away_is_not_looked_up() {
+        let (light, o) = (DVec3::new(0.3, 0.7, 0.1), DVec3::new(-1e15, -1e15, 0.0));
+        let d = light - o;
+        // `fl(L − o)` rounds x down and y up: the ray passes (−0.05, 0.05, 0) from the light,
+        // and `−d` lies on the −y face.
+        assert_eq!(d, DVec3::new(1e15 + 0.25, 1e15 + 0.75, 0.1));
+        // In exact arithmetic `o + (1 − τ)·d = (0.25, 0.75, 0.1) − τ·d`: at τ = 4·10⁻¹⁴ the
+        // ray is within 10⁻¹³ of (−39.75, −39.25, 0.1), inside this box.
+        let q = DVec3::new(-39.75, -39.25, 0.1);
+        let blocker = Aabb::new(q - 0.01, q + 0.01);
+        // Filler boxes around the light, so that the table has cells everywhere.
+        let mut rng = Rng::new(5);
+        let mut items = vec![(0, blocker, 1.0)];
+        items.extend((1..2000).map(|i| {
+            let c = light + rng.direction() * rng.range(5.0, 40.0);
+            (i, Aabb::new(c - 0.005, c + 0.005), 1.0)
+        }));
+        let t = PointIndex::build(light, &items, MAX_ENTRIES).expect("a table");
+        assert!(offers(&t, q - light, 0));
+        // Looked up, the cell of −d would not offer the blocker...
+        assert!(!offers(&t, -d, 0), "the test no longer shows the rounding");
+        // ... so such a ray takes the tree, while a ray from nearby is looked up.
+        assert!(!t.shadow_lookup_ok(d));
+        assert!(t.shadow_lookup_ok(light - DVec3::new(30.0, -20.0, 5.0)));
+    }
+}
