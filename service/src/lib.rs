@@ -409,6 +409,15 @@ fn spawn_local_workers(
     };
     // One cache of built scenes for all of them: a job's scene is fetched and built once.
     let scenes = tessera_worker::SceneCache::default();
+    // One queue of tiles in line for all their render threads: a thread whose worker has no
+    // tile for it takes one another worker put in line.
+    let pool = match tessera_worker::RenderPool::new(n) {
+        Ok(p) => p,
+        Err(e) => {
+            error!("cannot start the local workers' render threads: {e}");
+            return Vec::new();
+        }
+    };
     (0..n)
         .map(|i| {
             let mut wc = tessera_worker::WorkerConfig::new(format!("http://{host}"));
@@ -419,11 +428,12 @@ fn spawn_local_workers(
             wc.grace = Duration::from_secs(cfg.grace_secs);
             let mut stop = stop.clone();
             let scenes = scenes.clone();
+            let pool = pool.clone();
             tokio::spawn(async move {
                 let stopped = async move {
                     let _ = stop.wait_for(|s| *s).await;
                 };
-                if let Err(e) = tessera_worker::run_sharing(wc, scenes, stopped).await {
+                if let Err(e) = tessera_worker::run_with(wc, scenes, Some(pool), stopped).await {
                     error!("local worker {i} stopped: {e}");
                 }
             })

@@ -19,7 +19,7 @@ use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
 use bytes::Bytes;
-use tessera_tracer::{Limits, MemoryAssets, Rect, Sampler, Scene, TextureLimits};
+use tessera_tracer::{Limits, MemoryAssets, Sampler, Scene, TextureLimits};
 use tokio::sync::{Mutex, oneshot, watch};
 use tokio::task::JoinHandle;
 use tracing::{debug, info, warn};
@@ -159,9 +159,25 @@ pub async fn run_sharing(
     scenes: SceneCache,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<Summary, WorkerError> {
+    run_with(cfg, scenes, None, shutdown).await
+}
+
+/// [`run_sharing`], rendering on `pool` when given (shared with other workers of the same
+/// service: a thread of one takes the tiles another put in line when it has none of its
+/// own), or else on `cfg.threads` threads of its own.
+pub async fn run_with(
+    cfg: WorkerConfig,
+    scenes: SceneCache,
+    pool: Option<RenderPool>,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<Summary, WorkerError> {
     if cfg.threads == 0 {
         return Err(WorkerError::NoThreads);
     }
+    let pool = match pool {
+        Some(p) => p,
+        None => RenderPool::new(cfg.threads).map_err(WorkerError::Thread)?,
+    };
     let client = Client::new(&cfg.server, cfg.token.clone())?;
     let (stop_tx, stop_rx) = watch::channel(false);
     info!(
@@ -189,14 +205,15 @@ pub async fn run_sharing(
     });
     let mut slots = Vec::new();
     for i in 0..shared.cfg.threads {
-        let renderer = Renderer::start(i).map_err(WorkerError::Thread)?;
         slots.push(tokio::spawn(slot(
             shared.clone(),
-            renderer,
+            pool.clone(),
             i,
             stop_rx.clone(),
         )));
     }
+    // The threads end once the slots, the last holders of the pool, are done.
+    drop(pool);
     let mut first_err = None;
     for s in slots {
         match s.await {
@@ -264,67 +281,69 @@ type PostTask = JoinHandle<Result<(), ClientError>>;
 /// What a render thread sends back: the tile's sRGB bytes, or why it could not render.
 type Rendered = Result<Vec<u8>, String>;
 
-/// A tile for a render thread.
-struct RenderJob {
-    scene: Arc<Prepared>,
-    rect: Rect,
-    /// Set when the tile is no longer ours: the thread skips it if it has not started.
-    cancel: Arc<AtomicBool>,
-    reply: oneshot::Sender<Rendered>,
+/// The render threads of a worker, shared by its slots, and by the service's local workers
+/// (see [`run_with`]): one queue of tiles in line, which any idle thread takes from, oldest
+/// first. A slot puts its next tile in line while its current one renders, so a thread goes
+/// from one tile to the next without waiting for the async side (which, on a machine whose
+/// cores are all rendering, may wait milliseconds for a time slice). A thread whose slot has
+/// nothing for it (at a job's end, or while that slot's next claim is on its way) takes the
+/// tile another slot put in line, instead of idling while that slot's thread finishes the
+/// tile before it.
+///
+/// The threads end when the last clone of the pool is dropped.
+#[derive(Clone)]
+pub struct RenderPool {
+    queue: std::sync::mpsc::Sender<Task>,
 }
 
-/// A slot's own render thread. Tiles are handed to it through a queue, so the slot can put
-/// the next tile in line while the current one renders: the thread goes from one tile to the
-/// next without waiting for the async side (which, on a machine whose cores are all
-/// rendering, may wait milliseconds for a time slice). The thread ends when its slot drops
-/// the queue.
-struct Renderer {
-    queue: std::sync::mpsc::Sender<RenderJob>,
+/// A tile's render, with its answer, as one call for a render thread.
+type Task = Box<dyn FnOnce() + Send>;
+
+impl std::fmt::Debug for RenderPool {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RenderPool").finish_non_exhaustive()
+    }
 }
 
-impl Renderer {
-    fn start(index: usize) -> std::io::Result<Renderer> {
-        let (queue, jobs) = std::sync::mpsc::channel::<RenderJob>();
-        std::thread::Builder::new()
-            .name(format!("tessera-render-{index}"))
-            .spawn(move || {
-                for job in jobs {
-                    if job.cancel.load(Ordering::Relaxed) {
-                        continue;
+impl RenderPool {
+    /// Starts `threads` render threads (`tessera-render-0`, …).
+    pub fn new(threads: usize) -> std::io::Result<RenderPool> {
+        let (queue, tasks) = std::sync::mpsc::channel::<Task>();
+        let tasks = Arc::new(std::sync::Mutex::new(tasks));
+        for index in 0..threads {
+            let tasks = tasks.clone();
+            std::thread::Builder::new()
+                .name(format!("tessera-render-{index}"))
+                .spawn(move || {
+                    loop {
+                        // One idle thread waits on the queue while holding the lock, the others
+                        // on the lock: each task goes to exactly one thread. A task cannot panic
+                        // (renders are caught), so the lock is never poisoned; if it were, the
+                        // queue behind it is still sound.
+                        let next = tasks
+                            .lock()
+                            .unwrap_or_else(std::sync::PoisonError::into_inner)
+                            .recv();
+                        match next {
+                            Ok(task) => task(),
+                            Err(_) => break,
+                        }
                     }
-                    let rect = job.rect;
-                    // The same bytes `tessera-render` writes: a pixel's value does not depend
-                    // on its tile.
-                    let p = &job.scene;
-                    // Given up mid-tile once the slot sets `cancel` (the lease was lost).
-                    let rendered = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                        p.scene
-                            .render_rect_stats_until(rect, &p.sampler, &job.cancel)
-                            .map(|(rgb, _)| rgb)
-                    }))
-                    .map_err(|panic| {
-                        let what = panic
-                            .downcast_ref::<&str>()
-                            .map(|s| s.to_string())
-                            .or_else(|| panic.downcast_ref::<String>().cloned())
-                            .unwrap_or_else(|| "unknown panic".into());
-                        format!("rendering panicked: {what}")
-                    });
-                    let rendered = match rendered {
-                        Ok(Some(rgb)) => Ok(rgb),
-                        // Given up: the slot has moved on and waits for no answer.
-                        Ok(None) => continue,
-                        Err(panicked) => Err(panicked),
-                    };
-                    // The slot may have given the tile up meanwhile: nobody to tell.
-                    let _ = job.reply.send(rendered);
-                }
-            })?;
-        Ok(Renderer { queue })
+                })?;
+        }
+        Ok(RenderPool { queue })
+    }
+
+    /// Puts `task` in line for the next idle thread.
+    fn run(&self, task: Task) {
+        // The threads only stop once every sender is gone, and `self` is one: the send
+        // cannot fail while a thread lives. If none could be started, the task (and the
+        // answer channel it holds) is dropped, which reads as a failed render.
+        let _ = self.queue.send(task);
     }
 
     /// Puts a claimed tile in line; a no-op worker's black tile (`scene` is `None`) is
-    /// answered at once, without a trip through the thread.
+    /// answered at once, without a trip through a thread.
     fn submit(&self, claim: Claim, scene: Option<Arc<Prepared>>) -> Ticket {
         let (reply, rendered) = oneshot::channel();
         let cancel = Arc::new(AtomicBool::new(false));
@@ -336,15 +355,38 @@ impl Renderer {
                 cancel,
             };
         };
-        let job = RenderJob {
-            scene,
-            rect: claim.rect(),
-            cancel: cancel.clone(),
-            reply,
-        };
-        // If the thread is gone (it cannot panic: renders are caught), the reply's sender
-        // is dropped with the job and the ticket reads as a failed render.
-        let _ = self.queue.send(job);
+        let rect = claim.rect();
+        let stop = cancel.clone();
+        self.run(Box::new(move || {
+            if stop.load(Ordering::Relaxed) {
+                return;
+            }
+            // The same bytes `tessera-render` writes: a pixel's value does not depend on
+            // its tile.
+            let p = &scene;
+            // Given up mid-tile once the slot sets `cancel` (the lease was lost).
+            let rendered = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                p.scene
+                    .render_rect_stats_until(rect, &p.sampler, &stop)
+                    .map(|(rgb, _)| rgb)
+            }))
+            .map_err(|panic| {
+                let what = panic
+                    .downcast_ref::<&str>()
+                    .map(|s| s.to_string())
+                    .or_else(|| panic.downcast_ref::<String>().cloned())
+                    .unwrap_or_else(|| "unknown panic".into());
+                format!("rendering panicked: {what}")
+            });
+            let rendered = match rendered {
+                Ok(Some(rgb)) => Ok(rgb),
+                // Given up: the slot has moved on and waits for no answer.
+                Ok(None) => return,
+                Err(panicked) => Err(panicked),
+            };
+            // The slot may have given the tile up meanwhile: nobody to tell.
+            let _ = reply.send(rendered);
+        }));
         Ticket {
             claim,
             rendered,
@@ -444,7 +486,7 @@ const POSTS_IN_FLIGHT: usize = 4;
 
 async fn slot(
     shared: Arc<Shared>,
-    renderer: Renderer,
+    renderer: RenderPool,
     index: usize,
     mut stop: watch::Receiver<bool>,
 ) -> Result<(), ClientError> {
@@ -577,7 +619,11 @@ enum Submitted {
 
 /// Puts a claimed tile in the render thread's queue, with its scene (from the cache, or
 /// fetched and built), or deals with a tile that cannot be rendered here.
-async fn submit(shared: &Shared, renderer: &Renderer, c: Claim) -> Result<Submitted, ClientError> {
+async fn submit(
+    shared: &Shared,
+    renderer: &RenderPool,
+    c: Claim,
+) -> Result<Submitted, ClientError> {
     if shared.cfg.noop {
         return Ok(Submitted::Queued(renderer.submit(c, None)));
     }
@@ -678,7 +724,7 @@ async fn prepared(shared: &Shared, job: &str) -> Result<Arc<Prepared>, Unusable>
 /// and put in the render thread's queue as soon as it is answered.
 async fn work(
     shared: &Arc<Shared>,
-    renderer: &Renderer,
+    renderer: &RenderPool,
     mut t: Ticket,
     stop: &mut watch::Receiver<bool>,
     pipe: &mut Pipeline,
@@ -946,6 +992,30 @@ fn ignore_transient(e: ClientError) -> Result<(), ClientError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The tail of a job: one thread busy with a long tile, another slot's tile in line. The
+    /// idle thread takes it (with a thread per slot, it waited for the busy one).
+    #[test]
+    fn an_idle_thread_takes_the_tile_another_slot_put_in_line() {
+        let pool = RenderPool::new(2).expect("threads");
+        let (started_tx, started) = std::sync::mpsc::channel::<()>();
+        let (release, released) = std::sync::mpsc::channel::<()>();
+        pool.run(Box::new(move || {
+            let _ = started_tx.send(());
+            // Busy until the test lets it go.
+            let _ = released.recv();
+        }));
+        let wait = Duration::from_secs(30);
+        started.recv_timeout(wait).expect("the first tile started");
+        let (done_tx, done) = std::sync::mpsc::channel::<()>();
+        pool.run(Box::new(move || {
+            let _ = done_tx.send(());
+        }));
+        // Only the other thread can answer while the first is held.
+        done.recv_timeout(wait)
+            .expect("the tile in line was rendered");
+        release.send(()).expect("the first thread waits");
+    }
 
     #[test]
     fn backoff_grows_to_its_cap_with_bounded_jitter() {
