@@ -25,9 +25,11 @@
 //! per face from the box corners:
 //! - the differences `corner − P` are widened by their rounding;
 //! - the quotients are widened by [`PAD`], and then clamped to the face;
-//! - the cell of a coordinate is `floor((u − u₀)·s)` clamped to the face's grid. That map is
-//!   monotone in `u`, so the cells of a range's two ends bound the cell of every `u`
-//!   between them.
+//! - a face's window is the union of its footprints, so a direction outside it meets no
+//!   listed box;
+//! - inside the window, the cell of a coordinate is `(u − u₀)·s` truncated and clamped to the
+//!   face's grid. That map is monotone in `u`, so the cells of a range's two ends bound the
+//!   cell of every `u` between them.
 //!
 //! The query's own quotient rounds by an ulp or two, which [`PAD`] covers by nine orders of
 //! magnitude.
