@@ -150,14 +150,17 @@ impl Scene {
     }
 
     /// Radiance along `ray` (not yet clamped). `skip` is an object the ray cannot meet again.
-    fn radiance(
+    /// `TABLES`: whether the scene has tables of rays through the eye and the lights (see
+    /// `crate::point_index`); compiled twice, so that a scene without them runs the plain
+    /// searches with no check for them at all.
+    fn radiance<const TABLES: bool>(
         &self,
         ray: &Ray,
         bounces_left: u32,
         skip: Option<u32>,
         c: &Counters,
     ) -> (Color, u32) {
-        let Some(hit) = self.intersect(ray, f64::INFINITY, skip) else {
+        let Some(hit) = self.intersect_in::<TABLES>(ray, f64::INFINITY, skip) else {
             return (self.background, Sample::BACKGROUND);
         };
         let obj = &self.objects[hit.object as usize];
@@ -201,9 +204,9 @@ impl Scene {
                         // (see `Scene::lights_on`); past four, the rest are traced. Most
                         // lights lie on nothing: their search is the plain one.
                         let lies_on = self.lights_on(li);
-                        let blocked = if lies_on.is_empty() {
-                            self.occluded_towards(li, &shadow_ray, end, self_skip, &[])
-                        } else {
+                        // Scenes with a table per light look there first (see
+                        // `crate::point_index`).
+                        let blocked = if !lies_on.is_empty() {
                             let mut on: arrayvec::ArrayVec<u32, 4> = arrayvec::ArrayVec::new();
                             for &(o, n) in lies_on {
                                 // An object at whose edge or corner the light lies is listed
@@ -215,7 +218,15 @@ impl Scene {
                                     break;
                                 }
                             }
-                            self.occluded_towards(li, &shadow_ray, end, self_skip, &on)
+                            if TABLES {
+                                self.occluded_towards(li, &shadow_ray, end, self_skip, &on)
+                            } else {
+                                self.occluded_skipping(&shadow_ray, end, self_skip, &on)
+                            }
+                        } else if TABLES {
+                            self.occluded_towards(li, &shadow_ray, end, self_skip, &[])
+                        } else {
+                            self.occluded(&shadow_ray, end, self_skip)
                         };
                         if blocked {
                             v = 1.0 - self.shadow;
@@ -233,17 +244,18 @@ impl Scene {
             let r = d - sp.n * (2.0 * d.dot(sp.n));
             let origin = *ahead.get_or_insert_with(|| sp.origin_ahead());
             let mirror_ray = Ray::new(origin, r);
-            let (reflected, _) = self.radiance(&mirror_ray, bounces_left - 1, self_skip, c);
+            let (reflected, _) =
+                self.radiance::<TABLES>(&mirror_ray, bounces_left - 1, self_skip, c);
             color += reflected * m.mirror;
         }
         (color, hit.object)
     }
 
     /// The clamped radiance of the primary ray through image-plane position `(x, y)`.
-    fn primary(&self, x: f64, y: f64, c: &Counters) -> Sample {
+    fn primary<const TABLES: bool>(&self, x: f64, y: f64, c: &Counters) -> Sample {
         Counters::bump(&c.primary);
         let ray = self.camera.ray(x, y);
-        let (l, object) = self.radiance(&ray, self.max_depth, None, c);
+        let (l, object) = self.radiance::<TABLES>(&ray, self.max_depth, None, c);
         Sample {
             color: l.min(Color::ONE),
             object,
@@ -270,6 +282,21 @@ impl Scene {
         sampler: &Sampler,
         stopped: impl Fn() -> bool,
     ) -> (Vec<Color>, RayStats) {
+        // Chosen once per rectangle: the tracing compiled without any look at the eye's and
+        // the lights' tables, for scenes that have none, is the plain one (see `radiance`).
+        if self.has_point_tables() {
+            self.rect_linear_in::<true>(rect, sampler, stopped)
+        } else {
+            self.rect_linear_in::<false>(rect, sampler, stopped)
+        }
+    }
+
+    fn rect_linear_in<const TABLES: bool>(
+        &self,
+        rect: Rect,
+        sampler: &Sampler,
+        stopped: impl Fn() -> bool,
+    ) -> (Vec<Color>, RayStats) {
         let counters = Counters::default();
         let mut out = vec![Color::ZERO; rect.pixel_count()];
         let trace = |x, y| {
@@ -279,7 +306,7 @@ impl Scene {
                     object: Sample::BACKGROUND,
                 };
             }
-            self.primary(x, y, &counters)
+            self.primary::<TABLES>(x, y, &counters)
         };
         if matches!(sampler, Sampler::Adaptive { .. }) {
             // The adaptive sampler asks the geometry which pixels may end after one ray and
@@ -304,7 +331,7 @@ impl Scene {
     /// pixel, see [`crate::sampler::reference_pixel`]).
     pub fn reference_rect(&self, rect: Rect, n: u32) -> (Vec<Color>, RayStats) {
         let counters = Counters::default();
-        let trace = |x: f64, y: f64| self.primary(x, y, &counters);
+        let trace = |x: f64, y: f64| self.primary::<true>(x, y, &counters);
         let mut out = Vec::with_capacity(rect.pixel_count());
         for y in rect.y..rect.y + rect.height {
             for x in rect.x..rect.x + rect.width {

@@ -908,6 +908,18 @@ impl Scene {
     /// (see `intersect_bvh`).
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_max: f64, skip: Option<u32>) -> Option<Hit> {
+        self.intersect_in::<true>(ray, t_max, skip)
+    }
+
+    /// [`Self::intersect`], looking at the eye's table only if `TABLES` (for callers that
+    /// know the scene has none: see [`Self::has_point_tables`]).
+    #[inline]
+    pub(crate) fn intersect_in<const TABLES: bool>(
+        &self,
+        ray: &Ray,
+        t_max: f64,
+        skip: Option<u32>,
+    ) -> Option<Hit> {
         match &self.accel {
             Accel::Linear => self.intersect_linear(ray, t_max, skip),
             Accel::Bvh {
@@ -915,7 +927,8 @@ impl Scene {
                 unbounded,
                 quick,
             } => {
-                if let Some(eye) = &self.points.eye
+                if TABLES
+                    && let Some(eye) = &self.points.eye
                     && ray.origin == eye.point()
                     && let Some(listed) = eye.lookup(ray.dir)
                 {
@@ -958,10 +971,11 @@ impl Scene {
         }
     }
 
-    /// The unbounded prims, the table's `always` prims, then its `listed` ones (sorted by
-    /// their boxes' distance from the eye), until the next box is farther than the best hit.
-    /// The same answer as [`Self::intersect_bvh`]: every prim the BVH would offer and could
-    /// report a hit is offered, with the same tie rule.
+    /// The nearest hit of a ray from the eye, from the eye's table: the unbounded prims, the
+    /// table's `always` prims, then the prims the direction's cell `listed` (sorted by their
+    /// boxes' distance from the eye), until the next box is farther than the best hit. The
+    /// same answer as [`Self::intersect_bvh`]: every prim the BVH would offer and could report
+    /// a hit is offered, with the same tie rule.
     #[inline(never)]
     fn intersect_listed(
         &self,
@@ -1097,6 +1111,12 @@ impl Scene {
         self.occluded_unless(ray, t_max, move |i| skip == Some(i) || also.contains(&i))
     }
 
+    /// Whether the eye or some light has a table (see [`crate::point_index`]).
+    #[inline]
+    pub(crate) fn has_point_tables(&self) -> bool {
+        self.points.eye.is_some() || self.points.lights.iter().any(Option::is_some)
+    }
+
     /// [`Self::occluded_skipping`] for a shadow ray towards light `light`. A ray built as the
     /// renderer builds them, `Ray::new(o, L − o)` for the light's position `L` with
     /// `t_max < 1` (see [`crate::render::SHADOW_END_REL`]), looks its candidates up in the
@@ -1124,7 +1144,8 @@ impl Scene {
         self.occluded_skipping(ray, t_max, skip, also)
     }
 
-    /// The unbounded prims, a table's `always` prims and its `listed` ones, until one blocks.
+    /// The shadow answer from a light's table: the unbounded prims, the table's `always`
+    /// prims and the prims the direction's cell `listed`, until one blocks.
     #[inline(never)]
     fn occluded_listed(
         &self,

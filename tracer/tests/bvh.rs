@@ -603,14 +603,15 @@ fn a_shadow_ray_from_far_away_still_finds_its_blocker() {
 }
 
 /// The cloud the scaling benchmark renders: the tables are built from `point_index::MIN_PRIMS`
-/// solids on, and whole images, by every sampler, are the same bytes with and without them.
+/// solids on, and whole images, by every sampler, are the same bytes with and without them,
+/// with a light lying on one of the spheres (whose shadow rays leave that sphere out).
 #[test]
 fn images_are_identical_with_and_without_the_point_tables() {
     let mut rng = Rng(4242);
     let min = tessera_tracer::point_index::MIN_PRIMS;
     for (n, sampler) in [
+        (min - 2, "sampler = center"),
         (min - 1, "sampler = center"),
-        (min, "sampler = center"),
         (400, "sampler = jitter\nsamples = 2"),
         (400, "sampler = adaptive\nsamples = 6\nthreshold = 0.05"),
     ] {
@@ -619,8 +620,10 @@ fn images_are_identical_with_and_without_the_point_tables() {
              [CAMERA]\neye = <0, 4, 30>\nlook_at = <0, 2, 0>\nfov = 40\n[/CAMERA]\n\
              [LIGHT]\nposition = <20, 30, 10>\n[/LIGHT]\n\
              [LIGHT]\nposition = <0, 3, 0>\ncolor = 0.3\n[/LIGHT]\n\
-             [OBJECT]\ntype = plane\ncolor1 = 0.9\ncolor2 = 0.2\n[/OBJECT]\n"
+             [OBJECT]\ntype = plane\ncolor1 = 0.9\ncolor2 = 0.2\n[/OBJECT]\n\
+             [OBJECT]\ntype = sphere\ntranslate = <-1, 3, 0>\n[/OBJECT]\n"
         );
+        // `n` spheres, the one the second light lies on, and the floor.
         let r = 3.0 / (n as f64).sqrt();
         for _ in 0..n {
             let at = DVec3::new(
@@ -636,8 +639,13 @@ fn images_are_identical_with_and_without_the_point_tables() {
         let s = common::scene(&src);
         assert_eq!(
             s.point_tables(),
-            if n < min { (false, 0) } else { (true, 2) },
+            if n + 1 < min { (false, 0) } else { (true, 2) },
             "{n} spheres"
+        );
+        assert_eq!(
+            s.lights_on(1).len(),
+            1,
+            "the light on the sphere's +x point"
         );
         let plain = s.clone().without_point_tables();
         let rect = Rect::full(s.width, s.height);
