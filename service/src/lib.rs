@@ -411,6 +411,9 @@ fn spawn_local_workers(
     let scenes = tessera_worker::SceneCache::default();
     // One queue of tiles in line for all their render threads: a thread whose worker has no
     // tile for it takes one another worker put in line.
+    if n == 0 {
+        return Vec::new();
+    }
     let pool = match tessera_worker::RenderPool::new(n) {
         Ok(p) => p,
         Err(e) => {

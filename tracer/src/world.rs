@@ -555,7 +555,9 @@ struct PointTables {
 
 impl PointTables {
     /// The tables a scene with this BVH gains from: with `Auto`, when it has at least
-    /// [`point_index::MIN_PRIMS`] bounded prims; with `Always`, whenever it has a BVH.
+    /// [`point_index::MIN_PRIMS`] bounded prims and its image at least
+    /// [`point_index::PIXELS_PER_BOX`] `pixels` per box to list; with `Always`, whenever it
+    /// has a BVH.
     fn new(
         prims: &[Prim],
         objects: &[Object],
@@ -563,6 +565,7 @@ impl PointTables {
         eye: DVec3,
         lights: &[Light],
         mode: Acceleration,
+        pixels: u64,
     ) -> PointTables {
         if accel.bvh().is_none() {
             return PointTables::default();
@@ -581,6 +584,11 @@ impl PointTables {
             .iter()
             .filter_map(|it| Some((it.id, crate::bvh::padded(&it.bounds)?, it.cost)))
             .collect();
+        if mode == Acceleration::Auto
+            && pixels < point_index::PIXELS_PER_BOX.saturating_mul(items.len() as u64)
+        {
+            return PointTables::default();
+        }
         let quick = prims
             .iter()
             .map(|p| match p {
@@ -589,12 +597,21 @@ impl PointTables {
             })
             .map(|s| s.unwrap_or((DVec3::ZERO, f64::INFINITY)))
             .collect();
-        // The eye's first, then the lights' in order, while the entries last.
+        // The eye's first, then the lights' in order, while the budget lasts: each table
+        // lists every solid at least once, so once fewer entries than items are left, no
+        // further table is tried (a scene of many solids under many lights spent seconds
+        // trying, and failing, one table after another).
         let mut left = point_index::MAX_ENTRIES;
         let mut build = |p: DVec3| {
-            let table = PointIndex::build(p, &items, left)?;
-            left -= table.size().1;
-            Some(table)
+            if left < items.len() {
+                return None;
+            }
+            let table = PointIndex::build(p, &items, left);
+            left = match &table {
+                Some(t) => left - t.size().0 - t.size().1,
+                None => 0,
+            };
+            table
         };
         PointTables {
             eye: build(eye),
@@ -713,6 +730,7 @@ impl Scene {
             desc.camera.eye,
             &desc.lights,
             Acceleration::Auto,
+            u64::from(desc.width) * u64::from(desc.height),
         );
         let lights_on = desc
             .lights
@@ -825,6 +843,7 @@ impl Scene {
             self.camera.eye(),
             &self.lights,
             mode,
+            u64::from(self.width) * u64::from(self.height),
         );
         self.clear_lights =
             ClearLights::find(&self.objects, &self.prims, &self.lights, self.accel.bvh());
@@ -994,8 +1013,10 @@ impl Scene {
         let dd = ray.dir.length_squared();
         for e in listed {
             // A hit at `t` lies `t·|d|` from the eye, inside the box: not nearer than the
-            // box. The factor covers the rounding of `t²·|d|²` (see `point_index`).
-            if f64::from(e.near_sq) > t_best * t_best * dd * (1.0 + 1e-9) {
+            // box. The factor covers the rounding of `t²·|d|²` (see `point_index`) while it is
+            // a normal number; below that, no stop.
+            let reach = t_best * t_best * dd;
+            if reach >= f64::MIN_POSITIVE && f64::from(e.near_sq) > reach * (1.0 + 1e-9) {
                 break;
             }
             let (c, r2) = self.points.quick[e.prim as usize];
@@ -1159,7 +1180,12 @@ impl Scene {
         // A point of the segment is at most `|d|` from the light (`t ≥ 0`; the rounding of
         // `d` adds 2⁻⁵³ of it, which the factor covers): listed boxes farther away, beyond
         // the ray's origin, cannot block it.
-        let reach = ray.dir.length_squared() * (1.0 + 1e-9);
+        let dd = ray.dir.length_squared();
+        let reach = if dd >= f64::MIN_POSITIVE {
+            dd * (1.0 + 1e-9)
+        } else {
+            f64::INFINITY
+        };
         unbounded
             .iter()
             .chain(always)

@@ -534,7 +534,11 @@ fn rays_through_the_eye_and_the_lights_answer_as_every_prim_does() {
             if d == DVec3::ZERO {
                 continue;
             }
-            let r = Ray::new(eye, d.normalize());
+            // Unit directions, as the camera makes them, and others: the early stop compares
+            // squared lengths along the ray. (Directions too small or too large for the table
+            // go to the BVH: `point_index`'s own tests.)
+            let scale = [1.0, 1.0, 1.0, 1e-3, 1e3, 1e-70, 1e70][rng.below(7) as usize];
+            let r = Ray::new(eye, d.normalize() * scale);
             let (a, b) = (
                 linear.intersect(&r, f64::INFINITY, None),
                 tables.intersect(&r, f64::INFINITY, None),
@@ -580,7 +584,7 @@ fn rays_through_the_eye_and_the_lights_answer_as_every_prim_does() {
 fn a_shadow_ray_from_far_away_still_finds_its_blocker() {
     let light = DVec3::new(0.3, 0.7, 0.1);
     let mut src = format!(
-        "[GLOBALS]\nwidth = 8\nheight = 6\nlight = {}\n[/GLOBALS]\n\
+        "[GLOBALS]\nwidth = 48\nheight = 36\nlight = {}\n[/GLOBALS]\n\
          [OBJECT]\ntype = sphere\nscale = 0.01\ntranslate = <-39.75, -39.25, 0.1>\n[/OBJECT]\n",
         v(light)
     );
@@ -653,5 +657,32 @@ fn images_are_identical_with_and_without_the_point_tables() {
         assert_eq!(sa, sb, "{n} spheres, {sampler}");
         assert!(sa.shadow > 1000, "{sa:?}");
         assert!(a == b, "{n} spheres, {sampler}: images differ");
+    }
+}
+
+/// Tables are built only for images with `point_index::PIXELS_PER_BOX` pixels per box to list
+/// (a table of many boxes for a handful of rays cost more to build than it saved), and by
+/// `Acceleration::Always` whatever the image.
+#[test]
+fn small_images_of_many_solids_build_no_tables() {
+    let per_box = tessera_tracer::point_index::PIXELS_PER_BOX;
+    let mut rng = Rng(99);
+    let mut solids = String::new();
+    for _ in 0..400 {
+        solids += &format!(
+            "[OBJECT]\ntype = sphere\nscale = 0.1\ntranslate = {}\n[/OBJECT]\n",
+            v(rng.vec(10.0))
+        );
+    }
+    // 400 boxes: 40 × 40 pixels is exactly four a box, one row fewer is short of it.
+    for (w, h, tables) in [(40u32, 40u32, true), (40, 39, false)] {
+        assert_eq!(u64::from(w) * u64::from(h) >= per_box * 400, tables);
+        let src = format!(
+            "[GLOBALS]\nwidth = {w}\nheight = {h}\nlight = <0, 20, 0>\n[/GLOBALS]\n[CAMERA]\neye = <0, 0, 40>\n[/CAMERA]\n{solids}"
+        );
+        let s = common::scene(&src);
+        assert_eq!(s.point_tables(), (tables, usize::from(tables)), "{w}×{h}");
+        let always = s.with_acceleration(Acceleration::Always);
+        assert_eq!(always.point_tables(), (true, 1), "{w}×{h}");
     }
 }

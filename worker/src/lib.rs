@@ -306,8 +306,14 @@ impl std::fmt::Debug for RenderPool {
 }
 
 impl RenderPool {
-    /// Starts `threads` render threads (`tessera-render-0`, …).
+    /// Starts `threads` render threads (`tessera-render-0`, …); at least one.
     pub fn new(threads: usize) -> std::io::Result<RenderPool> {
+        if threads == 0 {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "a render pool needs at least one thread",
+            ));
+        }
         let (queue, tasks) = std::sync::mpsc::channel::<Task>();
         let tasks = Arc::new(std::sync::Mutex::new(tasks));
         for index in 0..threads {
@@ -347,20 +353,24 @@ impl RenderPool {
     fn submit(&self, claim: Claim, scene: Option<Arc<Prepared>>) -> Ticket {
         let (reply, rendered) = oneshot::channel();
         let cancel = Arc::new(AtomicBool::new(false));
+        let started = Arc::new(AtomicBool::new(false));
         let Some(scene) = scene else {
             let _ = reply.send(Ok(vec![0u8; claim.rect().pixel_count() * 3]));
             return Ticket {
                 claim,
                 rendered,
                 cancel,
+                started,
             };
         };
         let rect = claim.rect();
         let stop = cancel.clone();
+        let begun = started.clone();
         self.run(Box::new(move || {
             if stop.load(Ordering::Relaxed) {
                 return;
             }
+            begun.store(true, Ordering::Relaxed);
             // The same bytes `tessera-render` writes: a pixel's value does not depend on
             // its tile.
             let p = &scene;
@@ -391,6 +401,7 @@ impl RenderPool {
             claim,
             rendered,
             cancel,
+            started,
         }
     }
 }
@@ -400,6 +411,10 @@ struct Ticket {
     claim: Claim,
     rendered: oneshot::Receiver<Rendered>,
     cancel: Arc<AtomicBool>,
+    /// Set when a render thread begins the tile: what the lease renewals say (`rendering`),
+    /// since with threads shared by the slots the tile held ahead may be rendering on
+    /// another slot's thread while the slot's current one still waits in line.
+    started: Arc<AtomicBool>,
 }
 
 impl Ticket {
@@ -769,7 +784,7 @@ async fn work(
                 }
             }
             _ = ticker.tick() => {
-                match client.renew(&c, true).await {
+                match client.renew(&c, t.started.load(Ordering::Relaxed)).await {
                     Ok(true) => {}
                     Ok(false) => {
                         debug!(job = %c.job, tile = c.idx, "lease lost; dropping the tile");
@@ -777,7 +792,9 @@ async fn work(
                         // The tile held ahead is most likely of the same (cancelled) job: ask
                         // now, not a renewal period from now, before it starts rendering.
                         if let Some(queued) = &pipe.queued
-                            && let Ok(false) = client.renew(&queued.claim, false).await
+                            && let Ok(false) = client
+                                .renew(&queued.claim, queued.started.load(Ordering::Relaxed))
+                                .await
                             && let Some(lost) = pipe.queued.take()
                         {
                             lost.cancel.store(true, Ordering::Relaxed);
@@ -789,7 +806,10 @@ async fn work(
                     Err(e) => return Err(e),
                 }
                 if let Some(queued) = &pipe.queued {
-                    match client.renew(&queued.claim, false).await {
+                    match client
+                        .renew(&queued.claim, queued.started.load(Ordering::Relaxed))
+                        .await
+                    {
                         Ok(true) => {}
                         Ok(false) => {
                             if let Some(lost) = pipe.queued.take() {
@@ -992,6 +1012,51 @@ fn ignore_transient(e: ClientError) -> Result<(), ClientError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A tile in line is "rendering" (what its lease renewals say) only once a thread has
+    /// begun it, whichever slot's thread that is.
+    #[test]
+    fn a_tile_is_started_when_a_thread_begins_it() {
+        let pool = RenderPool::new(1).expect("a thread");
+        let (release, released) = std::sync::mpsc::channel::<()>();
+        pool.run(Box::new(move || {
+            let _ = released.recv();
+        }));
+        let src = "[GLOBALS]\nwidth = 4\nheight = 4\n[/GLOBALS]\n";
+        let desc = tessera_tracer::parse(src, &Limits::default()).expect("a scene");
+        let scene = Scene::build(&desc, &MemoryAssets::new(), &TextureLimits::default())
+            .expect("it builds");
+        let prepared = Arc::new(Prepared {
+            sampler: desc.sampler,
+            scene,
+        });
+        let claim = Claim {
+            job: "j".into(),
+            idx: 0,
+            x: 0,
+            y: 0,
+            w: 4,
+            h: 4,
+            lease: "l".into(),
+            lease_ms: 1000,
+        };
+        let t = pool.submit(claim, Some(prepared));
+        // The only thread is busy: the tile waits in line, not begun.
+        assert!(!t.started.load(Ordering::Relaxed));
+        release.send(()).expect("the thread waits");
+        let rgb = t
+            .rendered
+            .blocking_recv()
+            .expect("an answer")
+            .expect("rendered");
+        assert_eq!(rgb.len(), 4 * 4 * 3);
+        assert!(t.started.load(Ordering::Relaxed));
+    }
+
+    #[test]
+    fn a_pool_needs_a_thread() {
+        assert!(RenderPool::new(0).is_err());
+    }
 
     /// The tail of a job: one thread busy with a long tile, another slot's tile in line. The
     /// idle thread takes it (with a thread per slot, it waited for the busy one).
