@@ -89,7 +89,7 @@ pub const MAX_LIGHTS: usize = 64;
 /// Most cells and entries (solid, cell), eight bytes each, all the tables of one scene may
 /// hold together: 32 MB. A table that would hold more than what is left is built coarser,
 /// and after a few tries not at all (the BVH serves its rays); once the budget cannot hold a
-/// table of every listed solid, no more tables are built. Also at most [`MAX_CELLS`] cells in
+/// table of every listed solid, no more tables are built. Also at most 2²⁰ cells in
 /// one table.
 pub const MAX_ENTRIES: usize = 1 << 22;
 const MAX_CELLS: usize = 1 << 20;
