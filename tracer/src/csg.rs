@@ -491,7 +491,7 @@ impl Prim {
         out: &mut Vec<CsgSpan>,
     ) {
         let start = scratch.spans.len();
-        let scale = ray.origin.length() / ray.dir.length();
+        let scale = ray_scale(ray);
         eval(self, objects, ray, ray.inv_dir(), scale, scratch);
         out.extend_from_slice(&scratch.spans[start..]);
         scratch.spans.truncate(start);
@@ -550,7 +550,7 @@ impl Csg {
         }
         with_scratch(|scratch| {
             let start = scratch.spans.len();
-            let scale = ray.origin.length() / ray.dir.length();
+            let scale = ray_scale(ray);
             eval_csg(self, objects, ray, inv, scale, scratch);
             let found = first_boundary(&scratch.spans[start..], t_max, || {
                 self.contains(objects, ray.origin)
@@ -726,6 +726,28 @@ fn pushes_towards(op: CsgOp, e: &Event, entering: bool) -> bool {
         CsgOp::Difference if e.child > 0 => e.enter != entering,
         _ => e.enter == entering,
     }
+}
+
+/// The ray's scale in units of its `t`, `|o| / |d|`, for [`tolerance`]. Computed directly
+/// while `|d|²` and `|o|²` are normal finite numbers (every ray the renderer makes); past
+/// that, with each vector divided by its largest component first. A direction of about
+/// 10⁻²⁰¹ made `|d|` underflow to 0 and the scale infinite, which merged every crossing of a
+/// tree into one: the tree then reported a boundary outside its own box, and the BVH, whose
+/// box shortcut dropped it, disagreed with the plain loop.
+fn ray_scale(ray: &Ray) -> f64 {
+    let (oo, dd) = (ray.origin.length_squared(), ray.dir.length_squared());
+    if (f64::MIN_POSITIVE..f64::INFINITY).contains(&dd) && oo < f64::INFINITY {
+        return ray.origin.length() / ray.dir.length();
+    }
+    let length = |v: DVec3| {
+        let m = v.abs().max_element();
+        if m > 0.0 && m < f64::INFINITY {
+            m * (v / m).length()
+        } else {
+            v.length()
+        }
+    };
+    length(ray.origin) / length(ray.dir)
 }
 
 /// How far past a group's first crossing at `t0` other crossings still join it: the
@@ -1271,6 +1293,53 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A direction's length does not change which boundary a tree reports, only its `t`:
+    /// down to directions whose squared length underflows, where `|d|` came out 0, the
+    /// scale infinite, and every crossing merged into one (then a tree of cubes, whose slab
+    /// tests need no squares, reported a boundary outside its box, and the BVH, whose box
+    /// shortcut dropped it, disagreed with the plain loop), and up to ones whose square
+    /// overflows.
+    #[test]
+    fn tiny_and_huge_directions_find_the_same_boundary() {
+        let trees = [
+            "[CSG]\nop = difference\n[OBJECT]\ntype = cube\nscale = 2\n[/OBJECT]\n\
+             [OBJECT]\ntype = cube\ntranslate = <0.5, 0.5, 2>\n[/OBJECT]\n[/CSG]",
+            "[CSG]\nop = union\n[OBJECT]\ntype = cube\n[/OBJECT]\n\
+             [OBJECT]\ntype = cube\ntranslate = <1.5, 0.2, 0.1>\n[/OBJECT]\n[/CSG]",
+            "[CSG]\nop = intersection\n[OBJECT]\ntype = cube\nscale = 2\n[/OBJECT]\n\
+             [OBJECT]\ntype = cube\nscale = <3, 1, 3>\ntranslate = <0.3, 0.5, 0>\n[/OBJECT]\n[/CSG]",
+        ];
+        let mut checked = 0;
+        for tree in trees {
+            let s = scene(tree).without_acceleration();
+            for (o, d) in [
+                (DVec3::new(0.3, 0.2, 5.0), DVec3::new(0.01, -0.02, -1.0)),
+                (DVec3::new(-4.0, 0.5, 0.3), DVec3::new(1.0, -0.1, -0.07)),
+                (DVec3::new(0.1, 6.0, 0.2), DVec3::new(0.03, -1.0, 0.05)),
+            ] {
+                let unit = Ray::new(o, d.normalize());
+                let want = s
+                    .intersect(&unit, f64::INFINITY, None)
+                    .expect("aimed at the tree");
+                for k in [1e-201, 1e-170, 1e170, 1e200] {
+                    let r = Ray::new(o, unit.dir * k);
+                    let got = s
+                        .intersect(&r, f64::INFINITY, None)
+                        .unwrap_or_else(|| panic!("{tree} scale {k:e}: no hit"));
+                    assert_eq!(got.object, want.object, "{tree} scale {k:e}");
+                    let t = got.local.t * k;
+                    assert!(
+                        (t - want.local.t).abs() <= 1e-9 * want.local.t,
+                        "{tree} {k:e}: {t} against {}",
+                        want.local.t
+                    );
+                    checked += 1;
+                }
+            }
+        }
+        assert_eq!(checked, 36);
     }
 
     /// A child's own crossings are never one event, however close, while crossings of

@@ -535,9 +535,10 @@ fn rays_through_the_eye_and_the_lights_answer_as_every_prim_does() {
                 continue;
             }
             // Unit directions, as the camera makes them, and others: the early stop compares
-            // squared lengths along the ray. (Directions too small or too large for the table
-            // go to the BVH: `point_index`'s own tests.)
-            let scale = [1.0, 1.0, 1.0, 1e-3, 1e3, 1e-70, 1e70][rng.below(7) as usize];
+            // squared lengths along the ray, and directions too small or too large for the
+            // table (or whose squares underflow) go to the BVH.
+            let scale =
+                [1.0, 1.0, 1.0, 1e-3, 1e3, 1e-70, 1e70, 1e-200, 1e200][rng.below(9) as usize];
             let r = Ray::new(eye, d.normalize() * scale);
             let (a, b) = (
                 linear.intersect(&r, f64::INFINITY, None),
