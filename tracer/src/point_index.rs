@@ -74,7 +74,7 @@ pub const NEAR: f64 = 1e-6;
 pub const MIN_PRIMS: usize = 64;
 
 /// Fewest pixels of the image per box to list for which a scene builds tables. A table costs
-/// a few thousand instructions a box to build and saves at most about a thousand a ray, some
+/// over a thousand instructions a box to build and saves at most about a thousand a ray, some
 /// rays of each pixel passing through each point. Measured, with tables for every scene: 2,000
 /// long rods under 64 lights took 0.42 s for a 16 × 12 image that took 0.09 s without them,
 /// and 2.17 s against 1.96 s at 320 × 240; 20,000 spheres of radius 5 under 70 lights
@@ -216,13 +216,17 @@ fn quotient_range(a: f64, b: f64, c: f64, d: f64) -> (f64, f64) {
     (lo, hi)
 }
 
-/// One box's footprint on one face, in face coordinates: `[ul, uh] × [vl, vh]`.
+/// One box's footprint on one face, in face coordinates: `[ul, uh] × [vl, vh]`, with what its
+/// prim's entries carry: the least `near_sq` over the prim's boxes (already rounded down to
+/// `f32`), and what testing the prim costs.
 #[derive(Debug, Clone, Copy)]
 struct Footprint {
     prim: u32,
     face: usize,
     u: (f64, f64),
     v: (f64, f64),
+    near_sq: f32,
+    cost: f64,
 }
 
 impl PointIndex {
@@ -271,6 +275,19 @@ impl PointIndex {
             }
         }
         always.dedup();
+        // Each box's prim's nearest distance, the least over its pieces (consecutive, since
+        // the items come in prim order), as the entries store it.
+        let mut prim_near = vec![0.0f32; items.len()];
+        let mut start = 0;
+        for run in items.chunk_by(|a, b| a.0 == b.0) {
+            let end = start + run.len();
+            let least = near_sq[start..end]
+                .iter()
+                .copied()
+                .fold(f64::INFINITY, f64::min);
+            prim_near[start..end].fill(crate::bvh::round_out(least, false));
+            start = end;
+        }
         // A prim in `always` is not listed, for any of its pieces.
         let listed = |prim: u32| always.binary_search(&prim).is_err();
         let mut s_min_sq = f64::INFINITY;
@@ -300,34 +317,29 @@ impl PointIndex {
                 let u = face_range(lo[j], hi[j]);
                 let v = face_range(lo[k], hi[k]);
                 if u.0 <= u.1 && v.0 <= v.1 {
-                    prints.push(Footprint { prim, face, u, v });
+                    prints.push(Footprint {
+                        prim,
+                        face,
+                        u,
+                        v,
+                        near_sq: prim_near[i],
+                        cost: items[i].2,
+                    });
                 }
             }
         }
         if prints.is_empty() && always.is_empty() {
             return None;
         }
-        let cost_of = {
-            let mut costs: Vec<(u32, f64)> = items.iter().map(|&(p, _, c)| (p, c)).collect();
-            costs.dedup_by_key(|(p, _)| *p);
-            costs
-        };
-        let cost = |prim: u32| {
-            cost_of
-                .binary_search_by_key(&prim, |&(p, _)| p)
-                .map_or(1.0, |i| cost_of[i].1)
-        };
         let mut scale = 1.0;
         for _ in 0..4 {
-            let near_sq = near_sq_of(items, &near_sq);
-            if let Some(mut index) = Self::grid(&prints, &near_sq, scale, max_entries) {
+            if let Some(mut index) = Self::grid(&prints, scale, max_entries) {
                 index.point = point;
                 index.always = always.clone();
                 // See the module comment: a shadow ray's miss of the light, seen from `s`
                 // away, turns a face coordinate by at most 4·2⁻⁵³·|d|/s ≤ PAD/2.
                 let max_len = PAD * s_min_sq.sqrt() * 2f64.powi(50);
                 index.shadow_len_sq = max_len * max_len;
-                index.mark_fallbacks(cost);
                 return Some(index);
             }
             scale *= 0.25;
@@ -336,13 +348,9 @@ impl PointIndex {
     }
 
     /// The grid over `prints` with `scale` times the usual number of cells, or `None` past
-    /// the entry budget.
-    fn grid(
-        prints: &[Footprint],
-        near_sq: &impl Fn(u32) -> f64,
-        scale: f64,
-        max_entries: usize,
-    ) -> Option<PointIndex> {
+    /// the entry budget. Cells whose prims cost more than [`CELL_COST_MAX`] to test are
+    /// marked for the BVH.
+    fn grid(prints: &[Footprint], scale: f64, max_entries: usize) -> Option<PointIndex> {
         // Each face's window (the union of its footprints) and how many prims it lists.
         let mut window = [(
             f64::INFINITY,
@@ -438,6 +446,7 @@ impl PointIndex {
             entries
         ];
         let mut fill = starts.clone();
+        let mut cost = vec![0.0f64; cells as usize];
         stamp.fill(u32::MAX);
         for p in prints {
             each_cell(p, &mut |c| {
@@ -445,14 +454,20 @@ impl PointIndex {
                     stamp[c] = p.prim;
                     out[fill[c] as usize] = Entry {
                         prim: p.prim,
-                        near_sq: crate::bvh::round_out(near_sq(p.prim), false),
+                        near_sq: p.near_sq,
                     };
                     fill[c] += 1;
+                    cost[c] += p.cost;
                 }
             });
         }
-        let cells: Vec<(u32, u32)> = starts.into_iter().zip(len).collect();
-        for &(s, l) in &cells {
+        let cells: Vec<(u32, u32)> = starts
+            .into_iter()
+            .zip(len)
+            .zip(cost)
+            .map(|((s, l), c)| (s, if c > CELL_COST_MAX { FALLBACK } else { l }))
+            .collect();
+        for &(s, l) in cells.iter().filter(|c| c.1 != FALLBACK) {
             out[s as usize..(s + l) as usize]
                 .sort_unstable_by(|a, b| a.near_sq.total_cmp(&b.near_sq).then(a.prim.cmp(&b.prim)));
         }
@@ -464,20 +479,6 @@ impl PointIndex {
             always: Vec::new(),
             shadow_len_sq: 0.0,
         })
-    }
-
-    /// Marks the cells whose lists cost more than [`CELL_COST_MAX`] for the BVH.
-    fn mark_fallbacks(&mut self, cost: impl Fn(u32) -> f64) {
-        for cell in &mut self.cells {
-            let (s, l) = *cell;
-            let c: f64 = self.entries[s as usize..(s + l) as usize]
-                .iter()
-                .map(|e| cost(e.prim))
-                .sum();
-            if c > CELL_COST_MAX {
-                cell.1 = FALLBACK;
-            }
-        }
     }
 
     /// The point the table is for.
@@ -519,19 +520,6 @@ impl PointIndex {
     /// Cells and entries (eight bytes each), for the budget, tests and reports.
     pub fn size(&self) -> (usize, usize) {
         (self.cells.len(), self.entries.len())
-    }
-}
-
-/// A prim's squared distance lower bound: the least over its pieces.
-fn near_sq_of<'a>(items: &'a [(u32, Aabb, f64)], near_sq: &'a [f64]) -> impl Fn(u32) -> f64 + 'a {
-    move |prim| {
-        let start = items.partition_point(|it| it.0 < prim);
-        items[start..]
-            .iter()
-            .zip(&near_sq[start..])
-            .take_while(|(it, _)| it.0 == prim)
-            .map(|(_, &d)| d)
-            .fold(f64::INFINITY, f64::min)
     }
 }
 

@@ -558,10 +558,12 @@ impl PointTables {
     /// [`point_index::MIN_PRIMS`] bounded prims and its image at least
     /// [`point_index::PIXELS_PER_BOX`] `pixels` per box to list; with `Always`, whenever it
     /// has a BVH.
+    #[allow(clippy::too_many_arguments)]
     fn new(
         prims: &[Prim],
         objects: &[Object],
         accel: &Accel,
+        bvh_items: &[Item],
         eye: DVec3,
         lights: &[Light],
         mode: Acceleration,
@@ -570,17 +572,19 @@ impl PointTables {
         if accel.bvh().is_none() {
             return PointTables::default();
         }
-        let bounded = bounded_prims(prims, objects);
         let wanted = match mode {
             Acceleration::Off => false,
-            Acceleration::Auto => bounded.len() >= point_index::MIN_PRIMS,
+            // The items come in prim order, a long object's pieces together.
+            Acceleration::Auto => {
+                bvh_items.chunk_by(|a, b| a.id == b.id).count() >= point_index::MIN_PRIMS
+            }
             Acceleration::Always => true,
         };
         if !wanted {
             return PointTables::default();
         }
         // The BVH's own boxes: padded as it pads them, those it leaves out left out here too.
-        let items: Vec<(u32, Aabb, f64)> = bvh_items(prims, objects, &bounded)
+        let items: Vec<(u32, Aabb, f64)> = bvh_items
             .iter()
             .filter_map(|it| Some((it.id, crate::bvh::padded(&it.bounds)?, it.cost)))
             .collect();
@@ -652,7 +656,9 @@ impl Accel {
         }
     }
 
-    fn new(prims: &[Prim], objects: &[Object], mode: Acceleration) -> Accel {
+    /// The search `mode` asks for, with the items its BVH was built over (none for the plain
+    /// loop), which the point tables list too.
+    fn new(prims: &[Prim], objects: &[Object], mode: Acceleration) -> (Accel, Vec<Item>) {
         let bounded = bounded_prims(prims, objects);
         let wanted = match mode {
             Acceleration::Off => false,
@@ -665,7 +671,7 @@ impl Accel {
         // Prim indices fit in u32 (objects do, and every prim has at least one); a scene
         // where they did not would simply stay linear.
         if !wanted || u32::try_from(prims.len()).is_err() {
-            return Accel::Linear;
+            return (Accel::Linear, Vec::new());
         }
         let items = bvh_items(prims, objects, &bounded);
         let (bvh, mut unbounded) = Bvh::build_items(&items);
@@ -693,11 +699,12 @@ impl Accel {
                 }
             })
             .collect();
-        Accel::Bvh {
+        let accel = Accel::Bvh {
             bvh,
             unbounded,
             quick,
-        }
+        };
+        (accel, items)
     }
 }
 
@@ -721,12 +728,13 @@ impl Scene {
         texture_limits: &TextureLimits,
     ) -> Result<Scene, SceneError> {
         let (objects, prims) = Self::place(desc, assets, texture_limits)?;
-        let accel = Accel::new(&prims, &objects, Acceleration::Auto);
+        let (accel, items) = Accel::new(&prims, &objects, Acceleration::Auto);
         let clear_lights = ClearLights::find(&objects, &prims, &desc.lights, accel.bvh());
         let points = PointTables::new(
             &prims,
             &objects,
             &accel,
+            &items,
             desc.camera.eye,
             &desc.lights,
             Acceleration::Auto,
@@ -835,11 +843,13 @@ impl Scene {
                 c.index_children(min);
             }
         }
-        self.accel = Accel::new(&self.prims, &self.objects, mode);
+        let items;
+        (self.accel, items) = Accel::new(&self.prims, &self.objects, mode);
         self.points = PointTables::new(
             &self.prims,
             &self.objects,
             &self.accel,
+            &items,
             self.camera.eye(),
             &self.lights,
             mode,
