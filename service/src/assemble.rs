@@ -45,6 +45,14 @@ pub enum AssembleError {
     Vanished,
 }
 
+impl AssembleError {
+    /// Tiles' pixels were lost and the tiles queued again: the job goes on, and is assembled
+    /// when its (new) last tile is in.
+    pub fn requeued(&self) -> bool {
+        matches!(self, AssembleError::Queue(QueueError::Lost { .. }))
+    }
+}
+
 /// A PNG being written band by band into the job's image chunks.
 struct Encoder {
     png: PngWriter<SharedBuffer>,
@@ -290,12 +298,13 @@ impl Progress {
         }
     }
 
-    /// Encodes the complete bands that come next in the image, if any.
-    pub async fn advance(&self, queue: &Queue, id: &str) {
-        let Some(f) = self.get(id) else { return };
+    /// Encodes the complete bands that come next in the image, if any. True when a band
+    /// found tiles whose pixels were lost and queued them again (workers should be told).
+    pub async fn advance(&self, queue: &Queue, id: &str) -> bool {
+        let Some(f) = self.get(id) else { return false };
         let mut encoder = f.encoder.lock().await;
         if f.stopped.load(Ordering::Relaxed) {
-            return;
+            return false;
         }
         let result: Result<(), AssembleError> = async {
             loop {
@@ -312,11 +321,15 @@ impl Progress {
             }
         }
         .await;
-        if let Err(e) = result {
-            // Not fatal: the job is assembled whole when its last tile is in.
-            tracing::warn!(job = %id, "encoding ahead stopped: {e}");
-            f.stopped.store(true, Ordering::Relaxed);
-            *encoder = None;
+        match result {
+            Ok(()) => false,
+            Err(e) => {
+                // Not fatal: the job is assembled whole when its last tile is in.
+                tracing::warn!(job = %id, "encoding ahead stopped: {e}");
+                f.stopped.store(true, Ordering::Relaxed);
+                *encoder = None;
+                e.requeued()
+            }
         }
     }
 

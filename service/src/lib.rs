@@ -17,6 +17,7 @@ pub mod idle;
 pub mod queue;
 pub mod receiving;
 pub mod rlimit;
+pub mod spool;
 pub mod worker_api;
 
 use std::collections::HashMap;
@@ -122,7 +123,12 @@ impl AppState {
         if self.progress.stored(&job, tile) {
             let queue = self.queue.clone();
             let progress = self.progress.clone();
-            tokio::spawn(async move { progress.advance(&queue, &job).await });
+            let work = self.work.clone();
+            tokio::spawn(async move {
+                if progress.advance(&queue, &job).await {
+                    work.notify_waiters();
+                }
+            });
         }
     }
 
@@ -131,8 +137,16 @@ impl AppState {
         let queue = self.queue.clone();
         let ended = self.ended.clone();
         let progress = self.progress.clone();
+        let work = self.work.clone();
         tokio::spawn(async move {
             if let Err(e) = progress.complete(&queue, &job).await {
+                if e.requeued() {
+                    // Not a failure: the lost tiles are queued again, and their last result
+                    // assembles the image anew.
+                    warn!(job = %job, "assembling the image: {e}");
+                    work.notify_waiters();
+                    return;
+                }
                 error!(job = %job, "assembling the image failed: {e}");
                 let _ = queue
                     .fail_job(&job, &format!("assembling the image failed: {e}"), now_ms())
@@ -325,6 +339,11 @@ pub async fn serve(
         receiving,
         stopping: stop_rx.clone(),
     };
+    match queue.sweep_spool().await {
+        Ok(0) => {}
+        Ok(n) => info!("{n} spool files of ended jobs removed"),
+        Err(e) => warn!("sweeping the tile spool: {e}"),
+    }
     for job in queue.unassembled().await? {
         info!(job = %job, "all tiles were in before the restart: assembling");
         state.spawn_assembly(job);
@@ -444,10 +463,14 @@ fn spawn_local_workers(
         .collect()
 }
 
-/// Requeues expired leases a few times per lease period.
+/// How often the reaper deletes the spool files of ended jobs.
+const SWEEP_EVERY: Duration = Duration::from_secs(10);
+
+/// Requeues expired leases a few times per lease period, and sweeps the tile spool.
 async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
     let every = Duration::from_millis((state.cfg.lease_ms / 4).clamp(25, 1000));
     let mut last = std::time::Instant::now();
+    let mut swept = std::time::Instant::now();
     loop {
         tokio::select! {
             _ = tokio::time::sleep(every) => {}
@@ -487,6 +510,13 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                 state.ended.notify_waiters();
             }
             Err(e) => warn!("reaping expired leases: {e}"),
+        }
+        // The spool files of jobs that ended without an image (cancelled, failed, deleted).
+        if swept.elapsed() >= SWEEP_EVERY {
+            swept = std::time::Instant::now();
+            if let Err(e) = state.queue.sweep_spool().await {
+                warn!("sweeping the tile spool: {e}");
+            }
         }
         // Jobs that ended without an image (cancelled, failed) are no longer followed.
         let followed = state.progress.followed();

@@ -11,6 +11,10 @@
 //! - expired leases are requeued by [`Queue::reap`], counting a failure against the tile and
 //!   the worker; a tile that fails `max_attempts` times fails its job with a readable reason.
 //!
+//! A database file keeps its tiles' pixels outside SQLite, in the spool beside it
+//! ([`crate::spool`]); the `tile_pixels` rows say which tiles are done and hold the CRC of
+//! their bytes. An in-memory database keeps the pixels in the rows.
+//!
 //! Times are integer milliseconds since the Unix epoch, passed in by the caller so that the
 //! SQL stays portable and tests control the clock. This module knows nothing of HTTP.
 
@@ -24,6 +28,8 @@ use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, S
 use sqlx::{Row, SqlitePool};
 use tessera_tracer::Rect;
 use tessera_worker::protocol::{Claim, JobSpec};
+
+use crate::spool::{Spool, SpoolError};
 
 /// The embedded migrations of the top-level `migrations/` folder.
 static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
@@ -44,6 +50,12 @@ pub enum QueueError {
     Open { url: String, source: sqlx::Error },
     #[error("the database took no write within {0:?}")]
     WriteTimeout(Duration),
+    #[error(transparent)]
+    Spool(#[from] SpoolError),
+    /// Spooled pixels of `tiles` tiles of `job` were missing or did not match their CRC:
+    /// those tiles are queued again (see [`crate::spool`]).
+    #[error("{tiles} tile(s) of job `{job}` lost their pixels and are rendered again")]
+    Lost { job: String, tiles: usize },
 }
 
 type Result<T> = std::result::Result<T, QueueError>;
@@ -165,7 +177,7 @@ fn tile_insert(first: usize, rows: &[Rect]) -> String {
 }
 
 /// A band's stored tiles, left to right (see [`Queue::band`]).
-const BAND_SQL: &str = "SELECT t.x, t.w, t.h, p.rgb FROM tiles t
+const BAND_SQL: &str = "SELECT t.x, t.w, t.h, p.rgb, p.crc, t.idx FROM tiles t
      JOIN tile_pixels p ON p.job_id = t.job_id AND p.idx = t.idx
      WHERE t.job_id = ?1 AND t.y = ?2 ORDER BY t.idx";
 
@@ -207,6 +219,9 @@ pub struct Queue {
     writer: SqlitePool,
     /// Checkpoints the WAL off the writer; `None` for an in-memory database (no WAL).
     wal: Option<Arc<WalKeeper>>,
+    /// Where tile pixels wait for their band (a file per job beside the database); `None`
+    /// for an in-memory database, whose rows keep their pixels.
+    spool: Option<Arc<Spool>>,
 }
 
 /// Tile and image bytes written between two background checkpoints (see `WalKeeper`).
@@ -323,12 +338,20 @@ impl Queue {
             .busy_timeout(Duration::from_secs(10))
             .foreign_keys(true);
         let in_memory = url.contains(":memory:");
+        // Beside the database file, so opened only once that file is (its folder exists).
+        let spool_dir = (!in_memory).then(|| crate::spool::folder_for(opts.get_filename()));
         let connect = |n: u32, opts: SqliteConnectOptions| {
             SqlitePoolOptions::new()
                 .max_connections(n)
                 .min_connections(1)
                 .idle_timeout(None)
                 .max_lifetime(None)
+                // No `ping` before each use: sqlx's default sends one to the connection's
+                // thread and waits for the answer before every statement, a thread round
+                // trip that tells nothing about a file opened in this process. Without it,
+                // SQLite's threads switch a third less often (310 → 210 times per 1920×1080
+                // job at one ray per pixel; the CPU saved was within the noise).
+                .test_before_acquire(false)
                 // A connection that comes back still inside a transaction is closed, not
                 // reused. A COMMIT that fails (a full disk) leaves sqlx counting a
                 // transaction that SQLite has already rolled back, and every later `BEGIN`
@@ -361,6 +384,10 @@ impl Queue {
                 source,
             })?;
         MIGRATOR.run(&writer).await?;
+        let spool = match spool_dir {
+            Some(dir) => Some(Arc::new(Spool::open(dir)?)),
+            None => None,
+        };
         // An in-memory database exists once per connection: it has only the writer's.
         let pool = if in_memory {
             writer.clone()
@@ -369,7 +396,12 @@ impl Queue {
         };
         let wal = (!in_memory)
             .then(|| WalKeeper::new(CHECKPOINT_EVERY_BYTES, tokio::sync::watch::Sender::new(0)));
-        Ok(Queue { pool, writer, wal })
+        Ok(Queue {
+            pool,
+            writer,
+            wal,
+            spool,
+        })
     }
 
     /// The same queue, checkpointing after every `bytes` of tiles and images instead of
@@ -585,6 +617,9 @@ impl Queue {
             Some((state, _, _)) => Cancel::Ended { state },
         };
         tx.commit().await?;
+        if let (Cancel::Cancelled { .. }, Some(spool)) = (&outcome, &self.spool) {
+            spool.remove(id);
+        }
         Ok(outcome)
     }
 
@@ -594,6 +629,9 @@ impl Queue {
             .bind(id)
             .execute(&self.writer)
             .await?;
+        if let Some(spool) = &self.spool {
+            spool.remove(id);
+        }
         Ok(r.rows_affected() > 0)
     }
 
@@ -708,35 +746,29 @@ impl Queue {
         rect: Rect,
         rgb: &[u8],
     ) -> Result<Completion> {
-        let stored: Option<(i64, i64, Option<String>)> = sqlx::query_as(
-            "INSERT INTO tile_pixels (job_id, idx, rgb)
-             SELECT ?1, ?2, ?4 WHERE EXISTS (
-                 SELECT 1 FROM tiles t JOIN jobs j ON j.id = t.job_id
-                 WHERE t.job_id = ?1 AND t.idx = ?2 AND t.lease = ?3 AND t.state = 'leased'
-                   AND t.x = ?5 AND t.y = ?6 AND t.w = ?7 AND t.h = ?8
-                   AND j.state IN ('queued', 'running'))
-             RETURNING (SELECT tiles_done FROM jobs WHERE id = ?1),
-                       (SELECT tiles_total FROM jobs WHERE id = ?1),
-                       (SELECT worker FROM tiles WHERE job_id = ?1 AND idx = ?2)",
-        )
-        .bind(job)
-        .bind(i64::from(idx))
-        .bind(lease)
-        .bind(rgb)
-        .bind(i64::from(rect.x))
-        .bind(i64::from(rect.y))
-        .bind(i64::from(rect.width))
-        .bind(i64::from(rect.height))
-        // To the statement's end, not its first row: SQLite commits an autocommit statement
-        // when it finishes, and a commit that fails (a full disk) must be this call's error,
-        // not lost in a reset after the row was taken (the claim was answered with a lease
-        // that was never stored).
-        .fetch_all(&self.writer)
-        .await?
-        .into_iter()
-        .next();
+        // Spooled, the pixels are written first (see `spool.rs`) and the row gets their CRC;
+        // a rectangle outside the job's image, or a job that does not exist, stores nothing.
+        let (blob, crc): (&[u8], Option<i64>) = match &self.spool {
+            None => (rgb, None),
+            Some(spool) => match self.spooled_size(spool, job).await? {
+                None => (&[], None),
+                Some((width, height)) => match spool.write(job, width, height, rect, rgb) {
+                    Ok(crc) => (&[], Some(i64::from(crc))),
+                    Err(SpoolError::Outside { .. }) => (&[], None),
+                    Err(e) => return Err(e.into()),
+                },
+            },
+        };
+        let spooled = self.spool.is_some();
+        let stored: Option<(i64, i64, Option<String>)> = if spooled && crc.is_none() {
+            None
+        } else {
+            self.insert_result(job, idx, lease, rect, blob, crc).await?
+        };
         if let Some((done_before, total, worker)) = stored {
-            self.wrote(rgb.len());
+            if !spooled {
+                self.wrote(rgb.len());
+            }
             // `RETURNING` is computed before the trigger counts this tile (see the migration).
             return Ok(Completion::Stored {
                 last: done_before + 1 == total,
@@ -759,6 +791,62 @@ impl Queue {
                 Completion::WrongTile(tile.rect)
             },
         )
+    }
+
+    /// The image size of job `id`, for its spool file: remembered by the spool once the
+    /// file is open, read from the job's row the first time. `None`: no such job, or it
+    /// has ended (nothing of it is written any more).
+    async fn spooled_size(&self, spool: &Spool, id: &str) -> Result<Option<(u32, u32)>> {
+        if let Some(size) = spool.size_of(id) {
+            return Ok(Some(size));
+        }
+        let row: Option<(i64, i64)> = sqlx::query_as(
+            "SELECT width, height FROM jobs WHERE id = ?1 AND state IN ('queued', 'running')",
+        )
+        .bind(id)
+        .fetch_optional(&self.pool)
+        .await?;
+        Ok(row.map(|(w, h)| (w as u32, h as u32)))
+    }
+
+    /// The result's one statement: see [`Queue::complete`].
+    async fn insert_result(
+        &self,
+        job: &str,
+        idx: u32,
+        lease: &str,
+        rect: Rect,
+        blob: &[u8],
+        crc: Option<i64>,
+    ) -> Result<Option<(i64, i64, Option<String>)>> {
+        Ok(sqlx::query_as(
+            "INSERT INTO tile_pixels (job_id, idx, rgb, crc)
+             SELECT ?1, ?2, ?4, ?9 WHERE EXISTS (
+                 SELECT 1 FROM tiles t JOIN jobs j ON j.id = t.job_id
+                 WHERE t.job_id = ?1 AND t.idx = ?2 AND t.lease = ?3 AND t.state = 'leased'
+                   AND t.x = ?5 AND t.y = ?6 AND t.w = ?7 AND t.h = ?8
+                   AND j.state IN ('queued', 'running'))
+             RETURNING (SELECT tiles_done FROM jobs WHERE id = ?1),
+                       (SELECT tiles_total FROM jobs WHERE id = ?1),
+                       (SELECT worker FROM tiles WHERE job_id = ?1 AND idx = ?2)",
+        )
+        .bind(job)
+        .bind(i64::from(idx))
+        .bind(lease)
+        .bind(blob)
+        .bind(i64::from(rect.x))
+        .bind(i64::from(rect.y))
+        .bind(i64::from(rect.width))
+        .bind(i64::from(rect.height))
+        .bind(crc)
+        // To the statement's end, not its first row: SQLite commits an autocommit statement
+        // when it finishes, and a commit that fails (a full disk) must be this call's error,
+        // not lost in a reset after the row was taken (the claim was answered with a lease
+        // that was never stored).
+        .fetch_all(&self.writer)
+        .await?
+        .into_iter()
+        .next())
     }
 
     /// A worker reports that it cannot render a tile: requeue it with one more failure,
@@ -1043,6 +1131,26 @@ impl Queue {
         )
     }
 
+    /// Deletes the spool files of jobs that have ended or were deleted (see
+    /// [`Spool::sweep`]); returns how many. A finished image's file goes at once; this
+    /// catches the rest (cancelled and failed jobs, deletions, a crash).
+    pub async fn sweep_spool(&self) -> Result<usize> {
+        let Some(spool) = &self.spool else {
+            return Ok(0);
+        };
+        let listing = spool.listing()?;
+        if listing.is_empty() {
+            return Ok(0);
+        }
+        let active = self.active_jobs().await?;
+        Ok(spool.sweep(&listing, &active))
+    }
+
+    /// The spool's folder; `None` for an in-memory database.
+    pub fn spool_dir(&self) -> Option<&std::path::Path> {
+        self.spool.as_deref().map(Spool::dir)
+    }
+
     /// Jobs whose tiles are all in but whose image is not yet assembled (after a restart).
     pub async fn unassembled(&self) -> Result<Vec<String>> {
         Ok(sqlx::query_scalar(
@@ -1095,13 +1203,17 @@ impl Queue {
     /// with `(x, w, h, rgb)` for every tile of the band that is stored.
     ///
     /// The rows come in `idx` order from the `tiles_by_band` index (migration 0003), which
-    /// within a band is left to right, so SQLite sorts nothing; and `rgb` is borrowed from
-    /// the fetched row rather than copied out of it.
+    /// within a band is left to right, so SQLite sorts nothing. A spooled tile's pixels are
+    /// read from the job's spool file into one buffer reused across the band and checked
+    /// against the row's CRC; pixels kept in the row (an in-memory database, rows from
+    /// before migration 0011) are borrowed from it rather than copied out.
     ///
-    /// Read on the writing connection: it has just written these tiles and still holds
-    /// their pages in its cache, where a reading connection would fetch every page again
-    /// from the WAL file (about 1,500 `pread`s for a 1920×1080 job). A band is one short
-    /// read, taken in turn with the results and claims.
+    /// Tiles whose spooled pixels are missing or do not match are lost: they are queued
+    /// again ([`Queue::requeue_lost`]) and the call fails with [`QueueError::Lost`], having
+    /// handed `each` the band's other tiles (the caller drops the band).
+    ///
+    /// Read on the writing connection, taken in turn with the results and claims: a band
+    /// is one short read, and the rows of pixels kept in SQLite are still in its cache.
     pub async fn band(
         &self,
         id: &str,
@@ -1113,12 +1225,78 @@ impl Queue {
             .bind(i64::from(y))
             .fetch_all(&self.writer)
             .await?;
+        let mut spooled = Vec::new();
+        let mut lost = Vec::new();
         for row in &rows {
             let (x, w, h): (i64, i64, i64) = (row.try_get(0)?, row.try_get(1)?, row.try_get(2)?);
-            let rgb: &[u8] = row.try_get(3)?;
-            each(x as u32, w as u32, h as u32, rgb);
+            let (x, w, h) = (x as u32, w as u32, h as u32);
+            let crc: Option<i64> = row.try_get(4)?;
+            match (crc, &self.spool) {
+                (Some(crc), Some(spool)) => {
+                    let size = self.spooled_size(spool, id).await?;
+                    let tile = Rect::new(x, y, w, h);
+                    let read = match size {
+                        Some((width, height)) => {
+                            spool.read(id, width, height, tile, crc as u32, &mut spooled)?
+                        }
+                        None => false,
+                    };
+                    if read {
+                        each(x, w, h, &spooled);
+                    } else {
+                        lost.push(row.try_get::<i64, _>(5)?);
+                    }
+                }
+                // A spooled row read without a spool (the database moved to memory: cannot
+                // happen, an in-memory database is new) is lost like a missing file.
+                (Some(_), None) => lost.push(row.try_get::<i64, _>(5)?),
+                (None, _) => each(x, w, h, row.try_get(3)?),
+            }
+        }
+        if !lost.is_empty() {
+            let tiles = self.requeue_lost(id, &lost).await?;
+            tracing::warn!(job = %id, y, tiles, "tile pixels lost from the spool: rendering them again");
+            return Err(QueueError::Lost {
+                job: id.to_string(),
+                tiles: lost.len(),
+            });
         }
         Ok(())
+    }
+
+    /// Hands out again the done tiles `idxs` of an active job whose pixels were lost: their
+    /// rows go, the tiles are queued (no failure is counted: no worker did anything wrong)
+    /// and the job counts them as not done. Returns how many tiles were requeued.
+    pub async fn requeue_lost(&self, id: &str, idxs: &[i64]) -> Result<u64> {
+        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
+        let mut requeued = 0;
+        for &idx in idxs {
+            let r = sqlx::query(
+                "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL,
+                        lease_expires = NULL, rendering = 0
+                 WHERE job_id = ?1 AND idx = ?2 AND state = 'done'
+                   AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
+            )
+            .bind(id)
+            .bind(idx)
+            .execute(&mut *tx)
+            .await?;
+            if r.rows_affected() == 1 {
+                sqlx::query("DELETE FROM tile_pixels WHERE job_id = ?1 AND idx = ?2")
+                    .bind(id)
+                    .bind(idx)
+                    .execute(&mut *tx)
+                    .await?;
+                requeued += 1;
+            }
+        }
+        sqlx::query("UPDATE jobs SET tiles_done = tiles_done - ?2 WHERE id = ?1")
+            .bind(id)
+            .bind(requeued as i64)
+            .execute(&mut *tx)
+            .await?;
+        tx.commit().await?;
+        Ok(requeued)
     }
 
     pub async fn clear_image(&self, id: &str) -> Result<()> {
@@ -1189,6 +1367,9 @@ impl Queue {
             .execute(&mut *tx)
             .await?;
         tx.commit().await?;
+        if let Some(spool) = &self.spool {
+            spool.remove(id);
+        }
         Ok(done)
     }
 

@@ -614,10 +614,11 @@ async fn a_band_reads_back_its_stored_tiles_left_to_right() {
     assert!(band(&q, "b", 4).await.is_empty(), "no band starts at row 4");
 }
 
-/// Tile pixels past the threshold start a checkpoint off the writer, which copies the pages
-/// committed before it from the WAL into the database file.
+/// Image chunks past the threshold start a checkpoint off the writer, which copies the
+/// pages committed before it from the WAL into the database file. (Tile pixels no longer
+/// pass through SQLite: see the spool tests below.)
 #[tokio::test]
-async fn stored_pixels_past_the_threshold_are_checkpointed_in_the_background() {
+async fn stored_bytes_past_the_threshold_are_checkpointed_in_the_background() {
     let db = Db::new("checkpoint");
     const EVERY: usize = 100_000;
     let q = Queue::open(&db.url())
@@ -625,23 +626,19 @@ async fn stored_pixels_past_the_threshold_are_checkpointed_in_the_background() {
         .expect("open")
         .checkpoint_every(EVERY as u64);
     let mut finished = q.checkpoints().expect("a database file has a WAL");
-    job(&q, "c", 256, 256, 64).await; // 16 tiles of 12,288 bytes
+    job(&q, "c", 256, 256, 64).await;
     let file = std::fs::metadata(db.0.join("q.db"))
         .expect("database file")
         .len();
     assert!(file < 100_000, "a new database file is small: {file} bytes");
+    let piece = vec![7u8; 12_288];
     let mut stored = 0;
-    while let Some(c) = q.claim("w", 0, 60_000, 1).await.expect("claim") {
+    for seq in 0..16 {
         if stored < EVERY {
             assert_eq!(*finished.borrow(), 0, "checkpointed before the threshold");
         }
-        let rgb = pixels(c.rect());
-        let done = q
-            .complete("c", c.idx, &c.lease, c.rect(), &rgb)
-            .await
-            .expect("complete");
-        assert!(matches!(done, Completion::Stored { .. }));
-        stored += rgb.len();
+        q.put_image_chunk("c", seq, &piece).await.expect("chunk");
+        stored += piece.len();
     }
     assert!(stored > EVERY);
     // A timeout only turns a checkpoint that never comes into a failure.
@@ -653,21 +650,175 @@ async fn stored_pixels_past_the_threshold_are_checkpointed_in_the_background() {
     .expect("a checkpoint within a minute")
     .expect("the queue is alive");
     // Until a checkpoint, committed pages live in the WAL only; the database file holds the
-    // pixels once they are copied into it.
+    // bytes once they are copied into it.
     let file = std::fs::metadata(db.0.join("q.db"))
         .expect("database file")
         .len();
     assert!(
         file as usize > stored,
-        "the pixels' pages are in the database file: {file} bytes after {stored} of pixels"
+        "the chunks' pages are in the database file: {file} bytes after {stored} of chunks"
     );
     let wal = q.checkpoint().await.expect("checkpoint").expect("a WAL");
     assert_eq!(wal.copied, wal.log, "every page is in the database file");
-    assert_eq!(band(&q, "c", 192).await.len(), 4, "the pixels read back");
+    assert_eq!(
+        q.image_chunks("c").await.expect("count"),
+        16,
+        "the chunks read back"
+    );
 
     let memory = Queue::open("sqlite::memory:").await.expect("open");
     assert!(memory.checkpoints().is_none());
     assert_eq!(memory.checkpoint().await.expect("no error"), None);
+}
+
+/// Tile pixels wait in the job's spool file, laid out as the image, not in SQLite; a band
+/// reads them back, and the file goes when the image is stored.
+#[tokio::test]
+async fn tile_pixels_wait_in_the_spool_not_in_sqlite() {
+    let db = Db::new("spool");
+    let q = Queue::open(&db.url()).await.expect("open");
+    let dir = q
+        .spool_dir()
+        .expect("a database file has a spool")
+        .to_path_buf();
+    assert_eq!(dir, db.0.join("q.db-tiles"));
+    let (w, h) = (300u32, 200u32);
+    let rects = job(&q, "s", w, h, 64).await;
+    let mut claims = Vec::new();
+    while let Some(c) = q.claim("w", 0, 60_000, 1).await.expect("claim") {
+        claims.push(c);
+    }
+    let mut last = 0;
+    for c in &claims {
+        match q
+            .complete("s", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .await
+            .expect("complete")
+        {
+            Completion::Stored { last: true, .. } => last += 1,
+            Completion::Stored { .. } => {}
+            other => panic!("not stored: {other:?}"),
+        }
+    }
+    assert_eq!(last, 1);
+    let pixels = 3 * u64::from(w * h);
+    let pool = sqlx::SqlitePool::connect(&db.url()).await.expect("open");
+    let (rows, blob_bytes, with_crc): (i64, i64, i64) = sqlx::query_as(
+        "SELECT COUNT(*), SUM(LENGTH(rgb)), COUNT(crc) FROM tile_pixels WHERE job_id = 's'",
+    )
+    .fetch_one(&pool)
+    .await
+    .expect("read");
+    pool.close().await;
+    assert_eq!(
+        (rows, blob_bytes, with_crc),
+        (claims.len() as i64, 0, claims.len() as i64)
+    );
+    let spooled = std::fs::metadata(dir.join("s.rgb"))
+        .expect("spool file")
+        .len();
+    assert_eq!(spooled, pixels, "the file is the image's size");
+    for y in (0..h).step_by(64) {
+        let expected: Vec<_> = rects
+            .iter()
+            .filter(|r| r.y == y)
+            .map(|r| (r.x, r.width, r.height, tile_rgb(*r)))
+            .collect();
+        assert_eq!(band(&q, "s", y).await, expected, "band {y}");
+    }
+    assert!(q.finish_image("s", 1, 0).await.expect("finish"));
+    assert!(
+        !dir.join("s.rgb").exists(),
+        "the file goes with the image stored"
+    );
+}
+
+/// Pixels that do not match their row when a band reads them (a crash between the file and
+/// the commit, a deleted file, someone else's bytes) are never encoded: the tiles are queued
+/// again, uncharged, and the band reads once they are rendered again.
+#[tokio::test]
+async fn lost_pixels_send_their_tiles_back_to_the_queue() {
+    let db = Db::new("spool-lost");
+    let q = Queue::open(&db.url()).await.expect("open");
+    let dir = q.spool_dir().expect("spool").to_path_buf();
+    let rects = job(&q, "l", 40, 16, 8).await; // 5 × 2 tiles
+    let mut claims = Vec::new();
+    while let Some(c) = q.claim("w", 0, 60_000, 1).await.expect("claim") {
+        claims.push(c);
+    }
+    for c in &claims {
+        let stored = q
+            .complete("l", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .await
+            .expect("complete");
+        assert!(matches!(stored, Completion::Stored { .. }));
+    }
+    // One byte of the second tile changed in the file.
+    let (at, _) = tessera_service::spool::slot(40, 16, rects[1]).expect("slot");
+    let mut bytes = std::fs::read(dir.join("l.rgb")).expect("file");
+    bytes[at as usize + 5] ^= 1;
+    std::fs::write(dir.join("l.rgb"), &bytes).expect("write");
+    let mut seen = 0;
+    let err = q
+        .band("l", 0, |_, _, _, _| seen += 1)
+        .await
+        .expect_err("a lost tile fails the band");
+    assert!(err.to_string().contains("rendered again"), "{err}");
+    let job = q.job("l").await.expect("job").expect("exists");
+    assert_eq!(job.tiles_done, 9, "the lost tile is not done");
+    assert!(q.unassembled().await.expect("list").is_empty());
+    // Handed out again, uncharged, and stored again.
+    let again = q
+        .claim("v", 0, 60_000, 1)
+        .await
+        .expect("claim")
+        .expect("a tile");
+    assert_eq!((again.idx, again.rect()), (1, rects[1]));
+    assert_eq!(failures(&db, "l").await, vec![0; 10]);
+    let stored = q
+        .complete("l", 1, &again.lease, again.rect(), &tile_rgb(again.rect()))
+        .await
+        .expect("complete");
+    assert!(matches!(stored, Completion::Stored { last: true, .. }));
+    assert_eq!(band(&q, "l", 0).await.len(), 5);
+    // A deleted file (seen by a service started afresh: this one still has it open) loses
+    // every tile of the band.
+    std::fs::remove_file(dir.join("l.rgb")).expect("delete");
+    let q = Queue::open(&db.url()).await.expect("open again");
+    assert!(q.band("l", 8, |_, _, _, _| {}).await.is_err());
+    let job = q.job("l").await.expect("job").expect("exists");
+    assert_eq!(job.tiles_done, 5);
+}
+
+/// The files of jobs that ended without an image or were deleted are swept; an active
+/// job's file is kept.
+#[tokio::test]
+async fn ended_jobs_spool_files_are_swept() {
+    let db = Db::new("spool-sweep");
+    let q = Queue::open(&db.url()).await.expect("open");
+    let dir = q.spool_dir().expect("spool").to_path_buf();
+    for id in ["a", "b"] {
+        job(&q, id, 16, 16, 16).await;
+        let c = q
+            .claim("w", 0, 60_000, 1)
+            .await
+            .expect("claim")
+            .expect("tile");
+        // One 16×16 tile per job: storing it would be the job's last; a second tile is not
+        // needed, the file exists once written.
+        let _ = q
+            .complete(id, c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .await
+            .expect("complete");
+    }
+    assert!(dir.join("a.rgb").exists() && dir.join("b.rgb").exists());
+    // A file left by a job that no longer exists (a crash between its deletion and the
+    // file's), and job `b` ended.
+    std::fs::write(dir.join("gone.rgb"), b"x").expect("write");
+    q.fail_job("b", "test", 0).await.expect("fail");
+    assert_eq!(q.sweep_spool().await.expect("sweep"), 2);
+    assert!(dir.join("a.rgb").exists(), "an active job's file is kept");
+    assert!(!dir.join("b.rgb").exists() && !dir.join("gone.rgb").exists());
 }
 
 /// A submission's scene and textures count towards the next checkpoint as tile pixels do:
@@ -1096,4 +1247,107 @@ async fn the_png_is_stored_in_chunks_of_one_size() {
         q.job("j").await.expect("read").expect("job").png_bytes,
         Some(whole.len() as i64)
     );
+}
+
+/// A tile whose spooled pixels are lost is rendered again wherever the loss is found,
+/// while encoding ahead or at the end, and the job's PNG is still the whole image's.
+#[tokio::test]
+async fn a_job_whose_pixels_are_lost_still_gives_the_whole_images_png() {
+    use tessera_service::assemble::Progress;
+    let (w, h) = (32, 16); // two bands of four 8-pixel tiles
+    let whole = tessera_tracer::encode_png(w, h, &tile_rgb(Rect::new(0, 0, w, h))).expect("png");
+    let db = Db::new("spool-assemble");
+    let q = Queue::open(&db.url()).await.expect("open");
+    let file = q.spool_dir().expect("spool").join("j.rgb");
+    let progress = Progress::default();
+    let rects = tiles(w, h, 8);
+    progress.follow("j", w, h, &rects);
+    job(&q, "j", w, h, 8).await;
+    let corrupt = |r: Rect| {
+        let (at, _) = tessera_service::spool::slot(w, h, r).expect("slot");
+        let mut bytes = std::fs::read(&file).expect("file");
+        bytes[at as usize] ^= 0x80;
+        std::fs::write(&file, &bytes).expect("write");
+    };
+    let store = async |c: &tessera_worker::protocol::Claim| {
+        q.complete("j", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .await
+            .expect("complete")
+    };
+    // The first band but its last tile, one of them corrupted, then its last tile: the band
+    // is complete, and encoding it ahead finds the loss.
+    let mut first: Vec<_> = Vec::new();
+    for _ in 0..4 {
+        first.push(
+            q.claim("w", 0, 60_000, 4)
+                .await
+                .expect("claim")
+                .expect("tile"),
+        );
+    }
+    for c in &first[..3] {
+        assert!(matches!(
+            store(c).await,
+            Completion::Stored { last: false, .. }
+        ));
+        assert!(!progress.stored("j", c.rect()));
+    }
+    corrupt(first[1].rect());
+    assert!(matches!(
+        store(&first[3]).await,
+        Completion::Stored { last: false, .. }
+    ));
+    assert!(
+        progress.stored("j", first[3].rect()),
+        "the band is complete"
+    );
+    assert!(progress.advance(&q, "j").await, "the loss is reported");
+    assert_eq!(q.job("j").await.expect("read").expect("job").tiles_done, 3);
+    // The rest: the lost tile comes back first (lowest index), then the second band; the
+    // last of them is corrupted just before it completes the job.
+    let mut rest = Vec::new();
+    while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
+        rest.push(c);
+    }
+    assert_eq!(
+        rest[0].rect(),
+        first[1].rect(),
+        "the lost tile is handed out again"
+    );
+    assert_eq!(rest.len(), 5);
+    for c in &rest[..4] {
+        assert!(matches!(
+            store(c).await,
+            Completion::Stored { last: false, .. }
+        ));
+    }
+    corrupt(rest[2].rect());
+    assert!(matches!(
+        store(&rest[4]).await,
+        Completion::Stored { last: true, .. }
+    ));
+    let err = progress
+        .complete(&q, "j")
+        .await
+        .expect_err("a tile was lost");
+    assert!(err.requeued(), "{err}");
+    assert_ne!(
+        q.job("j").await.expect("read").expect("job").state,
+        "failed"
+    );
+    // Rendered again, it is the job's last tile once more and the image assembles.
+    let again = q
+        .claim("w", 0, 60_000, 4)
+        .await
+        .expect("claim")
+        .expect("tile");
+    assert_eq!(again.rect(), rest[2].rect());
+    assert!(matches!(
+        store(&again).await,
+        Completion::Stored { last: true, .. }
+    ));
+    progress.complete(&q, "j").await.expect("assembled");
+    assert_eq!(q.job("j").await.expect("read").expect("job").state, "done");
+    assert_eq!(png_of(&q, "j").await, whole);
+    assert!(!file.exists());
 }

@@ -1,0 +1,377 @@
+//! Tile pixels on their way from a worker's result to their band of the PNG: one file per
+//! job beside the database (`<database>-tiles/<job>.rgb`), instead of SQLite pages.
+//!
+//! Why: a tile's pixels are written once and read once, by the band that encodes them. In
+//! SQLite they were copied into a record, written to the WAL a page at a time, checkpointed
+//! into the database file, read back, and their pages freed and reused: about half of the
+//! service's own CPU on a 1920×1080 job at one ray per pixel (`perf`, PERFORMANCE.md). Here
+//! they are one `pwrite` and one `pread` of the page cache.
+//!
+//! What it is not: the record of which tiles are done. The queue's `tile_pixels` rows are
+//! (see `queue.rs`); a row of a spooled tile holds no pixels but the CRC-32 of its bytes.
+//! Bytes that do not match their row when read, or cannot be read at all, are a lost tile:
+//! the queue hands it out again rather than encode them. That happens when
+//! - the machine stopped after SQLite's commit reached the disk but before the file's page
+//!   did (neither is `fsync`ed per tile; SQLite's WAL with `synchronous = NORMAL` makes
+//!   the same trade for its own pages);
+//! - someone deleted or truncated the file;
+//! - a client posted pixels for a rectangle of the image that is not its tile (the bytes
+//!   are written before the lease is checked, see below).
+//!
+//! The layout is the image's own bytes, tile by tile. A band of tiles with top row `y` and
+//! height `h` begins at byte `3·y·width`; in it, the tile at column `x` (width `w`) takes
+//! the `3·w·h` bytes from `3·(y·width + x·h)`. The tiler cuts every image into such bands
+//! (all tiles of a band share its height), so the slots of a job's tiles are disjoint and
+//! fill the file exactly: the file never outgrows `3·width·height` bytes, however often a
+//! tile is rendered again, and no allocation needs remembering across a restart. A
+//! rectangle outside the image has no slot and is never written.
+//!
+//! The bytes are written before the queue's statement checks the lease, so that a stored
+//! row always points at bytes already in the page cache and the result stays one round
+//! trip to SQLite. A stale worker's late result is therefore written over its tile's slot:
+//! rendering is deterministic, so those are the same bytes (and should they differ, the
+//! CRC says so and the tile is rendered again). Nothing in this module decides what is
+//! current; it only moves bytes.
+
+use std::collections::{HashMap, HashSet};
+use std::fs::{File, OpenOptions};
+use std::io;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, PoisonError};
+
+use tessera_tracer::Rect;
+
+/// The spool folder of a database file: `<file>-tiles`, beside SQLite's `-wal` and `-shm`.
+pub fn folder_for(database: &Path) -> PathBuf {
+    let mut name = database.as_os_str().to_owned();
+    name.push("-tiles");
+    PathBuf::from(name)
+}
+
+/// Where a tile's bytes go in its job's file: `(offset, length)`, or `None` for a rectangle
+/// that is empty or not inside a `width × height` image. See the module comment.
+pub fn slot(width: u32, height: u32, tile: Rect) -> Option<(u64, usize)> {
+    let inside = tile.width > 0
+        && tile.height > 0
+        && u64::from(tile.x) + u64::from(tile.width) <= u64::from(width)
+        && u64::from(tile.y) + u64::from(tile.height) <= u64::from(height);
+    if !inside {
+        return None;
+    }
+    let (w, x, y) = (u64::from(width), u64::from(tile.x), u64::from(tile.y));
+    let offset = 3 * (y * w + x * u64::from(tile.height));
+    let len = 3 * u64::from(tile.width) * u64::from(tile.height);
+    Some((offset, usize::try_from(len).ok()?))
+}
+
+#[cfg(unix)]
+fn write_at(file: &File, buf: &[u8], offset: u64) -> io::Result<()> {
+    std::os::unix::fs::FileExt::write_all_at(file, buf, offset)
+}
+
+#[cfg(unix)]
+fn read_at(file: &File, buf: &mut [u8], offset: u64) -> io::Result<()> {
+    std::os::unix::fs::FileExt::read_exact_at(file, buf, offset)
+}
+
+// Elsewhere, positioned writes move the file's cursor: one at a time per process.
+#[cfg(not(unix))]
+static CURSOR: Mutex<()> = Mutex::new(());
+
+#[cfg(not(unix))]
+fn write_at(mut file: &File, buf: &[u8], offset: u64) -> io::Result<()> {
+    use std::io::{Seek, SeekFrom, Write};
+    let _one = CURSOR.lock().unwrap_or_else(PoisonError::into_inner);
+    file.seek(SeekFrom::Start(offset))?;
+    file.write_all(buf)
+}
+
+#[cfg(not(unix))]
+fn read_at(mut file: &File, buf: &mut [u8], offset: u64) -> io::Result<()> {
+    use std::io::{Read, Seek, SeekFrom};
+    let _one = CURSOR.lock().unwrap_or_else(PoisonError::into_inner);
+    file.seek(SeekFrom::Start(offset))?;
+    file.read_exact(buf)
+}
+
+/// One job's open file and the size of its image.
+#[derive(Debug)]
+struct JobFile {
+    file: File,
+    width: u32,
+    height: u32,
+}
+
+/// The spool folder, with the files of the jobs it has written or read open.
+#[derive(Debug)]
+pub struct Spool {
+    dir: PathBuf,
+    open: Mutex<HashMap<String, Arc<JobFile>>>,
+}
+
+/// Why a spooled tile could not be used.
+#[derive(Debug, thiserror::Error)]
+pub enum SpoolError {
+    #[error("tile {tile:?} is not inside the {width}×{height} image")]
+    Outside { tile: Rect, width: u32, height: u32 },
+    #[error("tile spool {path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: io::Error,
+    },
+}
+
+impl Spool {
+    /// Opens (creating if missing) the spool folder `dir`.
+    pub fn open(dir: PathBuf) -> Result<Spool, SpoolError> {
+        std::fs::create_dir_all(&dir).map_err(|source| SpoolError::Io {
+            path: dir.clone(),
+            source,
+        })?;
+        Ok(Spool {
+            dir,
+            open: Mutex::new(HashMap::new()),
+        })
+    }
+
+    /// The folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// The file of job `id`. Job ids are the service's own (hexadecimal); any other byte is
+    /// written as `%XX`, so that no id can name a path outside the folder.
+    pub fn path(&self, id: &str) -> PathBuf {
+        let mut name = String::with_capacity(id.len() + 4);
+        for b in id.bytes() {
+            if b.is_ascii_alphanumeric() || b == b'_' || b == b'-' {
+                name.push(char::from(b));
+            } else {
+                name.push_str(&format!("%{b:02X}"));
+            }
+        }
+        name.push_str(".rgb");
+        self.dir.join(name)
+    }
+
+    fn io(&self, id: &str) -> impl FnOnce(io::Error) -> SpoolError + '_ {
+        let path = self.path(id);
+        move |source| SpoolError::Io { path, source }
+    }
+
+    /// Whether job `id`'s file is open here, with its image size.
+    pub fn size_of(&self, id: &str) -> Option<(u32, u32)> {
+        let open = self.open.lock().unwrap_or_else(PoisonError::into_inner);
+        open.get(id).map(|f| (f.width, f.height))
+    }
+
+    /// Job `id`'s file, opened (and created) for a `width × height` image if it is not open.
+    fn job(&self, id: &str, width: u32, height: u32) -> Result<Arc<JobFile>, SpoolError> {
+        let mut open = self.open.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(f) = open.get(id) {
+            return Ok(f.clone());
+        }
+        let file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(self.path(id))
+            .map_err(self.io(id))?;
+        let f = Arc::new(JobFile {
+            file,
+            width,
+            height,
+        });
+        open.insert(id.to_string(), f.clone());
+        Ok(f)
+    }
+
+    /// Writes a tile's bytes into its slot of job `id`'s file (a `width × height` image) and
+    /// returns their CRC-32.
+    pub fn write(
+        &self,
+        id: &str,
+        width: u32,
+        height: u32,
+        tile: Rect,
+        rgb: &[u8],
+    ) -> Result<u32, SpoolError> {
+        let outside = SpoolError::Outside {
+            tile,
+            width,
+            height,
+        };
+        let Some((offset, len)) = slot(width, height, tile) else {
+            return Err(outside);
+        };
+        if len != rgb.len() {
+            return Err(outside);
+        }
+        let f = self.job(id, width, height)?;
+        write_at(&f.file, rgb, offset).map_err(self.io(id))?;
+        Ok(crc32fast::hash(rgb))
+    }
+
+    /// Reads a tile's bytes from job `id`'s file into `buf` and checks them against `crc`:
+    /// false when they do not match or are not there (a lost tile: see the module comment).
+    pub fn read(
+        &self,
+        id: &str,
+        width: u32,
+        height: u32,
+        tile: Rect,
+        crc: u32,
+        buf: &mut Vec<u8>,
+    ) -> Result<bool, SpoolError> {
+        let Some((offset, len)) = slot(width, height, tile) else {
+            return Ok(false);
+        };
+        let f = self.job(id, width, height)?;
+        buf.clear();
+        buf.resize(len, 0);
+        match read_at(&f.file, buf, offset) {
+            Ok(()) => Ok(crc32fast::hash(buf) == crc),
+            // Shorter than the slot: never written, or truncated.
+            Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => Ok(false),
+            Err(e) => Err(self.io(id)(e)),
+        }
+    }
+
+    /// Deletes job `id`'s file (its image is stored, or it ended without one).
+    pub fn remove(&self, id: &str) {
+        self.open
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .remove(id);
+        match std::fs::remove_file(self.path(id)) {
+            Ok(()) => {}
+            Err(e) if e.kind() == io::ErrorKind::NotFound => {}
+            Err(e) => tracing::warn!("removing {}: {e}", self.path(id).display()),
+        }
+    }
+
+    /// The files in the folder now, as paths.
+    pub fn listing(&self) -> Result<Vec<PathBuf>, SpoolError> {
+        let entries = std::fs::read_dir(&self.dir).map_err(|source| SpoolError::Io {
+            path: self.dir.clone(),
+            source,
+        })?;
+        Ok(entries
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "rgb"))
+            .collect())
+    }
+
+    /// Deletes the files of `listing` (taken before `active` was read) that belong to no job
+    /// of `active`: jobs that ended since, or were deleted. A job submitted after the
+    /// listing is not in it, so its file is safe however late `active` was read. Returns how
+    /// many files it deleted.
+    pub fn sweep(&self, listing: &[PathBuf], active: &[String]) -> usize {
+        let keep: HashSet<PathBuf> = active.iter().map(|id| self.path(id)).collect();
+        let mut removed = 0;
+        let mut open = self.open.lock().unwrap_or_else(PoisonError::into_inner);
+        open.retain(|id, _| keep.contains(&self.path(id)));
+        drop(open);
+        for path in listing.iter().filter(|p| !keep.contains(*p)) {
+            match std::fs::remove_file(path) {
+                Ok(()) => removed += 1,
+                Err(e) if e.kind() == io::ErrorKind::NotFound => {}
+                Err(e) => tracing::warn!("removing {}: {e}", path.display()),
+            }
+        }
+        removed
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The tiler's tiles of an image, for the layout's checks.
+    fn tiles(width: u32, height: u32, edge: u32) -> Vec<Rect> {
+        tessera_tracer::tiles(width, height, edge)
+    }
+
+    #[test]
+    fn the_slots_of_any_tiling_are_disjoint_and_fill_the_image_exactly() {
+        for (width, height, edge) in [
+            (1, 1, 1),
+            (7, 5, 3),
+            (64, 64, 64),
+            (65, 63, 16),
+            (1920, 1080, 256),
+            (1921, 1079, 100),
+            (3, 1000, 7),
+        ] {
+            let mut spans: Vec<(u64, u64)> = tiles(width, height, edge)
+                .into_iter()
+                .map(|t| {
+                    let (at, len) = slot(width, height, t).expect("a tile is inside its image");
+                    (at, at + len as u64)
+                })
+                .collect();
+            spans.sort_unstable();
+            // Independent of the formula: sorted spans must abut from 0 to the image's size.
+            let mut end = 0;
+            for (at, to) in spans {
+                assert_eq!(at, end, "{width}×{height} by {edge}: gap or overlap");
+                end = to;
+            }
+            assert_eq!(end, 3 * u64::from(width) * u64::from(height));
+        }
+    }
+
+    #[test]
+    fn rectangles_outside_the_image_have_no_slot() {
+        assert_eq!(slot(10, 10, Rect::new(0, 0, 0, 4)), None);
+        assert_eq!(slot(10, 10, Rect::new(8, 0, 3, 4)), None);
+        assert_eq!(slot(10, 10, Rect::new(0, 9, 2, 2)), None);
+        assert_eq!(slot(10, 10, Rect::new(u32::MAX, 0, 1, 1)), None);
+        assert!(slot(10, 10, Rect::new(8, 8, 2, 2)).is_some());
+    }
+
+    #[test]
+    fn ids_cannot_name_a_path_outside_the_folder() {
+        let dir = std::env::temp_dir().join(format!("spool-ids-{}", std::process::id()));
+        let spool = Spool::open(dir.clone()).expect("folder");
+        for id in ["../x", "a/b", "..", "", "ab%2F"] {
+            let p = spool.path(id);
+            assert_eq!(p.parent(), Some(dir.as_path()), "{id}: {}", p.display());
+        }
+        assert_ne!(spool.path("a/b"), spool.path("a%2Fb"));
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[test]
+    fn bytes_read_back_are_checked_against_their_crc() {
+        let dir = std::env::temp_dir().join(format!("spool-crc-{}", std::process::id()));
+        let spool = Spool::open(dir.clone()).expect("folder");
+        let tile = Rect::new(2, 0, 2, 3);
+        let rgb: Vec<u8> = (0..18).collect();
+        let crc = spool.write("j", 4, 3, tile, &rgb).expect("written");
+        let mut buf = Vec::new();
+        assert!(spool.read("j", 4, 3, tile, crc, &mut buf).expect("read"));
+        assert_eq!(buf, rgb);
+        // A wrong CRC, a tile never written (the file is shorter than its slot), a changed
+        // byte and a deleted file are all lost tiles, not errors.
+        assert!(
+            !spool
+                .read("j", 4, 3, tile, crc ^ 1, &mut buf)
+                .expect("read")
+        );
+        let other = Rect::new(0, 0, 2, 3);
+        assert!(!spool.read("j", 4, 3, other, crc, &mut buf).expect("read"));
+        let f = OpenOptions::new()
+            .write(true)
+            .open(spool.path("j"))
+            .expect("file");
+        write_at(&f, &[255], 3 * 2 * 3 + 5).expect("write");
+        assert!(!spool.read("j", 4, 3, tile, crc, &mut buf).expect("read"));
+        spool.remove("j");
+        assert!(!spool.read("j", 4, 3, tile, crc, &mut buf).expect("read"));
+        assert!(spool.write("j", 4, 3, Rect::new(3, 0, 2, 3), &rgb).is_err());
+        let _ = std::fs::remove_dir_all(dir);
+    }
+}
