@@ -24,10 +24,14 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use serde::Serialize;
-use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
-use sqlx::{Row, SqlitePool};
+use sqlx::pool::PoolConnection;
+use sqlx::sqlite::{
+    SqliteConnectOptions, SqliteConnection, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous,
+};
+use sqlx::{Connection, Row, Sqlite, SqlitePool};
 use tessera_tracer::Rect;
 use tessera_worker::protocol::{Claim, JobSpec};
+use tokio::sync::{Mutex, MutexGuard};
 
 use crate::spool::{Spool, SpoolError};
 
@@ -207,16 +211,82 @@ pub enum Cancel {
 }
 
 /// The queue over one SQLite database.
+/// How long a statement waits for the writing connection before the queue answers "busy"
+/// (sqlx's pool waited as long).
+const WRITER_WAIT: Duration = Duration::from_secs(30);
+
+/// The one writing connection, held by the queue rather than lent by a pool of one: each
+/// statement takes it in turn (a fair lock: first come, first served, as the pool's
+/// waiters were) and runs on it, and nothing else crosses to SQLite's thread. A pool
+/// `ping`s its connection's thread whenever one is handed back (sqlx does so
+/// unconditionally, in a task of its own), which was a second round trip to that thread,
+/// and a task, for every statement: SQLite's threads switched 210 → 110 times per
+/// 1920×1080 job at one ray per pixel once the connection was held.
+#[derive(Debug)]
+struct Writer {
+    conn: Mutex<SqliteConnection>,
+    /// To open a fresh connection in place of one left inside a transaction.
+    opts: SqliteConnectOptions,
+}
+
+impl Writer {
+    /// The connection, once the statements before have run. A connection still inside a
+    /// transaction is closed and replaced first: a COMMIT that fails (a full disk) leaves
+    /// sqlx counting a transaction that SQLite has already rolled back, and every later
+    /// `BEGIN` on that connection failed ("non-zero transaction depth"), so the queue
+    /// stayed broken after the disk had room again. (A transaction dropped unfinished, its
+    /// request cancelled, may be counted until its rollback has run: the connection is
+    /// then replaced needlessly, which costs an open.)
+    async fn lock(&self) -> Result<MutexGuard<'_, SqliteConnection>> {
+        let mut conn = tokio::time::timeout(WRITER_WAIT, self.conn.lock())
+            .await
+            .map_err(|_| QueueError::Db(sqlx::Error::PoolTimedOut))?;
+        if conn.is_in_transaction() {
+            tracing::warn!("the writing connection was left inside a transaction: reopening it");
+            let fresh = SqliteConnection::connect_with(&self.opts).await?;
+            let stale = std::mem::replace(&mut *conn, fresh);
+            let _ = stale.close_hard().await;
+        }
+        Ok(conn)
+    }
+}
+
+/// A reading connection: one of the pool's, or the writer's for an in-memory database.
+enum Reader<'a> {
+    Pool(PoolConnection<Sqlite>),
+    Writer(MutexGuard<'a, SqliteConnection>),
+}
+
+impl std::ops::Deref for Reader<'_> {
+    type Target = SqliteConnection;
+    fn deref(&self) -> &SqliteConnection {
+        match self {
+            Reader::Pool(c) => c,
+            Reader::Writer(c) => c,
+        }
+    }
+}
+
+impl std::ops::DerefMut for Reader<'_> {
+    fn deref_mut(&mut self) -> &mut SqliteConnection {
+        match self {
+            Reader::Pool(c) => c,
+            Reader::Writer(c) => c,
+        }
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct Queue {
-    /// Readers: several connections, which WAL lets read while the writer writes.
-    pool: SqlitePool,
+    /// Readers: several connections, which WAL lets read while the writer writes; `None`
+    /// for an in-memory database, which exists on the writer's connection only.
+    pool: Option<SqlitePool>,
     /// The one writing connection. SQLite admits one writer at a time; with writers on
     /// several connections, the losers of each race get `SQLITE_BUSY` and sleep in SQLite's
     /// busy handler (1, 2, 5, 10 … ms) even when the winner needs only microseconds, which
     /// under load left workers waiting milliseconds for claims. One connection makes writers
     /// queue in the pool instead, in order, and wake as soon as the connection is free.
-    writer: SqlitePool,
+    writer: Arc<Writer>,
     /// Checkpoints the WAL off the writer; `None` for an in-memory database (no WAL).
     wal: Option<Arc<WalKeeper>>,
     /// Where tile pixels wait for their band (a file per job beside the database); `None`
@@ -340,6 +410,7 @@ impl Queue {
         let in_memory = url.contains(":memory:");
         // Beside the database file, so opened only once that file is (its folder exists).
         let spool_dir = (!in_memory).then(|| crate::spool::folder_for(opts.get_filename()));
+        // The readers' pool (the writer's connection is held: see [`Writer`]).
         let connect = |n: u32, opts: SqliteConnectOptions| {
             SqlitePoolOptions::new()
                 .max_connections(n)
@@ -377,22 +448,32 @@ impl Queue {
             .clone()
             .pragma("cache_size", "-16384")
             .pragma("wal_autocheckpoint", WRITER_CHECKPOINT_PAGES.to_string());
-        let writer = connect(1, writer_opts)
+        // Migrated through a pool of its one connection, which is then taken out of it
+        // (an in-memory database lives on that connection only).
+        let migrating = SqlitePoolOptions::new()
+            .max_connections(1)
+            .connect_with(writer_opts.clone())
             .await
             .map_err(|source| QueueError::Open {
                 url: url.to_string(),
                 source,
             })?;
-        MIGRATOR.run(&writer).await?;
+        MIGRATOR.run(&migrating).await?;
+        let conn = migrating.acquire().await?.detach();
+        migrating.close().await;
+        let writer = Arc::new(Writer {
+            conn: Mutex::new(conn),
+            opts: writer_opts,
+        });
         let spool = match spool_dir {
             Some(dir) => Some(Arc::new(Spool::open(dir)?)),
             None => None,
         };
         // An in-memory database exists once per connection: it has only the writer's.
         let pool = if in_memory {
-            writer.clone()
+            None
         } else {
-            connect(8, opts).await?
+            Some(connect(8, opts).await?)
         };
         let wal = (!in_memory)
             .then(|| WalKeeper::new(CHECKPOINT_EVERY_BYTES, tokio::sync::watch::Sender::new(0)));
@@ -424,10 +505,14 @@ impl Queue {
     }
 
     async fn checkpoint_on(&self, writer: bool) -> Result<Checkpoint> {
-        let conn = if writer { &self.writer } else { &self.pool };
+        let mut conn = if writer {
+            Reader::Writer(self.writer.lock().await?)
+        } else {
+            self.reader().await?
+        };
         let (_busy, log, copied): (i64, i64, i64) =
             sqlx::query_as("PRAGMA wal_checkpoint(PASSIVE)")
-                .fetch_one(conn)
+                .fetch_one(&mut *conn)
                 .await?;
         Ok(Checkpoint { log, copied })
     }
@@ -475,23 +560,37 @@ impl Queue {
         });
     }
 
+    /// A reading connection (see [`Reader`]).
+    async fn reader(&self) -> Result<Reader<'_>> {
+        Ok(match &self.pool {
+            Some(pool) => Reader::Pool(pool.acquire().await?),
+            None => Reader::Writer(self.writer.lock().await?),
+        })
+    }
+
     /// Answers when the database does.
     pub async fn ping(&self) -> Result<()> {
-        sqlx::query("SELECT 1").execute(&self.pool).await?;
+        sqlx::query("SELECT 1")
+            .execute(&mut *self.reader().await?)
+            .await?;
         Ok(())
     }
 
     /// Rewrites the health row on the writing connection: whether the database takes a
     /// write now, within `within` (the writer may be behind a lock held elsewhere).
     pub async fn probe_write(&self, now: i64, within: Duration) -> Result<()> {
-        let write = sqlx::query(
-            "INSERT INTO health (id, checked_at) VALUES (1, ?1)
-             ON CONFLICT (id) DO UPDATE SET checked_at = excluded.checked_at",
-        )
-        .bind(now)
-        .execute(&self.writer);
+        let write = async {
+            sqlx::query(
+                "INSERT INTO health (id, checked_at) VALUES (1, ?1)
+                 ON CONFLICT (id) DO UPDATE SET checked_at = excluded.checked_at",
+            )
+            .bind(now)
+            .execute(&mut *self.writer.lock().await?)
+            .await
+            .map_err(QueueError::from)
+        };
         match tokio::time::timeout(within, write).await {
-            Ok(done) => done.map(|_| ()).map_err(QueueError::from),
+            Ok(done) => done.map(|_| ()),
             Err(_) => Err(QueueError::WriteTimeout(within)),
         }
     }
@@ -503,7 +602,8 @@ impl Queue {
         tiles: &[Rect],
         assets: &[(String, Vec<u8>)],
     ) -> Result<JobRow> {
-        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
+        let mut conn = self.writer.lock().await?;
+        let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
         sqlx::query(
             "INSERT INTO jobs (id, seq, state, name, width, height, tile, sampler, samples,
                                threshold, tiles_total, created_at, priority)
@@ -549,6 +649,8 @@ impl Queue {
                 .await?;
         }
         tx.commit().await?;
+        // The reading below may be on the writer's connection (an in-memory database).
+        drop(conn);
         // The scene and textures went into the WAL too: a few 64 MiB submissions left it at
         // 200 MB when only pixels counted towards the next checkpoint.
         self.wrote(job.scene.len() + assets.iter().map(|(_, b)| b.len()).sum::<usize>());
@@ -565,7 +667,7 @@ impl Queue {
             Some(id) => {
                 let seq: Option<i64> = sqlx::query_scalar("SELECT seq FROM jobs WHERE id = ?1")
                     .bind(id)
-                    .fetch_optional(&self.pool)
+                    .fetch_optional(&mut *self.reader().await?)
                     .await?;
                 let Some(seq) = seq else { return Ok(None) };
                 seq
@@ -577,7 +679,7 @@ impl Queue {
             sqlx::query_as(sqlx::AssertSqlSafe(sql))
                 .bind(i64::from(limit))
                 .bind(below)
-                .fetch_all(&self.pool)
+                .fetch_all(&mut *self.reader().await?)
                 .await?,
         ))
     }
@@ -586,7 +688,7 @@ impl Queue {
         let sql = format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1");
         Ok(sqlx::query_as(sqlx::AssertSqlSafe(sql))
             .bind(id)
-            .fetch_optional(&self.pool)
+            .fetch_optional(&mut *self.reader().await?)
             .await?)
     }
 
@@ -596,7 +698,8 @@ impl Queue {
     /// written), and throwing the pixels away would lose a finished render that a worker was
     /// told was stored.
     pub async fn cancel(&self, id: &str, now: i64) -> Result<Cancel> {
-        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
+        let mut conn = self.writer.lock().await?;
+        let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
         let before: Option<(String, i64, i64)> =
             sqlx::query_as("SELECT state, tiles_done, tiles_total FROM jobs WHERE id = ?1")
                 .bind(id)
@@ -627,7 +730,7 @@ impl Queue {
     pub async fn delete(&self, id: &str) -> Result<bool> {
         let r = sqlx::query("DELETE FROM jobs WHERE id = ?1")
             .bind(id)
-            .execute(&self.writer)
+            .execute(&mut *self.writer.lock().await?)
             .await?;
         if let Some(spool) = &self.spool {
             spool.remove(id);
@@ -658,7 +761,7 @@ impl Queue {
             // when it finishes, and a commit that fails (a full disk) must be this call's error,
             // not lost in a reset after the row was taken (the claim was answered with a lease
             // that was never stored).
-            .fetch_all(&self.writer)
+            .fetch_all(&mut *self.writer.lock().await?)
             .await?
             .into_iter()
             .next();
@@ -703,7 +806,7 @@ impl Queue {
         // when it finishes, and a commit that fails (a full disk) must be this call's error,
         // not lost in a reset after the row was taken (the claim was answered with a lease
         // that was never stored).
-        .fetch_all(&self.writer)
+        .fetch_all(&mut *self.writer.lock().await?)
         .await?
         .into_iter()
         .next();
@@ -718,7 +821,7 @@ impl Queue {
         )
         .bind(job)
         .bind(i64::from(idx))
-        .fetch_optional(&self.pool)
+        .fetch_optional(&mut *self.reader().await?)
         .await?;
         let Some(row) = row else { return Ok(None) };
         let u = |i: usize| row.try_get::<i64, _>(i).map(|v| v as u32);
@@ -804,7 +907,7 @@ impl Queue {
             "SELECT width, height FROM jobs WHERE id = ?1 AND state IN ('queued', 'running')",
         )
         .bind(id)
-        .fetch_optional(&self.pool)
+        .fetch_optional(&mut *self.reader().await?)
         .await?;
         Ok(row.map(|(w, h)| (w as u32, h as u32)))
     }
@@ -843,7 +946,7 @@ impl Queue {
         // when it finishes, and a commit that fails (a full disk) must be this call's error,
         // not lost in a reset after the row was taken (the claim was answered with a lease
         // that was never stored).
-        .fetch_all(&self.writer)
+        .fetch_all(&mut *self.writer.lock().await?)
         .await?
         .into_iter()
         .next())
@@ -864,7 +967,8 @@ impl Queue {
         max_attempts: u32,
         keep: KeepAway,
     ) -> Result<bool> {
-        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
+        let mut conn = self.writer.lock().await?;
+        let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
         let r = sqlx::query(
             "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL,
                               failures = failures + 1, last_error = ?4
@@ -905,7 +1009,7 @@ impl Queue {
         .bind(job)
         .bind(i64::from(idx))
         .bind(lease)
-        .execute(&self.writer)
+        .execute(&mut *self.writer.lock().await?)
         .await?;
         Ok(r.rows_affected() == 1)
     }
@@ -924,7 +1028,8 @@ impl Queue {
     /// later). Counted once a tile, one pause or crash of a lone worker was two strikes,
     /// enough to fail its job, and tiles never begun ran out of attempts.
     pub async fn reap(&self, now: i64, max_attempts: u32, keep: KeepAway) -> Result<u64> {
-        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
+        let mut conn = self.writer.lock().await?;
+        let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
         let expired: Vec<Expired> = sqlx::query_as(
             "SELECT job_id, idx, worker, lease_expires, rendering FROM tiles
              WHERE state = 'leased' AND lease_expires < ?1
@@ -1005,7 +1110,7 @@ impl Queue {
     }
 
     async fn apply_keep_away(
-        tx: &mut sqlx::Transaction<'static, sqlx::Sqlite>,
+        tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
         now: i64,
         keep: KeepAway,
     ) -> Result<()> {
@@ -1018,7 +1123,7 @@ impl Queue {
     }
 
     async fn fail_exhausted(
-        tx: &mut sqlx::Transaction<'static, sqlx::Sqlite>,
+        tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
         now: i64,
         max_attempts: u32,
     ) -> Result<()> {
@@ -1051,7 +1156,7 @@ impl Queue {
              WHERE k.until > ?1 AND j.state IN ('queued', 'running')",
         )
         .bind(now)
-        .fetch_all(&self.pool)
+        .fetch_all(&mut *self.reader().await?)
         .await?;
         let mut jobs: Vec<&str> = rows.iter().map(|(j, _)| j.as_str()).collect();
         jobs.sort_unstable();
@@ -1074,7 +1179,7 @@ impl Queue {
             )
             .bind(job)
             .bind(now)
-            .execute(&self.writer)
+            .execute(&mut *self.writer.lock().await?)
             .await?;
             failed += r.rows_affected();
         }
@@ -1088,7 +1193,8 @@ impl Queue {
     /// Tiles of jobs that have ended are left as they are, as the reaper leaves them.
     /// Returns the number of tiles requeued.
     pub async fn forget_local_workers(&self, prefix: Option<&str>) -> Result<u64> {
-        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
+        let mut conn = self.writer.lock().await?;
+        let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
         let requeued = sqlx::query(
             "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL, lease_expires = NULL
              WHERE state = 'leased'
@@ -1117,7 +1223,7 @@ impl Queue {
     pub async fn extend_leases(&self, now: i64, lease_ms: u64) -> Result<u64> {
         let r = sqlx::query("UPDATE tiles SET lease_expires = ?1 WHERE state = 'leased'")
             .bind(now.saturating_add(lease_ms as i64))
-            .execute(&self.writer)
+            .execute(&mut *self.writer.lock().await?)
             .await?;
         Ok(r.rows_affected())
     }
@@ -1126,7 +1232,7 @@ impl Queue {
     pub async fn active_jobs(&self) -> Result<Vec<String>> {
         Ok(
             sqlx::query_scalar("SELECT id FROM jobs WHERE state IN ('queued', 'running')")
-                .fetch_all(&self.pool)
+                .fetch_all(&mut *self.reader().await?)
                 .await?,
         )
     }
@@ -1157,7 +1263,7 @@ impl Queue {
             "SELECT id FROM jobs WHERE state IN ('queued', 'running') AND tiles_done = tiles_total
              ORDER BY seq",
         )
-        .fetch_all(&self.pool)
+        .fetch_all(&mut *self.reader().await?)
         .await?)
     }
 
@@ -1169,14 +1275,14 @@ impl Queue {
              FROM jobs JOIN job_scenes ON job_scenes.job_id = jobs.id WHERE id = ?1",
         )
         .bind(id)
-        .fetch_optional(&self.pool)
+        .fetch_optional(&mut *self.reader().await?)
         .await?;
         let Some((state, scene, sampler, samples, threshold)) = row else {
             return Ok(None);
         };
         let assets = sqlx::query_scalar("SELECT name FROM assets WHERE job_id = ?1 ORDER BY name")
             .bind(id)
-            .fetch_all(&self.pool)
+            .fetch_all(&mut *self.reader().await?)
             .await?;
         let spec = JobSpec {
             id: id.to_string(),
@@ -1194,7 +1300,7 @@ impl Queue {
             sqlx::query_scalar("SELECT bytes FROM assets WHERE job_id = ?1 AND name = ?2")
                 .bind(id)
                 .bind(name)
-                .fetch_optional(&self.pool)
+                .fetch_optional(&mut *self.reader().await?)
                 .await?,
         )
     }
@@ -1223,7 +1329,7 @@ impl Queue {
         let rows = sqlx::query(BAND_SQL)
             .bind(id)
             .bind(i64::from(y))
-            .fetch_all(&self.writer)
+            .fetch_all(&mut *self.writer.lock().await?)
             .await?;
         let mut spooled = Vec::new();
         let mut lost = Vec::new();
@@ -1268,7 +1374,8 @@ impl Queue {
     /// rows go, the tiles are queued (no failure is counted: no worker did anything wrong)
     /// and the job counts them as not done. Returns how many tiles were requeued.
     pub async fn requeue_lost(&self, id: &str, idxs: &[i64]) -> Result<u64> {
-        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
+        let mut conn = self.writer.lock().await?;
+        let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
         let mut requeued = 0;
         for &idx in idxs {
             let r = sqlx::query(
@@ -1302,7 +1409,7 @@ impl Queue {
     pub async fn clear_image(&self, id: &str) -> Result<()> {
         sqlx::query("DELETE FROM image_chunks WHERE job_id = ?1")
             .bind(id)
-            .execute(&self.writer)
+            .execute(&mut *self.writer.lock().await?)
             .await?;
         Ok(())
     }
@@ -1336,7 +1443,7 @@ impl Queue {
             for (i, piece) in group.iter().enumerate() {
                 q = q.bind(first + i as i64).bind(*piece);
             }
-            q.execute(&self.writer).await?;
+            q.execute(&mut *self.writer.lock().await?).await?;
             self.wrote(group.iter().map(|p| p.len()).sum());
         }
         Ok(())
@@ -1345,7 +1452,8 @@ impl Queue {
     /// Marks an assembled job done and drops its tile pixels. False (and the image dropped)
     /// when the job was cancelled meanwhile.
     pub async fn finish_image(&self, id: &str, png_bytes: u64, now: i64) -> Result<bool> {
-        let mut tx = self.writer.begin_with("BEGIN IMMEDIATE").await?;
+        let mut conn = self.writer.lock().await?;
+        let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
         let r = sqlx::query(
             "UPDATE jobs SET state = 'done', finished_at = ?2, png_bytes = ?3
              WHERE id = ?1 AND state IN ('queued', 'running') AND tiles_done = tiles_total",
@@ -1382,7 +1490,7 @@ impl Queue {
         .bind(id)
         .bind(reason)
         .bind(now)
-        .execute(&self.writer)
+        .execute(&mut *self.writer.lock().await?)
         .await?;
         Ok(())
     }
@@ -1391,7 +1499,7 @@ impl Queue {
     pub async fn image_chunks(&self, id: &str) -> Result<u32> {
         let n: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM image_chunks WHERE job_id = ?1")
             .bind(id)
-            .fetch_one(&self.pool)
+            .fetch_one(&mut *self.reader().await?)
             .await?;
         Ok(n as u32)
     }
@@ -1401,7 +1509,7 @@ impl Queue {
             sqlx::query_scalar("SELECT bytes FROM image_chunks WHERE job_id = ?1 AND seq = ?2")
                 .bind(id)
                 .bind(i64::from(seq))
-                .fetch_optional(&self.pool)
+                .fetch_optional(&mut *self.reader().await?)
                 .await?,
         )
     }
@@ -1410,6 +1518,65 @@ impl Queue {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A transaction that fails on a full database (here the writer's `max_page_count`)
+    /// leaves the queue working once there is room again: later transactions on the writer
+    /// succeed. SQLite rolls such a transaction back itself, and sqlx, still counting it,
+    /// refused every later `BEGIN` on that connection, which [`Writer::lock`] replaces.
+    #[tokio::test]
+    async fn a_transaction_that_failed_on_a_full_database_leaves_the_writer_usable() {
+        let dir = std::env::temp_dir().join(format!("tessera-full-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        let q = Queue::open(&format!("sqlite://{}", dir.join("q.db").display()))
+            .await
+            .expect("open");
+        let job = |id: &str, scene: String| NewJob {
+            id: id.into(),
+            scene,
+            name: None,
+            width: 64,
+            height: 64,
+            tile: 16,
+            sampler: None,
+            samples: None,
+            threshold: None,
+            created_at: 0,
+            priority: 0,
+        };
+        let rects = tessera_tracer::tiles(64, 64, 16);
+        {
+            let mut w = q.writer.lock().await.expect("the writer");
+            let (pages,): (i64,) = sqlx::query_as("PRAGMA page_count")
+                .fetch_one(&mut *w)
+                .await
+                .expect("pages");
+            sqlx::query(sqlx::AssertSqlSafe(format!(
+                "PRAGMA max_page_count = {pages}"
+            )))
+            .execute(&mut *w)
+            .await
+            .expect("limit");
+        }
+        let big = "# x\n".repeat(200_000);
+        let full = q.insert_job(&job("a", big), &rects, &[]).await;
+        assert!(full.is_err(), "the database is full");
+        // Room again (a fresh connection has no page limit; the old one keeps it).
+        {
+            let mut w = q.writer.lock().await.expect("the writer");
+            sqlx::query("PRAGMA max_page_count = 1073741823")
+                .execute(&mut *w)
+                .await
+                .expect("lift");
+        }
+        let small = "[GLOBALS]\n[/GLOBALS]\n".to_string();
+        q.insert_job(&job("b", small), &rects, &[])
+            .await
+            .expect("stored once there is room");
+        let c = q.claim("w", 0, 60_000, 4).await.expect("claim");
+        assert!(c.is_some_and(|c| c.job == "b"));
+        let _ = std::fs::remove_dir_all(dir);
+    }
 
     /// The claim finds its job through `jobs_to_claim` and sorts no jobs: without it, the
     /// planner found the active jobs through `jobs_by_state` and sorted them all, each
@@ -1425,7 +1592,7 @@ mod tests {
         .bind(0i64)
         .bind(0i64)
         .bind(4i64)
-        .fetch_all(&q.writer)
+        .fetch_all(&mut *q.writer.lock().await.expect("the writer"))
         .await
         .expect("plan");
         let plan: Vec<String> = rows.into_iter().map(|r| r.3).collect();
@@ -1443,7 +1610,7 @@ mod tests {
         )))
         .bind("job")
         .bind(0i64)
-        .fetch_all(&q.writer)
+        .fetch_all(&mut *q.writer.lock().await.expect("the writer"))
         .await
         .expect("plan");
         let plan: Vec<String> = rows.into_iter().map(|r| r.3).collect();
