@@ -106,7 +106,7 @@ impl Encoder {
         let rows = &mut self.rows;
         let (mut covered, mut fits) = (0u64, true);
         queue
-            .band(id, y, |x, w, h, rgb| {
+            .band(id, y, now_ms(), |x, w, h, rgb| {
                 let bh = *bh.get_or_insert_with(|| {
                     rows.clear();
                     rows.resize(row_bytes * h as usize, 0);

@@ -123,10 +123,12 @@ impl AppState {
         if self.progress.stored(&job, tile) {
             let queue = self.queue.clone();
             let progress = self.progress.clone();
-            let work = self.work.clone();
+            let (work, ended) = (self.work.clone(), self.ended.clone());
             tokio::spawn(async move {
                 if progress.advance(&queue, &job).await {
+                    // Tiles to render again; or, lost too often, the job failed.
                     work.notify_waiters();
+                    ended.notify_waiters();
                 }
             });
         }
@@ -141,10 +143,12 @@ impl AppState {
         tokio::spawn(async move {
             if let Err(e) = progress.complete(&queue, &job).await {
                 if e.requeued() {
-                    // Not a failure: the lost tiles are queued again, and their last result
-                    // assembles the image anew.
+                    // Not a failure of the assembly: the lost tiles are queued again, and
+                    // their last result assembles the image anew (unless, lost too often,
+                    // they failed the job, which `ended` tells its waiters).
                     warn!(job = %job, "assembling the image: {e}");
                     work.notify_waiters();
+                    ended.notify_waiters();
                     return;
                 }
                 error!(job = %job, "assembling the image failed: {e}");
@@ -306,7 +310,9 @@ pub async fn serve(
     // Before anything touches the queue: a second service's start requeued the first's
     // local workers' tiles (see `db_lock`).
     let _db_lock = db_lock::DbLock::take(&cfg.database)?;
-    let queue = Queue::open(&cfg.database).await?;
+    let queue = Queue::open(&cfg.database)
+        .await?
+        .max_attempts(cfg.max_attempts);
     let local_count = local_worker_count(&cfg);
     // Unique to this run (host, pid, a random salt): no other worker's name starts with it
     // unless copied from this service's `/workers`.

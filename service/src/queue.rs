@@ -292,7 +292,13 @@ pub struct Queue {
     /// Where tile pixels wait for their band (a file per job beside the database); `None`
     /// for an in-memory database, whose rows keep their pixels.
     spool: Option<Arc<Spool>>,
+    /// The service's `--max-attempts`, for tiles whose pixels keep being lost (see
+    /// [`Queue::requeue_lost`]); the other operations take it as an argument.
+    max_attempts: u32,
 }
+
+/// [`Queue::max_attempts`] until set: the service's default `--max-attempts`.
+const DEFAULT_MAX_ATTEMPTS: u32 = 4;
 
 /// Tile and image bytes written between two background checkpoints (see `WalKeeper`).
 pub const CHECKPOINT_EVERY_BYTES: u64 = 48 << 20;
@@ -482,7 +488,15 @@ impl Queue {
             writer,
             wal,
             spool,
+            max_attempts: DEFAULT_MAX_ATTEMPTS,
         })
+    }
+
+    /// The same queue, failing a job whose tile lost its pixels `n` times (the service's
+    /// `--max-attempts`; 4 until set).
+    pub fn max_attempts(mut self, n: u32) -> Queue {
+        self.max_attempts = n;
+        self
     }
 
     /// The same queue, checkpointing after every `bytes` of tiles and images instead of
@@ -1324,6 +1338,7 @@ impl Queue {
         &self,
         id: &str,
         y: u32,
+        now: i64,
         mut each: impl FnMut(u32, u32, u32, &[u8]),
     ) -> Result<()> {
         let rows = sqlx::query(BAND_SQL)
@@ -1360,7 +1375,7 @@ impl Queue {
             }
         }
         if !lost.is_empty() {
-            let tiles = self.requeue_lost(id, &lost).await?;
+            let tiles = self.requeue_lost(id, &lost, now).await?;
             tracing::warn!(job = %id, y, tiles, "tile pixels lost from the spool: rendering them again");
             return Err(QueueError::Lost {
                 job: id.to_string(),
@@ -1371,16 +1386,20 @@ impl Queue {
     }
 
     /// Hands out again the done tiles `idxs` of an active job whose pixels were lost: their
-    /// rows go, the tiles are queued (no failure is counted: no worker did anything wrong)
-    /// and the job counts them as not done. Returns how many tiles were requeued.
-    pub async fn requeue_lost(&self, id: &str, idxs: &[i64]) -> Result<u64> {
+    /// rows go, the tiles are queued and the job counts them as not done. Each loss counts
+    /// a failure against its tile, not against any worker (none did anything wrong), so
+    /// that a tile whose pixels keep being lost (a failing disk, a folder something else
+    /// empties) fails its job after `max_attempts` losses with the reason, instead of being
+    /// rendered for ever. Returns how many tiles were requeued.
+    pub async fn requeue_lost(&self, id: &str, idxs: &[i64], now: i64) -> Result<u64> {
         let mut conn = self.writer.lock().await?;
         let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
         let mut requeued = 0;
         for &idx in idxs {
             let r = sqlx::query(
                 "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL,
-                        lease_expires = NULL, rendering = 0
+                        lease_expires = NULL, rendering = 0, failures = failures + 1,
+                        last_error = 'its pixels were lost from the tile spool'
                  WHERE job_id = ?1 AND idx = ?2 AND state = 'done'
                    AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
             )
@@ -1402,6 +1421,7 @@ impl Queue {
             .bind(requeued as i64)
             .execute(&mut *tx)
             .await?;
+        Self::fail_exhausted(&mut tx, now, self.max_attempts).await?;
         tx.commit().await?;
         Ok(requeued)
     }

@@ -10,7 +10,8 @@
 //! What it is not: the record of which tiles are done. The queue's `tile_pixels` rows are
 //! (see `queue.rs`); a row of a spooled tile holds no pixels but the CRC-32 of its bytes.
 //! Bytes that do not match their row when read, or cannot be read at all, are a lost tile:
-//! the queue hands it out again rather than encode them. That happens when
+//! the queue hands it out again rather than encode them (and fails the job once a tile was
+//! lost `--max-attempts` times, see `Queue::requeue_lost`). That happens when
 //! - the machine stopped after SQLite's commit reached the disk but before the file's page
 //!   did (neither is `fsync`ed per tile; SQLite's WAL with `synchronous = NORMAL` makes
 //!   the same trade for its own pages);

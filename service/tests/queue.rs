@@ -70,7 +70,7 @@ fn pixels(r: Rect) -> Vec<u8> {
 /// The stored tiles of the band at row `y`, as `Queue::band` hands them over.
 async fn band(q: &Queue, id: &str, y: u32) -> Vec<(u32, u32, u32, Vec<u8>)> {
     let mut out = Vec::new();
-    q.band(id, y, |x, w, h, rgb| out.push((x, w, h, rgb.to_vec())))
+    q.band(id, y, 0, |x, w, h, rgb| out.push((x, w, h, rgb.to_vec())))
         .await
         .expect("band");
     out
@@ -735,7 +735,8 @@ async fn tile_pixels_wait_in_the_spool_not_in_sqlite() {
 
 /// Pixels that do not match their row when a band reads them (a crash between the file and
 /// the commit, a deleted file, someone else's bytes) are never encoded: the tiles are queued
-/// again, uncharged, and the band reads once they are rendered again.
+/// again, with a failure counted against the tile (not against any worker), and the band
+/// reads once they are rendered again.
 #[tokio::test]
 async fn lost_pixels_send_their_tiles_back_to_the_queue() {
     let db = Db::new("spool-lost");
@@ -760,21 +761,23 @@ async fn lost_pixels_send_their_tiles_back_to_the_queue() {
     std::fs::write(dir.join("l.rgb"), &bytes).expect("write");
     let mut seen = 0;
     let err = q
-        .band("l", 0, |_, _, _, _| seen += 1)
+        .band("l", 0, 0, |_, _, _, _| seen += 1)
         .await
         .expect_err("a lost tile fails the band");
     assert!(err.to_string().contains("rendered again"), "{err}");
     let job = q.job("l").await.expect("job").expect("exists");
     assert_eq!(job.tiles_done, 9, "the lost tile is not done");
     assert!(q.unassembled().await.expect("list").is_empty());
-    // Handed out again, uncharged, and stored again.
+    // Handed out again and stored again.
     let again = q
-        .claim("v", 0, 60_000, 1)
+        .claim("v", 0, 60_000, 4)
         .await
         .expect("claim")
         .expect("a tile");
     assert_eq!((again.idx, again.rect()), (1, rects[1]));
-    assert_eq!(failures(&db, "l").await, vec![0; 10]);
+    let mut expected = vec![0; 10];
+    expected[1] = 1;
+    assert_eq!(failures(&db, "l").await, expected);
     let stored = q
         .complete("l", 1, &again.lease, again.rect(), &tile_rgb(again.rect()))
         .await
@@ -785,9 +788,42 @@ async fn lost_pixels_send_their_tiles_back_to_the_queue() {
     // every tile of the band.
     std::fs::remove_file(dir.join("l.rgb")).expect("delete");
     let q = Queue::open(&db.url()).await.expect("open again");
-    assert!(q.band("l", 8, |_, _, _, _| {}).await.is_err());
+    assert!(q.band("l", 8, 0, |_, _, _, _| {}).await.is_err());
     let job = q.job("l").await.expect("job").expect("exists");
     assert_eq!(job.tiles_done, 5);
+}
+
+/// A tile whose pixels keep being lost fails its job after `max_attempts` losses, with the
+/// reason, instead of being rendered again for ever.
+#[tokio::test]
+async fn a_tile_lost_again_and_again_fails_its_job() {
+    let db = Db::new("spool-lost-again");
+    let q = Queue::open(&db.url()).await.expect("open").max_attempts(2);
+    let file = q.spool_dir().expect("spool").join("r.rgb");
+    job(&q, "r", 8, 8, 8).await; // one tile
+    for round in 1..=2 {
+        let c = q
+            .claim("w", 0, 60_000, 2)
+            .await
+            .expect("claim")
+            .expect("tile");
+        let stored = q
+            .complete("r", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .await
+            .expect("complete");
+        assert!(matches!(stored, Completion::Stored { last: true, .. }));
+        std::fs::write(&file, [0u8; 8 * 8 * 3]).expect("overwrite");
+        assert!(q.band("r", 0, 0, |_, _, _, _| {}).await.is_err());
+        let job = q.job("r").await.expect("job").expect("exists");
+        if round == 1 {
+            assert_eq!(job.state, "running", "one loss is rendered again");
+        } else {
+            assert_eq!(job.state, "failed", "the second loss fails the job");
+            let error = job.error.unwrap_or_default();
+            assert!(error.contains("lost from the tile spool"), "{error}");
+        }
+    }
+    assert!(q.claim("w", 0, 60_000, 2).await.expect("claim").is_none());
 }
 
 /// The files of jobs that ended without an image or were deleted are swept; an active
