@@ -43,13 +43,20 @@ pub enum AssembleError {
     Gap { y: u32, covered: u64, width: u32 },
     #[error("job vanished while its image was assembled")]
     Vanished,
+    /// Some of the job's tiles are not done (any more): their pixels were lost while its
+    /// bands were encoded ahead, and they are being rendered again.
+    #[error("tiles of the job are being rendered again")]
+    Unfinished,
 }
 
 impl AssembleError {
     /// Tiles' pixels were lost and the tiles queued again: the job goes on, and is assembled
     /// when its (new) last tile is in.
     pub fn requeued(&self) -> bool {
-        matches!(self, AssembleError::Queue(QueueError::Lost { .. }))
+        matches!(
+            self,
+            AssembleError::Queue(QueueError::Lost { .. }) | AssembleError::Unfinished
+        )
     }
 }
 
@@ -199,6 +206,9 @@ async fn store_chunks(
 /// Idempotent: run again after a crash, it starts over.
 pub async fn assemble(queue: &Queue, id: &str) -> Result<(), AssembleError> {
     let job = queue.job(id).await?.ok_or(AssembleError::Vanished)?;
+    if job.tiles_done < job.tiles_total {
+        return Err(AssembleError::Unfinished);
+    }
     let enc = Encoder::start(queue, id, job.width as u32, job.height as u32).await?;
     enc.finish(queue, id).await
 }

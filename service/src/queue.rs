@@ -18,6 +18,7 @@
 //! Times are integer milliseconds since the Unix epoch, passed in by the caller so that the
 //! SQL stays portable and tests control the clock. This module knows nothing of HTTP.
 
+use std::collections::HashMap;
 use std::str::FromStr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -295,6 +296,11 @@ pub struct Queue {
     /// The service's `--max-attempts`, for tiles whose pixels keep being lost (see
     /// [`Queue::requeue_lost`]); the other operations take it as an argument.
     max_attempts: u32,
+    /// The lease and rectangle of each tile this process handed out and has not yet stored,
+    /// by job and index: a result's pixels are written to the spool only under its tile's
+    /// current lease and rectangle (see [`Queue::complete`]). After a restart the tile's row
+    /// is read instead. Entries of ended jobs go with their spool files.
+    issued: Arc<std::sync::Mutex<HashMap<(String, u32), (String, Rect)>>>,
 }
 
 /// [`Queue::max_attempts`] until set: the service's default `--max-attempts`.
@@ -489,6 +495,7 @@ impl Queue {
             wal,
             spool,
             max_attempts: DEFAULT_MAX_ATTEMPTS,
+            issued: Arc::default(),
         })
     }
 
@@ -734,8 +741,9 @@ impl Queue {
             Some((state, _, _)) => Cancel::Ended { state },
         };
         tx.commit().await?;
-        if let (Cancel::Cancelled { .. }, Some(spool)) = (&outcome, &self.spool) {
-            spool.remove(id);
+        drop(conn);
+        if let Cancel::Cancelled { .. } = outcome {
+            self.forget_job(id);
         }
         Ok(outcome)
     }
@@ -746,9 +754,7 @@ impl Queue {
             .bind(id)
             .execute(&mut *self.writer.lock().await?)
             .await?;
-        if let Some(spool) = &self.spool {
-            spool.remove(id);
-        }
+        self.forget_job(id);
         Ok(r.rows_affected() > 0)
     }
 
@@ -790,6 +796,12 @@ impl Queue {
             lease,
             lease_ms,
         };
+        if self.spool.is_some() {
+            self.issued_map().insert(
+                (claim.job.clone(), claim.idx),
+                (claim.lease.clone(), claim.rect()),
+            );
+        }
         Ok(Some(claim))
     }
 
@@ -863,17 +875,21 @@ impl Queue {
         rect: Rect,
         rgb: &[u8],
     ) -> Result<Completion> {
-        // Spooled, the pixels are written first (see `spool.rs`) and the row gets their CRC;
-        // a rectangle outside the job's image, or a job that does not exist, stores nothing.
+        // Spooled, the pixels are written first (see `spool.rs`) and the row gets their CRC,
+        // but only under the tile's current lease and for its own rectangle: any other post
+        // (stale, foreign, for another tile, or for a job that has ended) writes nothing, so
+        // that it cannot touch the pixels of tiles already stored.
         let (blob, crc): (&[u8], Option<i64>) = match &self.spool {
             None => (rgb, None),
             Some(spool) => match self.spooled_size(spool, job).await? {
-                None => (&[], None),
-                Some((width, height)) => match spool.write(job, width, height, rect, rgb) {
-                    Ok(crc) => (&[], Some(i64::from(crc))),
-                    Err(SpoolError::Outside { .. }) => (&[], None),
-                    Err(e) => return Err(e.into()),
-                },
+                Some((width, height)) if self.holds(job, idx, lease, rect).await? => {
+                    match spool.write(job, width, height, rect, rgb) {
+                        Ok(crc) => (&[], Some(i64::from(crc))),
+                        Err(SpoolError::Outside { .. }) => (&[], None),
+                        Err(e) => return Err(e.into()),
+                    }
+                }
+                _ => (&[], None),
             },
         };
         let spooled = self.spool.is_some();
@@ -883,7 +899,9 @@ impl Queue {
             self.insert_result(job, idx, lease, rect, blob, crc).await?
         };
         if let Some((done_before, total, worker)) = stored {
-            if !spooled {
+            if spooled {
+                self.issued_map().remove(&(job.to_string(), idx));
+            } else {
                 self.wrote(rgb.len());
             }
             // `RETURNING` is computed before the trigger counts this tile (see the migration).
@@ -908,6 +926,33 @@ impl Queue {
                 Completion::WrongTile(tile.rect)
             },
         )
+    }
+
+    fn issued_map(&self) -> std::sync::MutexGuard<'_, HashMap<(String, u32), (String, Rect)>> {
+        self.issued
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Whether `lease` is tile `idx`'s current lease and `rect` its rectangle: as this
+    /// process handed it out, or else (after a restart) as its row says.
+    async fn holds(&self, job: &str, idx: u32, lease: &str, rect: Rect) -> Result<bool> {
+        let issued = self.issued_map().get(&(job.to_string(), idx)).cloned();
+        if let Some((current, tile)) = issued {
+            return Ok(current == lease && tile == rect);
+        }
+        Ok(self.tile(job, idx).await?.is_some_and(|t| {
+            t.state == "leased" && t.lease.as_deref() == Some(lease) && t.rect == rect
+        }))
+    }
+
+    /// Drops what this process keeps of an ended (or deleted) job: its spool file and the
+    /// leases it handed out.
+    fn forget_job(&self, id: &str) {
+        if let Some(spool) = &self.spool {
+            spool.remove(id);
+            self.issued_map().retain(|(job, _), _| job != id);
+        }
     }
 
     /// The image size of job `id`, for its spool file: remembered by the spool once the
@@ -1259,10 +1304,14 @@ impl Queue {
             return Ok(0);
         };
         let listing = spool.listing()?;
-        if listing.is_empty() {
+        if listing.is_empty() && self.issued_map().is_empty() {
             return Ok(0);
         }
         let active = self.active_jobs().await?;
+        // A job submitted since `active` was read loses its entries here: its results then
+        // read their tile's row instead, one query slower.
+        self.issued_map()
+            .retain(|(job, _), _| active.iter().any(|a| a == job));
         Ok(spool.sweep(&listing, &active))
     }
 
@@ -1358,7 +1407,7 @@ impl Queue {
                     let tile = Rect::new(x, y, w, h);
                     let read = match size {
                         Some((width, height)) => {
-                            spool.read(id, width, height, tile, crc as u32, &mut spooled)?
+                            spool.read(id, width, height, tile, crc as u32, &mut spooled)
                         }
                         None => false,
                     };
@@ -1490,13 +1539,19 @@ impl Queue {
                 .execute(&mut *tx)
                 .await?;
         }
-        sqlx::query("DELETE FROM tile_pixels WHERE job_id = ?1")
-            .bind(id)
-            .execute(&mut *tx)
-            .await?;
+        // The pixels go unless the job is still active: then a tile was handed out again
+        // meanwhile (its pixels lost), and the others' wait for the next assembly.
+        let ended = sqlx::query(
+            "DELETE FROM tile_pixels WHERE job_id = ?1
+               AND NOT EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
+        )
+        .bind(id)
+        .execute(&mut *tx)
+        .await?;
         tx.commit().await?;
-        if let Some(spool) = &self.spool {
-            spool.remove(id);
+        drop(conn);
+        if done || ended.rows_affected() > 0 {
+            self.forget_job(id);
         }
         Ok(done)
     }

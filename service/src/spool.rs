@@ -16,8 +16,8 @@
 //!   did (neither is `fsync`ed per tile; SQLite's WAL with `synchronous = NORMAL` makes
 //!   the same trade for its own pages);
 //! - someone deleted or truncated the file;
-//! - a client posted pixels for a rectangle of the image that is not its tile (the bytes
-//!   are written before the lease is checked, see below).
+//! - a tile's lease ran out and its late holder posted other bytes over the slot before
+//!   the tile was handed out again (see below; a deterministic render posts the same).
 //!
 //! The layout is the image's own bytes, tile by tile. A band of tiles with top row `y` and
 //! height `h` begins at byte `3·y·width`; in it, the tile at column `x` (width `w`) takes
@@ -27,11 +27,13 @@
 //! tile is rendered again, and no allocation needs remembering across a restart. A
 //! rectangle outside the image has no slot and is never written.
 //!
-//! The bytes are written before the queue's statement checks the lease, so that a stored
+//! The bytes are written before the queue's statement stores the row, so that a stored
 //! row always points at bytes already in the page cache and the result stays one round
-//! trip to SQLite. A stale worker's late result is therefore written over its tile's slot:
-//! rendering is deterministic, so those are the same bytes (and should they differ, the
-//! CRC says so and the tile is rendered again). Nothing in this module decides what is
+//! trip to SQLite; the queue writes them only under the tile's lease as it handed it out
+//! (or as the tile's row says, after a restart) and for the tile's own rectangle, so no
+//! other post can touch another tile's slot. Its record of leases is not told of a lease
+//! that ran out: until the tile is handed out again, the late holder's result still
+//! lands in the tile's own (then unused) slot. Nothing in this module decides what is
 //! current; it only moves bytes.
 
 use std::collections::{HashMap, HashSet};
@@ -167,19 +169,35 @@ impl Spool {
         open.get(id).map(|f| (f.width, f.height))
     }
 
-    /// Job `id`'s file, opened (and created) for a `width × height` image if it is not open.
-    fn job(&self, id: &str, width: u32, height: u32) -> Result<Arc<JobFile>, SpoolError> {
+    /// Job `id`'s file for a `width × height` image, opened if it is not open; with
+    /// `create`, created if missing (and the folder too, should something have removed it).
+    fn job(
+        &self,
+        id: &str,
+        width: u32,
+        height: u32,
+        create: bool,
+    ) -> Result<Arc<JobFile>, SpoolError> {
         let mut open = self.open.lock().unwrap_or_else(PoisonError::into_inner);
         if let Some(f) = open.get(id) {
             return Ok(f.clone());
         }
-        let file = OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(self.path(id))
-            .map_err(self.io(id))?;
+        let path = self.path(id);
+        let opening = || {
+            OpenOptions::new()
+                .read(true)
+                .write(true)
+                .create(create)
+                .truncate(false)
+                .open(&path)
+        };
+        let file = match opening() {
+            Err(e) if create && e.kind() == io::ErrorKind::NotFound => {
+                std::fs::create_dir_all(&self.dir).and_then(|()| opening())
+            }
+            other => other,
+        }
+        .map_err(self.io(id))?;
         let f = Arc::new(JobFile {
             file,
             width,
@@ -210,13 +228,14 @@ impl Spool {
         if len != rgb.len() {
             return Err(outside);
         }
-        let f = self.job(id, width, height)?;
+        let f = self.job(id, width, height, true)?;
         write_at(&f.file, rgb, offset).map_err(self.io(id))?;
         Ok(crc32fast::hash(rgb))
     }
 
     /// Reads a tile's bytes from job `id`'s file into `buf` and checks them against `crc`:
-    /// false when they do not match or are not there (a lost tile: see the module comment).
+    /// false when they do not match or cannot be read (a lost tile: see the module comment;
+    /// a file that is not there is not created).
     pub fn read(
         &self,
         id: &str,
@@ -225,18 +244,22 @@ impl Spool {
         tile: Rect,
         crc: u32,
         buf: &mut Vec<u8>,
-    ) -> Result<bool, SpoolError> {
+    ) -> bool {
         let Some((offset, len)) = slot(width, height, tile) else {
-            return Ok(false);
+            return false;
         };
-        let f = self.job(id, width, height)?;
         // Every byte is read over: no need to clear (and zero) a buffer of the right size.
         buf.resize(len, 0);
-        match read_at(&f.file, buf, offset) {
-            Ok(()) => Ok(crc32fast::hash(buf) == crc),
-            // Shorter than the slot: never written, or truncated.
-            Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => Ok(false),
-            Err(e) => Err(self.io(id)(e)),
+        let read = self
+            .job(id, width, height, false)
+            .and_then(|f| read_at(&f.file, buf, offset).map_err(self.io(id)));
+        match read {
+            Ok(()) => crc32fast::hash(buf) == crc,
+            // Not there, shorter than the slot (never written, or truncated), or unreadable.
+            Err(e) => {
+                tracing::warn!(job = %id, "reading tile {tile:?}: {e}");
+                false
+            }
         }
     }
 
@@ -353,26 +376,29 @@ mod tests {
         let rgb: Vec<u8> = (0..18).collect();
         let crc = spool.write("j", 4, 3, tile, &rgb).expect("written");
         let mut buf = Vec::new();
-        assert!(spool.read("j", 4, 3, tile, crc, &mut buf).expect("read"));
+        assert!(spool.read("j", 4, 3, tile, crc, &mut buf));
         assert_eq!(buf, rgb);
-        // A wrong CRC, a tile never written (the file is shorter than its slot), a changed
-        // byte and a deleted file are all lost tiles, not errors.
-        assert!(
-            !spool
-                .read("j", 4, 3, tile, crc ^ 1, &mut buf)
-                .expect("read")
-        );
+        // A wrong CRC, a tile never written (a hole of zeros before the written slot), a
+        // changed byte, a file shorter than the slot and a deleted file are all lost tiles.
+        assert!(!spool.read("j", 4, 3, tile, crc ^ 1, &mut buf));
         let other = Rect::new(0, 0, 2, 3);
-        assert!(!spool.read("j", 4, 3, other, crc, &mut buf).expect("read"));
+        assert!(!spool.read("j", 4, 3, other, crc, &mut buf));
         let f = OpenOptions::new()
             .write(true)
             .open(spool.path("j"))
             .expect("file");
         write_at(&f, &[255], 3 * 2 * 3 + 5).expect("write");
-        assert!(!spool.read("j", 4, 3, tile, crc, &mut buf).expect("read"));
+        assert!(!spool.read("j", 4, 3, tile, crc, &mut buf));
+        f.set_len(3 * 2 * 3 + 4).expect("truncate");
+        assert!(!spool.read("j", 4, 3, tile, crc, &mut buf));
         spool.remove("j");
-        assert!(!spool.read("j", 4, 3, tile, crc, &mut buf).expect("read"));
+        assert!(!spool.read("j", 4, 3, tile, crc, &mut buf));
+        assert!(!spool.path("j").exists(), "reading creates no file");
         assert!(spool.write("j", 4, 3, Rect::new(3, 0, 2, 3), &rgb).is_err());
+        // A folder removed under the service is made again by the next write.
+        std::fs::remove_dir_all(&dir).expect("remove the folder");
+        let crc = spool.write("k", 4, 3, tile, &rgb).expect("written");
+        assert!(spool.read("k", 4, 3, tile, crc, &mut buf));
         let _ = std::fs::remove_dir_all(dir);
     }
 }

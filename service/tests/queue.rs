@@ -1387,3 +1387,161 @@ async fn a_job_whose_pixels_are_lost_still_gives_the_whole_images_png() {
     assert_eq!(png_of(&q, "j").await, whole);
     assert!(!file.exists());
 }
+
+/// A post that is not its tile's current result (a wrong lease, another tile's rectangle,
+/// a rectangle spanning several tiles) writes nothing into the spool: the stored tiles'
+/// pixels stay as they were, before and after a restart (whose queue knows no leases).
+#[tokio::test]
+async fn refused_posts_leave_the_stored_pixels_alone() {
+    let db = Db::new("spool-refused");
+    let q = Queue::open(&db.url()).await.expect("open");
+    let rects = job(&q, "f", 32, 16, 8).await; // 4 × 2 tiles
+    let mut claims = Vec::new();
+    while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
+        claims.push(c);
+    }
+    // The first band stored, the second still leased.
+    for c in claims.iter().filter(|c| c.y == 0) {
+        let stored = q
+            .complete("f", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .await
+            .expect("complete");
+        assert!(matches!(stored, Completion::Stored { .. }));
+    }
+    let noise = |r: Rect| vec![0xA5; r.pixel_count() * 3];
+    for q in [q.clone(), Queue::open(&db.url()).await.expect("open again")] {
+        // A lease that is no one's, over the whole first band.
+        let band_rect = Rect::new(0, 0, 32, 8);
+        let r = q
+            .complete("f", 0, "not-a-lease", band_rect, &noise(band_rect))
+            .await
+            .expect("answer");
+        assert!(
+            matches!(r, Completion::Stale(_) | Completion::WrongTile(_)),
+            "{r:?}"
+        );
+        // A current lease (tile 4, second band) posting tile 1's rectangle.
+        let c = &claims[4];
+        let r = q
+            .complete("f", c.idx, &c.lease, rects[1], &noise(rects[1]))
+            .await
+            .expect("answer");
+        assert!(matches!(r, Completion::WrongTile(_)), "{r:?}");
+        // A repeat of a stored tile's own lease with other bytes.
+        let c = &claims[2];
+        let r = q
+            .complete("f", c.idx, &c.lease, c.rect(), &noise(c.rect()))
+            .await
+            .expect("answer");
+        assert!(matches!(r, Completion::Repeat), "{r:?}");
+        let expected: Vec<_> = rects
+            .iter()
+            .filter(|r| r.y == 0)
+            .map(|r| (r.x, r.width, r.height, tile_rgb(*r)))
+            .collect();
+        assert_eq!(
+            band(&q, "f", 0).await,
+            expected,
+            "the stored pixels are intact"
+        );
+    }
+}
+
+/// A loss found while encoding ahead, after the job's last tile is in, leaves the job to
+/// wait for the tile rendered again (it failed with a gap in the image before).
+#[tokio::test]
+async fn a_loss_found_ahead_after_the_last_tile_waits_for_the_tile() {
+    use tessera_service::assemble::Progress;
+    let (w, h) = (32, 16);
+    let whole = tessera_tracer::encode_png(w, h, &tile_rgb(Rect::new(0, 0, w, h))).expect("png");
+    let db = Db::new("spool-late-loss");
+    let q = Queue::open(&db.url()).await.expect("open");
+    let file = q.spool_dir().expect("spool").join("g.rgb");
+    let progress = Progress::default();
+    let rects = tiles(w, h, 8);
+    progress.follow("g", w, h, &rects);
+    job(&q, "g", w, h, 8).await;
+    let mut claims = Vec::new();
+    while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
+        claims.push(c);
+    }
+    // Every tile stored (the last one says so); the first band's completion is counted but
+    // its encoding has not run yet when a byte of tile 2 is lost.
+    let mut band_done = false;
+    for c in &claims {
+        let stored = q
+            .complete("g", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .await
+            .expect("complete");
+        let Completion::Stored { last, .. } = stored else {
+            panic!("{stored:?}")
+        };
+        if !last {
+            band_done |= progress.stored("g", c.rect());
+        }
+    }
+    assert!(band_done);
+    let (at, _) = tessera_service::spool::slot(w, h, rects[2]).expect("slot");
+    let mut bytes = std::fs::read(&file).expect("file");
+    bytes[at as usize] ^= 1;
+    std::fs::write(&file, &bytes).expect("write");
+    assert!(progress.advance(&q, "g").await, "the loss is found ahead");
+    let err = progress
+        .complete(&q, "g")
+        .await
+        .expect_err("a tile is missing");
+    assert!(err.requeued(), "{err}");
+    assert_ne!(
+        q.job("g").await.expect("read").expect("job").state,
+        "failed"
+    );
+    let again = q
+        .claim("w", 0, 60_000, 4)
+        .await
+        .expect("claim")
+        .expect("tile");
+    assert_eq!(again.rect(), rects[2]);
+    let stored = q
+        .complete(
+            "g",
+            again.idx,
+            &again.lease,
+            again.rect(),
+            &tile_rgb(again.rect()),
+        )
+        .await
+        .expect("complete");
+    assert!(matches!(stored, Completion::Stored { last: true, .. }));
+    progress.complete(&q, "g").await.expect("assembled");
+    assert_eq!(png_of(&q, "g").await, whole);
+}
+
+/// Cancelling or deleting a job removes its spool file at once.
+#[tokio::test]
+async fn cancel_and_delete_remove_the_spool_file() {
+    let db = Db::new("spool-cancel");
+    let q = Queue::open(&db.url()).await.expect("open");
+    let dir = q.spool_dir().expect("spool").to_path_buf();
+    for id in ["c", "d"] {
+        job(&q, id, 16, 8, 8).await; // two tiles each
+    }
+    let mut claims = Vec::new();
+    while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
+        claims.push(c);
+    }
+    for c in claims.iter().filter(|c| c.idx == 0) {
+        let stored = q
+            .complete(&c.job, c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .await
+            .expect("complete");
+        assert!(matches!(stored, Completion::Stored { last: false, .. }));
+        assert!(dir.join(format!("{}.rgb", c.job)).exists());
+    }
+    assert!(matches!(
+        q.cancel("c", 0).await.expect("cancel"),
+        Cancel::Cancelled { .. }
+    ));
+    assert!(!dir.join("c.rgb").exists());
+    assert!(q.delete("d").await.expect("delete"));
+    assert!(!dir.join("d.rgb").exists());
+}
