@@ -300,8 +300,11 @@ pub struct Queue {
     /// by job and index: a result's pixels are written to the spool only under its tile's
     /// current lease and rectangle (see [`Queue::complete`]). After a restart the tile's row
     /// is read instead. Entries of ended jobs go with their spool files.
-    issued: Arc<std::sync::Mutex<HashMap<(String, u32), (String, Rect)>>>,
+    issued: Arc<std::sync::Mutex<Issued>>,
 }
+
+/// Leases handed out and not yet stored: `(job, idx)` → `(lease, rectangle)`.
+type Issued = HashMap<(String, u32), (String, Rect)>;
 
 /// [`Queue::max_attempts`] until set: the service's default `--max-attempts`.
 const DEFAULT_MAX_ATTEMPTS: u32 = 4;
