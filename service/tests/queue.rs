@@ -1285,6 +1285,44 @@ async fn the_png_is_stored_in_chunks_of_one_size() {
     );
 }
 
+/// Flips a bit of tile `r`'s bytes in the spool file `file` of a `w`-wide, `h`-high image.
+fn spoil(file: &std::path::Path, w: u32, h: u32, r: Rect) {
+    let (at, _) = tessera_service::spool::slot(w, h, r).expect("slot");
+    let mut bytes = std::fs::read(file).expect("file");
+    bytes[at as usize] ^= 0x80;
+    std::fs::write(file, &bytes).expect("write");
+}
+
+/// Job `id`'s last tile is in but tile `lost` lost its pixels: finishing the image waits
+/// (the error says tiles are rendered again, and the job has not failed); the tile comes
+/// back to the next claim, and stored again it completes the job, whose PNG is `whole`.
+async fn finish_after_loss(
+    q: &Queue,
+    progress: &tessera_service::assemble::Progress,
+    id: &str,
+    lost: Rect,
+    whole: &[u8],
+) {
+    let err = progress.complete(q, id).await.expect_err("a tile was lost");
+    assert!(err.requeued(), "{err}");
+    let state = q.job(id).await.expect("read").expect("job").state;
+    assert_ne!(state, "failed");
+    let again = q
+        .claim("w", 0, 60_000, 4)
+        .await
+        .expect("claim")
+        .expect("tile");
+    assert_eq!(again.rect(), lost, "the lost tile is handed out again");
+    let stored = q
+        .complete(id, again.idx, &again.lease, lost, &tile_rgb(lost))
+        .await
+        .expect("complete");
+    assert!(matches!(stored, Completion::Stored { last: true, .. }));
+    progress.complete(q, id).await.expect("assembled");
+    assert_eq!(q.job(id).await.expect("read").expect("job").state, "done");
+    assert_eq!(png_of(q, id).await, whole);
+}
+
 /// A tile whose spooled pixels are lost is rendered again wherever the loss is found,
 /// while encoding ahead or at the end, and the job's PNG is still the whole image's.
 #[tokio::test]
@@ -1299,12 +1337,7 @@ async fn a_job_whose_pixels_are_lost_still_gives_the_whole_images_png() {
     let rects = tiles(w, h, 8);
     progress.follow("j", w, h, &rects);
     job(&q, "j", w, h, 8).await;
-    let corrupt = |r: Rect| {
-        let (at, _) = tessera_service::spool::slot(w, h, r).expect("slot");
-        let mut bytes = std::fs::read(&file).expect("file");
-        bytes[at as usize] ^= 0x80;
-        std::fs::write(&file, &bytes).expect("write");
-    };
+    let corrupt = |r: Rect| spoil(&file, w, h, r);
     let store = async |c: &tessera_worker::protocol::Claim| {
         q.complete("j", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
             .await
@@ -1362,29 +1395,7 @@ async fn a_job_whose_pixels_are_lost_still_gives_the_whole_images_png() {
         store(&rest[4]).await,
         Completion::Stored { last: true, .. }
     ));
-    let err = progress
-        .complete(&q, "j")
-        .await
-        .expect_err("a tile was lost");
-    assert!(err.requeued(), "{err}");
-    assert_ne!(
-        q.job("j").await.expect("read").expect("job").state,
-        "failed"
-    );
-    // Rendered again, it is the job's last tile once more and the image assembles.
-    let again = q
-        .claim("w", 0, 60_000, 4)
-        .await
-        .expect("claim")
-        .expect("tile");
-    assert_eq!(again.rect(), rest[2].rect());
-    assert!(matches!(
-        store(&again).await,
-        Completion::Stored { last: true, .. }
-    ));
-    progress.complete(&q, "j").await.expect("assembled");
-    assert_eq!(q.job("j").await.expect("read").expect("job").state, "done");
-    assert_eq!(png_of(&q, "j").await, whole);
+    finish_after_loss(&q, &progress, "j", rest[2].rect(), &whole).await;
     assert!(!file.exists());
 }
 
@@ -1481,39 +1492,9 @@ async fn a_loss_found_ahead_after_the_last_tile_waits_for_the_tile() {
         }
     }
     assert!(band_done);
-    let (at, _) = tessera_service::spool::slot(w, h, rects[2]).expect("slot");
-    let mut bytes = std::fs::read(&file).expect("file");
-    bytes[at as usize] ^= 1;
-    std::fs::write(&file, &bytes).expect("write");
+    spoil(&file, w, h, rects[2]);
     assert!(progress.advance(&q, "g").await, "the loss is found ahead");
-    let err = progress
-        .complete(&q, "g")
-        .await
-        .expect_err("a tile is missing");
-    assert!(err.requeued(), "{err}");
-    assert_ne!(
-        q.job("g").await.expect("read").expect("job").state,
-        "failed"
-    );
-    let again = q
-        .claim("w", 0, 60_000, 4)
-        .await
-        .expect("claim")
-        .expect("tile");
-    assert_eq!(again.rect(), rects[2]);
-    let stored = q
-        .complete(
-            "g",
-            again.idx,
-            &again.lease,
-            again.rect(),
-            &tile_rgb(again.rect()),
-        )
-        .await
-        .expect("complete");
-    assert!(matches!(stored, Completion::Stored { last: true, .. }));
-    progress.complete(&q, "g").await.expect("assembled");
-    assert_eq!(png_of(&q, "g").await, whole);
+    finish_after_loss(&q, &progress, "g", rects[2], &whole).await;
 }
 
 /// Cancelling or deleting a job removes its spool file at once.
