@@ -74,7 +74,7 @@ pub async fn healthz(State(state): State<AppState>) -> Result<Json<Value>, ApiEr
         tracing::error!("health check: {e}");
         return Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,
-            format!("the database does not take writes: {e}"),
+            format!("the database or the tile spool does not take writes: {e}"),
         ));
     }
     Ok(Json(json!({ "status": "ok" })))

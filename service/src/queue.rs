@@ -425,6 +425,9 @@ impl Queue {
         let in_memory = url.contains(":memory:");
         // Beside the database file, so opened only once that file is (its folder exists).
         let spool_dir = (!in_memory).then(|| crate::spool::folder_for(opts.get_filename()));
+        if let Some(dir) = &spool_dir {
+            crate::spool::check_folder(dir)?;
+        }
         // The readers' pool (the writer's connection is held: see [`Writer`]).
         let connect = |n: u32, opts: SqliteConnectOptions| {
             SqlitePoolOptions::new()
@@ -601,7 +604,8 @@ impl Queue {
     }
 
     /// Rewrites the health row on the writing connection: whether the database takes a
-    /// write now, within `within` (the writer may be behind a lock held elsewhere).
+    /// write now, within `within` (the writer may be behind a lock held elsewhere); and
+    /// writes a file in the tile spool's folder.
     pub async fn probe_write(&self, now: i64, within: Duration) -> Result<()> {
         let write = async {
             sqlx::query(
@@ -614,9 +618,14 @@ impl Queue {
             .map_err(QueueError::from)
         };
         match tokio::time::timeout(within, write).await {
-            Ok(done) => done.map(|_| ()),
-            Err(_) => Err(QueueError::WriteTimeout(within)),
+            Ok(done) => done.map(|_| ())?,
+            Err(_) => return Err(QueueError::WriteTimeout(within)),
         }
+        // And tile pixels can be stored.
+        if let Some(spool) = &self.spool {
+            spool.probe()?;
+        }
+        Ok(())
     }
 
     /// Stores a job, its tiles and its assets in one transaction.

@@ -123,19 +123,58 @@ pub enum SpoolError {
         #[source]
         source: io::Error,
     },
+    #[error("{0} is not a folder: the tile spool goes there, beside the database (move that away)")]
+    NotAFolder(PathBuf),
+    #[error(
+        "the tile spool folder {dir} does not take a file: {source} (tile pixels wait there, \
+         beside the database: the service must be able to write in it)"
+    )]
+    Unwritable {
+        dir: PathBuf,
+        #[source]
+        source: io::Error,
+    },
+}
+
+/// Fails when `dir` exists but is not a folder (checked before the database is opened, so
+/// that nothing is created beside it).
+pub fn check_folder(dir: &Path) -> Result<(), SpoolError> {
+    match std::fs::symlink_metadata(dir) {
+        Ok(m) if m.is_dir() => Ok(()),
+        // A link to a folder is a folder.
+        Ok(m) if m.is_symlink() && dir.is_dir() => Ok(()),
+        Ok(_) => Err(SpoolError::NotAFolder(dir.to_path_buf())),
+        Err(_) => Ok(()),
+    }
 }
 
 impl Spool {
-    /// Opens (creating if missing) the spool folder `dir`.
+    /// Opens (creating if missing) the spool folder `dir`, and checks that a file can be
+    /// written in it.
     pub fn open(dir: PathBuf) -> Result<Spool, SpoolError> {
+        check_folder(&dir)?;
         std::fs::create_dir_all(&dir).map_err(|source| SpoolError::Io {
             path: dir.clone(),
             source,
         })?;
-        Ok(Spool {
+        let spool = Spool {
             dir,
             open: Mutex::new(HashMap::new()),
-        })
+        };
+        spool.probe()?;
+        Ok(spool)
+    }
+
+    /// Writes and removes a small file in the folder: whether tile pixels can be stored now
+    /// (the service's start, and its health check).
+    pub fn probe(&self) -> Result<(), SpoolError> {
+        let path = self.dir.join("probe.tmp");
+        let unwritable = |source| SpoolError::Unwritable {
+            dir: self.dir.clone(),
+            source,
+        };
+        std::fs::write(&path, b"tessera").map_err(unwritable)?;
+        std::fs::remove_file(&path).map_err(unwritable)
     }
 
     /// The folder.
@@ -195,6 +234,9 @@ impl Spool {
             Err(e) if create && e.kind() == io::ErrorKind::NotFound => {
                 std::fs::create_dir_all(&self.dir).and_then(|()| opening())
             }
+            // A file left that this service cannot open (another user's, say): its bytes
+            // are of no use to anyone but this job, whose tiles they are; start it afresh.
+            Err(_) if create => std::fs::remove_file(&path).and_then(|()| opening()),
             other => other,
         }
         .map_err(self.io(id))?;

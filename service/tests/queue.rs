@@ -1526,3 +1526,38 @@ async fn cancel_and_delete_remove_the_spool_file() {
     assert!(q.delete("d").await.expect("delete"));
     assert!(!dir.join("d.rgb").exists());
 }
+
+/// A spool folder that cannot be used is refused when the queue opens, with the reason,
+/// before anything is created beside the database; one that stops taking files fails the
+/// health probe. (A folder without write permission cannot be tested as root, which
+/// writes anyway: a folder where the probe's file should go stands in for it.)
+#[tokio::test]
+async fn an_unusable_spool_is_refused_at_start_and_by_the_health_probe() {
+    let db = Db::new("spool-unusable");
+    let tiles = db.0.join("q.db-tiles");
+    std::fs::write(&tiles, b"not a folder").expect("file");
+    let err = Queue::open(&db.url())
+        .await
+        .expect_err("a file is not a folder");
+    assert!(err.to_string().contains("is not a folder"), "{err}");
+    assert!(!db.0.join("q.db").exists(), "nothing created beside it");
+    std::fs::remove_file(&tiles).expect("remove");
+
+    std::fs::create_dir_all(tiles.join("probe.tmp")).expect("a folder in the way");
+    let err = Queue::open(&db.url())
+        .await
+        .expect_err("the probe cannot write");
+    assert!(err.to_string().contains("does not take a file"), "{err}");
+    std::fs::remove_dir(tiles.join("probe.tmp")).expect("remove");
+
+    let q = Queue::open(&db.url()).await.expect("open");
+    q.probe_write(0, std::time::Duration::from_secs(2))
+        .await
+        .expect("healthy");
+    std::fs::create_dir_all(tiles.join("probe.tmp")).expect("a folder in the way");
+    let err = q
+        .probe_write(0, std::time::Duration::from_secs(2))
+        .await
+        .expect_err("the spool takes no file");
+    assert!(err.to_string().contains("does not take a file"), "{err}");
+}
