@@ -389,10 +389,22 @@ const CLAIM_SQL: &str =
       ORDER BY t.idx LIMIT 1)
   RETURNING job_id, idx, x, y, w, h";
 
-/// Whether `url` can name a SQLite database: `sqlite:` or no scheme at all (a bare path).
+/// Whether `url` can name a SQLite database: `sqlite:` or no scheme at all (a bare path),
+/// but not a SQLite URI file name (`file:…`, see [`Queue::open`]).
 pub fn is_sqlite(url: &str) -> bool {
-    url.split_once("://")
-        .is_none_or(|(scheme, _)| scheme == "sqlite")
+    !is_uri_file_name(url)
+        && url
+            .split_once("://")
+            .is_none_or(|(scheme, _)| scheme == "sqlite")
+}
+
+/// A SQLite URI file name (`file:f.db`, `sqlite:file:f.db?mode=rwc`): SQLite opens the file
+/// it names (`f.db`), while the service's lock and tile spool would be named after the
+/// whole text (`file:f.db-service.lock`), so a second service could open the same database
+/// as `f.db`.
+fn is_uri_file_name(url: &str) -> bool {
+    let name = url.strip_prefix("sqlite:").unwrap_or(url);
+    name.trim_start_matches('/').starts_with("file:")
 }
 
 impl Queue {
@@ -401,6 +413,14 @@ impl Queue {
     pub async fn open(url: &str) -> Result<Queue> {
         // sqlx reads any other scheme as a file name ("unable to open database file"). A bare
         // path (`tessera.db`) is a SQLite file, as it always was.
+        if is_uri_file_name(url) {
+            return Err(QueueError::Url {
+                url: url.to_string(),
+                reason: "SQLite URI file names (`file:…`) are not taken: give the file as \
+                         sqlite://PATH or a plain path"
+                    .into(),
+            });
+        }
         if !is_sqlite(url) {
             return Err(QueueError::Url {
                 url: url.to_string(),
@@ -1706,11 +1726,20 @@ mod tests {
     }
 
     /// A database the queue cannot use says which and why: another scheme is refused as
-    /// not SQLite (sqlx took it for a file name), a file in a missing folder names the URL;
+    /// not SQLite (sqlx took it for a file name), and so is a SQLite URI file name; a file
+    /// in a missing folder names the URL;
     /// a bare path is still a SQLite file.
     #[tokio::test]
     async fn a_database_that_cannot_be_opened_is_named() {
-        for url in ["postgres://u@h/db", "bogus://x"] {
+        // A SQLite URI file name too: SQLite would open `f.db`, but the lock and the spool
+        // would be named `file:f.db-…`, letting a second service onto the same file.
+        for url in [
+            "postgres://u@h/db",
+            "bogus://x",
+            "file:f.db",
+            "sqlite:file:f.db?mode=rwc",
+            "sqlite://file:f.db",
+        ] {
             match Queue::open(url).await {
                 Err(e @ QueueError::Url { .. }) => {
                     let m = e.to_string();
@@ -1718,6 +1747,10 @@ mod tests {
                 }
                 other => panic!("{url}: {:?}", other.err()),
             }
+            assert!(
+                !std::path::Path::new("f.db").exists(),
+                "{url} opened nothing"
+            );
         }
         let dir = std::env::temp_dir().join(format!("tessera-open-{}", std::process::id()));
         let missing = format!("sqlite://{}/no-such-folder/q.db", dir.display());
