@@ -110,6 +110,8 @@ struct JobFile {
 pub struct Spool {
     dir: PathBuf,
     open: Mutex<HashMap<String, Arc<JobFile>>>,
+    /// Files the sweep could not remove and has said so once (it tries every sweep).
+    stuck: Mutex<HashSet<PathBuf>>,
 }
 
 /// Why a spooled tile could not be used.
@@ -160,6 +162,7 @@ impl Spool {
         let spool = Spool {
             dir,
             open: Mutex::new(HashMap::new()),
+            stuck: Mutex::new(HashSet::new()),
         };
         spool.probe()?;
         Ok(spool)
@@ -344,7 +347,15 @@ impl Spool {
             match std::fs::remove_file(path) {
                 Ok(()) => removed += 1,
                 Err(e) if e.kind() == io::ErrorKind::NotFound => {}
-                Err(e) => tracing::warn!("removing {}: {e}", path.display()),
+                Err(e) => {
+                    let mut stuck = self.stuck.lock().unwrap_or_else(PoisonError::into_inner);
+                    if stuck.insert(path.clone()) {
+                        tracing::warn!(
+                            "removing {} (tried again every sweep): {e}",
+                            path.display()
+                        );
+                    }
+                }
             }
         }
         removed
