@@ -434,11 +434,11 @@ fn spawn_local_workers(
     };
     // One cache of built scenes for all of them: a job's scene is fetched and built once.
     let scenes = tessera_worker::SceneCache::default();
-    // One queue of tiles in line for all their render threads: a thread whose worker has no
-    // tile for it takes one another worker put in line.
     if n == 0 {
         return Vec::new();
     }
+    // One queue of tiles in line for all their render threads: a thread whose worker has no
+    // tile for it takes one another worker put in line.
     let pool = match tessera_worker::RenderPool::new(n) {
         Ok(p) => p,
         Err(e) => {

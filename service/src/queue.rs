@@ -211,7 +211,6 @@ pub enum Cancel {
     Ended { state: String },
 }
 
-/// The queue over one SQLite database.
 /// How long a statement waits for the writing connection before the queue answers "busy"
 /// (sqlx's pool waited as long).
 const WRITER_WAIT: Duration = Duration::from_secs(30);
@@ -277,6 +276,7 @@ impl std::ops::DerefMut for Reader<'_> {
     }
 }
 
+/// The queue over one SQLite database.
 #[derive(Debug, Clone)]
 pub struct Queue {
     /// Readers: several connections, which WAL lets read while the writer writes; `None`
@@ -286,7 +286,7 @@ pub struct Queue {
     /// several connections, the losers of each race get `SQLITE_BUSY` and sleep in SQLite's
     /// busy handler (1, 2, 5, 10 … ms) even when the winner needs only microseconds, which
     /// under load left workers waiting milliseconds for claims. One connection makes writers
-    /// queue in the pool instead, in order, and wake as soon as the connection is free.
+    /// queue for it instead, in order, and wake as soon as it is free (see [`Writer`]).
     writer: Arc<Writer>,
     /// Checkpoints the WAL off the writer; `None` for an in-memory database (no WAL).
     wal: Option<Arc<WalKeeper>>,
@@ -960,7 +960,7 @@ impl Queue {
         )
     }
 
-    fn issued_map(&self) -> std::sync::MutexGuard<'_, HashMap<(String, u32), (String, Rect)>> {
+    fn issued_map(&self) -> std::sync::MutexGuard<'_, Issued> {
         self.issued
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
@@ -1429,15 +1429,19 @@ impl Queue {
             .await?;
         let mut spooled = Vec::new();
         let mut lost = Vec::new();
+        // The job's image size, looked up once a band (and only if a row is spooled).
+        let mut size = None;
         for row in &rows {
             let (x, w, h): (i64, i64, i64) = (row.try_get(0)?, row.try_get(1)?, row.try_get(2)?);
             let (x, w, h) = (x as u32, w as u32, h as u32);
             let crc: Option<i64> = row.try_get(4)?;
             match (crc, &self.spool) {
                 (Some(crc), Some(spool)) => {
-                    let size = self.spooled_size(spool, id).await?;
+                    if size.is_none() {
+                        size = Some(self.spooled_size(spool, id).await?);
+                    }
                     let tile = Rect::new(x, y, w, h);
-                    let read = match size {
+                    let read = match size.flatten() {
                         Some((width, height)) => {
                             spool.read(id, width, height, tile, crc as u32, &mut spooled)
                         }

@@ -67,6 +67,15 @@ fn pixels(r: Rect) -> Vec<u8> {
     vec![7; r.pixel_count() * 3]
 }
 
+/// Every tile the queue hands worker `w` now, in order (`max_attempts` as `claim` takes it).
+async fn claim_all(q: &Queue, max_attempts: u32) -> Vec<tessera_worker::protocol::Claim> {
+    let mut claims = Vec::new();
+    while let Some(c) = q.claim("w", 0, 60_000, max_attempts).await.expect("claim") {
+        claims.push(c);
+    }
+    claims
+}
+
 /// The stored tiles of the band at row `y`, as `Queue::band` hands them over.
 async fn band(q: &Queue, id: &str, y: u32) -> Vec<(u32, u32, u32, Vec<u8>)> {
     let mut out = Vec::new();
@@ -584,10 +593,7 @@ async fn a_band_reads_back_its_stored_tiles_left_to_right() {
     let q = Queue::open(&db.url()).await.expect("open");
     // 3 tiles across (the last 4 pixels wide), 2 bands (the last 3 rows high).
     let rects = job(&q, "b", 20, 11, 8).await;
-    let mut claims = Vec::new();
-    while let Some(c) = q.claim("w", 0, 60_000, 1).await.expect("claim") {
-        claims.push(c);
-    }
+    let claims = claim_all(&q, 1).await;
     assert_eq!(claims.len(), rects.len());
     // The bottom band's tiles and the top band's first tile, right to left.
     for c in claims
@@ -684,10 +690,7 @@ async fn tile_pixels_wait_in_the_spool_not_in_sqlite() {
     assert_eq!(dir, db.0.join("q.db-tiles"));
     let (w, h) = (300u32, 200u32);
     let rects = job(&q, "s", w, h, 64).await;
-    let mut claims = Vec::new();
-    while let Some(c) = q.claim("w", 0, 60_000, 1).await.expect("claim") {
-        claims.push(c);
-    }
+    let claims = claim_all(&q, 1).await;
     let mut last = 0;
     for c in &claims {
         match q
@@ -743,10 +746,7 @@ async fn lost_pixels_send_their_tiles_back_to_the_queue() {
     let q = Queue::open(&db.url()).await.expect("open");
     let dir = q.spool_dir().expect("spool").to_path_buf();
     let rects = job(&q, "l", 40, 16, 8).await; // 5 × 2 tiles
-    let mut claims = Vec::new();
-    while let Some(c) = q.claim("w", 0, 60_000, 1).await.expect("claim") {
-        claims.push(c);
-    }
+    let claims = claim_all(&q, 1).await;
     for c in &claims {
         let stored = q
             .complete("l", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
@@ -955,10 +955,7 @@ async fn bands_are_encoded_in_order_as_they_complete_and_give_the_whole_images_p
     let rects = tiles(w, h, 8);
     progress.follow("j", w, h, &rects);
     job(&q, "j", w, h, 8).await;
-    let mut claims = Vec::new();
-    while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
-        claims.push(c);
-    }
+    let claims = claim_all(&q, 4).await;
     assert_eq!(claims.len(), rects.len());
     let store = async |band_y: u32| {
         for c in claims.iter().filter(|c| c.y == band_y) {
@@ -1374,10 +1371,7 @@ async fn a_job_whose_pixels_are_lost_still_gives_the_whole_images_png() {
     assert_eq!(q.job("j").await.expect("read").expect("job").tiles_done, 3);
     // The rest: the lost tile comes back first (lowest index), then the second band; the
     // last of them is corrupted just before it completes the job.
-    let mut rest = Vec::new();
-    while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
-        rest.push(c);
-    }
+    let rest = claim_all(&q, 4).await;
     assert_eq!(
         rest[0].rect(),
         first[1].rect(),
@@ -1407,10 +1401,7 @@ async fn refused_posts_leave_the_stored_pixels_alone() {
     let db = Db::new("spool-refused");
     let q = Queue::open(&db.url()).await.expect("open");
     let rects = job(&q, "f", 32, 16, 8).await; // 4 × 2 tiles
-    let mut claims = Vec::new();
-    while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
-        claims.push(c);
-    }
+    let claims = claim_all(&q, 4).await;
     // The first band stored, the second still leased.
     for c in claims.iter().filter(|c| c.y == 0) {
         let stored = q
@@ -1472,10 +1463,7 @@ async fn a_loss_found_ahead_after_the_last_tile_waits_for_the_tile() {
     let rects = tiles(w, h, 8);
     progress.follow("g", w, h, &rects);
     job(&q, "g", w, h, 8).await;
-    let mut claims = Vec::new();
-    while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
-        claims.push(c);
-    }
+    let claims = claim_all(&q, 4).await;
     // Every tile stored (the last one says so); the first band's completion is counted but
     // its encoding has not run yet when a byte of tile 2 is lost.
     let mut band_done = false;
@@ -1506,10 +1494,7 @@ async fn cancel_and_delete_remove_the_spool_file() {
     for id in ["c", "d"] {
         job(&q, id, 16, 8, 8).await; // two tiles each
     }
-    let mut claims = Vec::new();
-    while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
-        claims.push(c);
-    }
+    let claims = claim_all(&q, 4).await;
     for c in claims.iter().filter(|c| c.idx == 0) {
         let stored = q
             .complete(&c.job, c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))

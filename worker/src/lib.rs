@@ -149,22 +149,13 @@ pub async fn run(
     cfg: WorkerConfig,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<Summary, WorkerError> {
-    run_sharing(cfg, SceneCache::default(), shutdown).await
+    run_with(cfg, SceneCache::default(), None, shutdown).await
 }
 
 /// [`run`], with built scenes kept in (and taken from) `scenes`, which other workers of the
-/// same service may share.
-pub async fn run_sharing(
-    cfg: WorkerConfig,
-    scenes: SceneCache,
-    shutdown: impl Future<Output = ()> + Send + 'static,
-) -> Result<Summary, WorkerError> {
-    run_with(cfg, scenes, None, shutdown).await
-}
-
-/// [`run_sharing`], rendering on `pool` when given (shared with other workers of the same
-/// service: a thread of one takes the tiles another put in line when it has none of its
-/// own), or else on `cfg.threads` threads of its own.
+/// same service may share, and rendering on `pool` when given (shared with them too: a
+/// thread of one takes the tiles another put in line when it has none of its own), or else
+/// on `cfg.threads` threads of its own.
 pub async fn run_with(
     cfg: WorkerConfig,
     scenes: SceneCache,
