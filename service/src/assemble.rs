@@ -7,9 +7,12 @@
 //! later tiles still render takes the encoding off the end of the job: when the last tile
 //! arrives, only the bands not yet encoded (usually its own) remain.
 //!
-//! Memory stays bounded whatever the image size: per job being encoded, one band of RGB rows
-//! (image width × tile height × 3 bytes, kept from one band to the next), the encoder's
-//! state, and one band's compressed output. The PNG goes into the database in chunks of
+//! Memory stays bounded whatever the image size: per job being encoded, one band's tiles as
+//! read, one after another (image width × tile height × 3 bytes, kept from one band to the
+//! next), the encoder's state, and one band's compressed output. The band is never copied
+//! into image rows: the encoder takes each row in pieces from the tiles' bytes
+//! ([`PngWriter::write_band`]), and a band whose tiles do not lie side by side from the
+//! left edge is refused ([`AssembleError::Gap`]). The PNG goes into the database in chunks of
 //! [`CHUNK`] bytes as it is encoded, so a finished image survives a restart and a download
 //! streams it back chunk by chunk, holding one small chunk at a time per client. The
 //! encoder is the tracer's, fed the same rows in the same order, so the PNG is
@@ -65,9 +68,10 @@ struct Encoder {
     png: PngWriter<SharedBuffer>,
     sink: SharedBuffer,
     pending: Vec<u8>,
-    /// The band being put together, kept from band to band so that its pages are not
-    /// allocated and faulted in again for each (a 1920-pixel band of 256 rows is 1.5 MB).
-    rows: Vec<u8>,
+    /// The band's tiles as read, one after another, kept from band to band so that its
+    /// pages are not allocated and faulted in again for each (a 1920-pixel band of 256
+    /// rows is 1.5 MB). The encoder takes each row from the tiles' bytes directly.
+    band: Vec<u8>,
     seq: u32,
     total: u64,
     /// The first row not yet encoded.
@@ -91,7 +95,7 @@ impl Encoder {
             png,
             sink,
             pending: Vec::new(),
-            rows: Vec::new(),
+            band: Vec::new(),
             seq: 0,
             total: 0,
             y: 0,
@@ -107,38 +111,26 @@ impl Encoder {
     /// Encodes the band of tiles whose top row is `self.y`; every tile of it must be stored.
     async fn band(&mut self, queue: &Queue, id: &str) -> Result<(), AssembleError> {
         let (y, width) = (self.y, self.width);
-        let row_bytes = width as usize * 3;
-        // The band's height is its first tile's; every other tile must match it.
-        let mut bh = None;
-        let rows = &mut self.rows;
-        let (mut covered, mut fits) = (0u64, true);
-        queue
-            .band(id, y, now_ms(), |x, w, h, rgb| {
-                let bh = *bh.get_or_insert_with(|| {
-                    rows.clear();
-                    rows.resize(row_bytes * h as usize, 0);
-                    h
-                });
-                let tile_row = w as usize * 3;
-                let inside = u64::from(x) + u64::from(w) <= u64::from(width);
-                if !fits || h != bh || !inside || rgb.len() != tile_row * h as usize {
-                    fits = false;
-                    return;
-                }
-                for (r, src) in rgb.chunks_exact(tile_row).enumerate() {
-                    let start = r * row_bytes + x as usize * 3;
-                    rows[start..start + tile_row].copy_from_slice(src);
-                }
-                covered += u64::from(w);
-            })
-            .await?;
-        let Some(bh) = bh.filter(|_| fits && covered == u64::from(width)) else {
+        let tiles = queue.band(id, y, now_ms(), &mut self.band).await?;
+        // The band's height is its first tile's; the tiles must share it and lie side by
+        // side from the left edge to the right one.
+        let bh = tiles.first().map_or(0, |t| t.h);
+        let mut covered = 0u64;
+        let mut pieces = Vec::with_capacity(tiles.len());
+        for t in &tiles {
+            if t.h != bh || u64::from(t.x) != covered {
+                break;
+            }
+            pieces.push((t.w, &self.band[t.bytes.clone()]));
+            covered += u64::from(t.w);
+        }
+        if bh == 0 || pieces.len() != tiles.len() || covered != u64::from(width) {
             return Err(AssembleError::Gap { y, covered, width });
-        };
+        }
         // One band with `Fast` compression is about a millisecond of encoding: short enough
         // to run on the async thread between two database round trips.
         let started = std::time::Instant::now();
-        self.png.write_rows(&self.rows)?;
+        self.png.write_band(bh, &pieces)?;
         self.pending.extend_from_slice(&self.sink.take());
         self.flush(queue, id, false).await?;
         self.y += bh;

@@ -186,6 +186,16 @@ const BAND_SQL: &str = "SELECT t.x, t.w, t.h, p.rgb, p.crc, t.idx FROM tiles t
      JOIN tile_pixels p ON p.job_id = t.job_id AND p.idx = t.idx
      WHERE t.job_id = ?1 AND t.y = ?2 ORDER BY t.idx";
 
+/// A stored tile of a band, as [`Queue::band`] read it: its place and size, and where its
+/// rows' bytes are in the band's buffer.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BandTile {
+    pub x: u32,
+    pub w: u32,
+    pub h: u32,
+    pub bytes: std::ops::Range<usize>,
+}
+
 /// A leased tile whose lease ran out, as [`Queue::reap`] reads it.
 #[derive(Debug, sqlx::FromRow)]
 struct Expired {
@@ -1400,18 +1410,18 @@ impl Queue {
         )
     }
 
-    /// The stored tiles of one band of rows starting at `y`, left to right: calls `each`
-    /// with `(x, w, h, rgb)` for every tile of the band that is stored.
+    /// The stored tiles of one band of rows starting at `y`, left to right: each tile's
+    /// bytes are appended to `buf` (cleared first, its capacity kept from band to band), and
+    /// the tiles are returned in order with where their bytes are in it.
     ///
     /// The rows come in `idx` order from the `tiles_by_band` index (migration 0003), which
     /// within a band is left to right, so SQLite sorts nothing. A spooled tile's pixels are
-    /// read from the job's spool file into one buffer reused across the band and checked
-    /// against the row's CRC; pixels kept in the row (an in-memory database, rows from
-    /// before migration 0011) are borrowed from it rather than copied out.
+    /// read from the job's spool file straight into `buf` and checked against the row's
+    /// CRC; pixels kept in the row (an in-memory database, rows from before migration 0011)
+    /// are copied from it.
     ///
     /// Tiles whose spooled pixels are missing or do not match are lost: they are queued
-    /// again ([`Queue::requeue_lost`]) and the call fails with [`QueueError::Lost`], having
-    /// handed `each` the band's other tiles (the caller drops the band).
+    /// again ([`Queue::requeue_lost`]) and the call fails with [`QueueError::Lost`].
     ///
     /// Read on the writing connection, taken in turn with the results and claims: a band
     /// is one short read, and the rows of pixels kept in SQLite are still in its cache.
@@ -1420,14 +1430,15 @@ impl Queue {
         id: &str,
         y: u32,
         now: i64,
-        mut each: impl FnMut(u32, u32, u32, &[u8]),
-    ) -> Result<()> {
+        buf: &mut Vec<u8>,
+    ) -> Result<Vec<BandTile>> {
+        buf.clear();
         let rows = sqlx::query(BAND_SQL)
             .bind(id)
             .bind(i64::from(y))
             .fetch_all(&mut *self.writer.lock().await?)
             .await?;
-        let mut spooled = Vec::new();
+        let mut tiles = Vec::with_capacity(rows.len());
         let mut lost = Vec::new();
         // The job's image size, looked up once a band (and only if a row is spooled).
         let mut size = None;
@@ -1435,28 +1446,36 @@ impl Queue {
             let (x, w, h): (i64, i64, i64) = (row.try_get(0)?, row.try_get(1)?, row.try_get(2)?);
             let (x, w, h) = (x as u32, w as u32, h as u32);
             let crc: Option<i64> = row.try_get(4)?;
-            match (crc, &self.spool) {
+            let start = buf.len();
+            let read = match (crc, &self.spool) {
                 (Some(crc), Some(spool)) => {
                     if size.is_none() {
                         size = Some(self.spooled_size(spool, id).await?);
                     }
-                    let tile = Rect::new(x, y, w, h);
-                    let read = match size.flatten() {
+                    match size.flatten() {
                         Some((width, height)) => {
-                            spool.read(id, width, height, tile, crc as u32, &mut spooled)
+                            spool.read(id, width, height, Rect::new(x, y, w, h), crc as u32, buf)
                         }
                         None => false,
-                    };
-                    if read {
-                        each(x, w, h, &spooled);
-                    } else {
-                        lost.push(row.try_get::<i64, _>(5)?);
                     }
                 }
                 // A spooled row read without a spool (the database moved to memory: cannot
                 // happen, an in-memory database is new) is lost like a missing file.
-                (Some(_), None) => lost.push(row.try_get::<i64, _>(5)?),
-                (None, _) => each(x, w, h, row.try_get(3)?),
+                (Some(_), None) => false,
+                (None, _) => {
+                    buf.extend_from_slice(row.try_get::<&[u8], _>(3)?);
+                    true
+                }
+            };
+            if read {
+                tiles.push(BandTile {
+                    x,
+                    w,
+                    h,
+                    bytes: start..buf.len(),
+                });
+            } else {
+                lost.push(row.try_get::<i64, _>(5)?);
             }
         }
         if !lost.is_empty() {
@@ -1467,7 +1486,7 @@ impl Queue {
                 tiles: lost.len(),
             });
         }
-        Ok(())
+        Ok(tiles)
     }
 
     /// Hands out again the done tiles `idxs` of an active job whose pixels were lost: their

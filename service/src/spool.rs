@@ -283,9 +283,10 @@ impl Spool {
         Ok(crc32fast::hash(rgb))
     }
 
-    /// Reads a tile's bytes from job `id`'s file into `buf` and checks them against `crc`:
-    /// false when they do not match or cannot be read (a lost tile: see the module comment;
-    /// a file that is not there is not created).
+    /// Appends a tile's bytes from job `id`'s file to `buf` and checks them against `crc`:
+    /// false, with `buf` as it was, when they do not match or cannot be read (a lost tile:
+    /// see the module comment; a file that is not there is not created). Appending lets a
+    /// band's tiles be read one after another into one buffer, each straight from the file.
     pub fn read(
         &self,
         id: &str,
@@ -298,19 +299,24 @@ impl Spool {
         let Some((offset, len)) = slot(width, height, tile) else {
             return false;
         };
+        let start = buf.len();
         // Every byte is read over: no need to clear (and zero) a buffer of the right size.
-        buf.resize(len, 0);
+        buf.resize(start + len, 0);
         let read = self
             .job(id, width, height, false)
-            .and_then(|f| read_at(&f.file, buf, offset).map_err(self.io(id)));
-        match read {
-            Ok(()) => crc32fast::hash(buf) == crc,
+            .and_then(|f| read_at(&f.file, &mut buf[start..], offset).map_err(self.io(id)));
+        let good = match read {
+            Ok(()) => crc32fast::hash(&buf[start..]) == crc,
             // Not there, shorter than the slot (never written, or truncated), or unreadable.
             Err(e) => {
                 tracing::warn!(job = %id, "reading tile {tile:?}: {e}");
                 false
             }
+        };
+        if !good {
+            buf.truncate(start);
         }
+        good
     }
 
     /// Deletes job `id`'s file (its image is stored, or it ended without one).
@@ -428,9 +434,11 @@ mod tests {
         let tile = Rect::new(2, 0, 2, 3);
         let rgb: Vec<u8> = (0..18).collect();
         let crc = spool.write("j", 4, 3, tile, &rgb).expect("written");
-        let mut buf = Vec::new();
+        let mut buf = vec![7];
         assert!(spool.read("j", 4, 3, tile, crc, &mut buf));
-        assert_eq!(buf, rgb);
+        assert_eq!(buf[0], 7, "read appends");
+        assert_eq!(buf[1..], rgb);
+        buf.clear();
         // A wrong CRC, a tile never written (a hole of zeros before the written slot), a
         // changed byte, a file shorter than the slot and a deleted file are all lost tiles.
         assert!(!spool.read("j", 4, 3, tile, crc ^ 1, &mut buf));
@@ -446,6 +454,7 @@ mod tests {
         assert!(!spool.read("j", 4, 3, tile, crc, &mut buf));
         spool.remove("j");
         assert!(!spool.read("j", 4, 3, tile, crc, &mut buf));
+        assert!(buf.is_empty(), "a lost tile leaves nothing in the buffer");
         assert!(!spool.path("j").exists(), "reading creates no file");
         assert!(spool.write("j", 4, 3, Rect::new(3, 0, 2, 3), &rgb).is_err());
         // A folder removed under the service is made again by the next write.

@@ -78,11 +78,12 @@ async fn claim_all(q: &Queue, max_attempts: u32) -> Vec<tessera_worker::protocol
 
 /// The stored tiles of the band at row `y`, as `Queue::band` hands them over.
 async fn band(q: &Queue, id: &str, y: u32) -> Vec<(u32, u32, u32, Vec<u8>)> {
-    let mut out = Vec::new();
-    q.band(id, y, 0, |x, w, h, rgb| out.push((x, w, h, rgb.to_vec())))
-        .await
-        .expect("band");
-    out
+    let mut buf = Vec::new();
+    let tiles = q.band(id, y, 0, &mut buf).await.expect("band");
+    tiles
+        .into_iter()
+        .map(|t| (t.x, t.w, t.h, buf[t.bytes].to_vec()))
+        .collect()
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
@@ -759,9 +760,8 @@ async fn lost_pixels_send_their_tiles_back_to_the_queue() {
     let mut bytes = std::fs::read(dir.join("l.rgb")).expect("file");
     bytes[at as usize + 5] ^= 1;
     std::fs::write(dir.join("l.rgb"), &bytes).expect("write");
-    let mut seen = 0;
     let err = q
-        .band("l", 0, 0, |_, _, _, _| seen += 1)
+        .band("l", 0, 0, &mut Vec::new())
         .await
         .expect_err("a lost tile fails the band");
     assert!(err.to_string().contains("rendered again"), "{err}");
@@ -788,7 +788,7 @@ async fn lost_pixels_send_their_tiles_back_to_the_queue() {
     // every tile of the band.
     std::fs::remove_file(dir.join("l.rgb")).expect("delete");
     let q = Queue::open(&db.url()).await.expect("open again");
-    assert!(q.band("l", 8, 0, |_, _, _, _| {}).await.is_err());
+    assert!(q.band("l", 8, 0, &mut Vec::new()).await.is_err());
     let job = q.job("l").await.expect("job").expect("exists");
     assert_eq!(job.tiles_done, 5);
 }
@@ -813,7 +813,7 @@ async fn a_tile_lost_again_and_again_fails_its_job() {
             .expect("complete");
         assert!(matches!(stored, Completion::Stored { last: true, .. }));
         std::fs::write(&file, [0u8; 8 * 8 * 3]).expect("overwrite");
-        assert!(q.band("r", 0, 0, |_, _, _, _| {}).await.is_err());
+        assert!(q.band("r", 0, 0, &mut Vec::new()).await.is_err());
         let job = q.job("r").await.expect("job").expect("exists");
         if round == 1 {
             assert_eq!(job.state, "running", "one loss is rendered again");
@@ -1545,4 +1545,80 @@ async fn an_unusable_spool_is_refused_at_start_and_by_the_health_probe() {
         .await
         .expect_err("the spool takes no file");
     assert!(err.to_string().contains("does not take a file"), "{err}");
+}
+
+/// The image a job's tiles of [`tile_rgb`] make, encoded whole by the tracer's encoder.
+fn whole_png(w: u32, h: u32) -> Vec<u8> {
+    let rgb: Vec<u8> = (0..h)
+        .flat_map(|y| (0..w).flat_map(move |x| (0..3).map(move |c| shade(x, y, c))))
+        .collect();
+    tessera_tracer::encode_png(w, h, &rgb).expect("encode")
+}
+
+/// A job's stored PNG, its chunks in order.
+async fn stored_png(q: &Queue, id: &str) -> Vec<u8> {
+    let mut png = Vec::new();
+    for seq in 0..q.image_chunks(id).await.expect("chunks") {
+        png.extend(q.image_chunk(id, seq).await.expect("chunk").expect("there"));
+    }
+    png
+}
+
+/// Pixels kept in the tile rows (as before the spool) are assembled band by band into the
+/// same PNG as the whole image encoded at once; a band whose tiles do not lie side by side
+/// from the left edge is refused, not encoded with a hole, although their widths add up to
+/// the image's.
+#[tokio::test]
+async fn bands_are_encoded_from_tiles_side_by_side_only() {
+    use tessera_service::assemble::{AssembleError, assemble};
+    let db = Db::new("gap");
+    let q = Queue::open(&db.url()).await.expect("open");
+    let (w, h) = (40, 20); // 5 × 3 tiles of 8 px, the last band 4 rows high
+    for id in ["g", "h"] {
+        job(&q, id, w, h, 8).await;
+    }
+    for c in claim_all(&q, 4).await {
+        let stored = q
+            .complete(&c.job, c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .await
+            .expect("complete");
+        assert!(matches!(stored, Completion::Stored { .. }));
+    }
+    // The pixels moved from the spool into the rows; job `h`'s second tile of its first
+    // band then says it lies at the left edge, where its first tile is.
+    let pool = sqlx::SqlitePool::connect(&db.url()).await.expect("open");
+    for (id, idx, x, y, tw, th) in sqlx::query_as::<_, (String, i64, u32, u32, u32, u32)>(
+        "SELECT job_id, idx, x, y, w, h FROM tiles",
+    )
+    .fetch_all(&pool)
+    .await
+    .expect("tiles")
+    {
+        sqlx::query("UPDATE tile_pixels SET rgb = ?3, crc = NULL WHERE job_id = ?1 AND idx = ?2")
+            .bind(&id)
+            .bind(idx)
+            .bind(tile_rgb(Rect::new(x, y, tw, th)))
+            .execute(&pool)
+            .await
+            .expect("move the pixels");
+    }
+    sqlx::query("UPDATE tiles SET x = 0 WHERE job_id = 'h' AND idx = 1")
+        .execute(&pool)
+        .await
+        .expect("misplace");
+    pool.close().await;
+    assemble(&q, "g").await.expect("assembled");
+    assert_eq!(stored_png(&q, "g").await, whole_png(w, h));
+    let err = assemble(&q, "h").await.expect_err("a hole");
+    assert!(
+        matches!(
+            err,
+            AssembleError::Gap {
+                y: 0,
+                covered: 8,
+                width: 40
+            }
+        ),
+        "{err}"
+    );
 }

@@ -78,6 +78,38 @@ impl<W: Write + 'static> PngWriter<W> {
         Ok(())
     }
 
+    /// Appends a band of `height` whole rows held tile by tile, as a farm stores it: `tiles`
+    /// lists, left to right, each tile's width in pixels and its `width × height × 3` bytes
+    /// (its own rows, top to bottom). Each row is fed to the encoder in pieces, tile by tile,
+    /// without first copying the band into image rows; the encoder keeps one row and
+    /// encodes it once whole, so the output is the same as [`Self::write_rows`] on the
+    /// assembled rows. The widths must add up to the image's, and each tile hold exactly its
+    /// bytes; otherwise nothing is written.
+    pub fn write_band(&mut self, height: u32, tiles: &[(u32, &[u8])]) -> Result<(), PngError> {
+        let band = self.row_bytes as u64 * u64::from(height);
+        let got = self.written + band;
+        let pieces_fit = tiles
+            .iter()
+            .all(|&(w, bytes)| bytes.len() as u64 == u64::from(w) * 3 * u64::from(height));
+        let widths: u64 = tiles.iter().map(|&(w, _)| u64::from(w) * 3).sum();
+        if got > self.expected || !pieces_fit || widths != self.row_bytes as u64 {
+            return Err(PngError::Length {
+                expected: self.expected,
+                got,
+            });
+        }
+        for r in 0..height as usize {
+            for &(w, bytes) in tiles {
+                let piece = w as usize * 3;
+                self.stream
+                    .write_all(&bytes[r * piece..(r + 1) * piece])
+                    .map_err(png::EncodingError::from)?;
+            }
+        }
+        self.written = got;
+        Ok(())
+    }
+
     /// Completes the file; every row must have been written.
     pub fn finish(self) -> Result<(), PngError> {
         if self.written != self.expected {
@@ -162,6 +194,50 @@ mod tests {
         }
         pw.finish().expect("finish");
         assert_eq!(whole, banded.take());
+    }
+
+    /// A band given tile by tile (uneven widths, the last narrower) encodes to the same
+    /// bytes as its rows assembled first, checked against the whole image encoded at once.
+    #[test]
+    fn bands_given_tile_by_tile_equal_rows() {
+        let (w, h) = (300u32, 40u32);
+        let rgb: Vec<u8> = (0..w * h * 3).map(|i| (i * 7 % 251) as u8).collect();
+        let whole = encode_png(w, h, &rgb).expect("encode");
+        let tiled = SharedBuffer::new();
+        let mut pw = PngWriter::new(tiled.clone(), w, h).expect("header");
+        let widths = [128u32, 128, 44];
+        for y in (0..h).step_by(16) {
+            let bh = 16.min(h - y);
+            let mut x = 0;
+            let tiles: Vec<(u32, Vec<u8>)> = widths
+                .iter()
+                .map(|&tw| {
+                    let mut t = Vec::new();
+                    for r in y..y + bh {
+                        let start = ((r * w + x) * 3) as usize;
+                        t.extend_from_slice(&rgb[start..start + tw as usize * 3]);
+                    }
+                    x += tw;
+                    (tw, t)
+                })
+                .collect();
+            let refs: Vec<(u32, &[u8])> = tiles.iter().map(|(tw, t)| (*tw, &t[..])).collect();
+            pw.write_band(bh, &refs).expect("band");
+        }
+        pw.finish().expect("finish");
+        assert_eq!(whole, tiled.take());
+    }
+
+    #[test]
+    fn bands_that_do_not_fit_are_refused() {
+        let mut pw = PngWriter::new(SharedBuffer::new(), 4, 2).expect("header");
+        // Widths short of the image's, a tile with a byte too many, and one band too many.
+        assert!(pw.write_band(1, &[(3, &[0; 9])]).is_err());
+        assert!(pw.write_band(1, &[(3, &[0; 9]), (1, &[0; 4])]).is_err());
+        pw.write_band(2, &[(3, &[0; 18]), (1, &[0; 6])])
+            .expect("the whole image");
+        assert!(pw.write_band(1, &[(4, &[0; 12])]).is_err());
+        pw.finish().expect("complete");
     }
 
     #[test]
