@@ -19,7 +19,7 @@ use tessera_tracer::{MemoryAssets, Sampler, Scene, SceneError, Texture, parse, t
 
 use crate::config::auto_tile;
 use crate::error::{ApiError, ok_json};
-use crate::queue::{Cancel, JobRow, NewJob};
+use crate::queue::{Cancel, JobRow, NewJob, STORAGE_PAUSE};
 use crate::receiving::{BODY_SILENCE, Full, Held, Receiving};
 use crate::{AppState, now_ms};
 
@@ -70,6 +70,12 @@ pub async fn page(State(state): State<AppState>) -> Html<String> {
 /// submission and result failed on a full disk.
 pub async fn healthz(State(state): State<AppState>) -> Result<Json<Value>, ApiError> {
     state.queue.ping().await?;
+    if let Some(why) = state.queue.storage_trouble(STORAGE_PAUSE) {
+        return Err(ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            format!("the tile spool failed to store a tile's pixels: {why}"),
+        ));
+    }
     if let Err(e) = state.queue.probe_write(now_ms(), HEALTH_WRITE_WITHIN).await {
         tracing::error!("health check: {e}");
         return Err(ApiError::new(

@@ -132,7 +132,17 @@ pub enum Completion {
     WrongTile(Rect),
     /// The job has no such tile (or no longer exists).
     Missing,
+    /// The pixels could not be written to the spool (a full disk, a folder gone read-only):
+    /// nothing was stored, and the tile was queued again without a failure counted against
+    /// it or the worker, neither of which did anything wrong. Says why.
+    Unstored(String),
 }
+
+/// How long after a tile's pixels could not be written the service hands out no work (see
+/// [`Queue::storage_trouble`]): long enough that workers do not render tile after tile
+/// that cannot be stored, short enough that a freed disk is noticed soon. A claim after it
+/// hands out a tile again, whose result tries the spool again.
+pub const STORAGE_PAUSE: Duration = Duration::from_secs(5);
 
 /// Keep-away policy for workers that fail a job.
 #[derive(Debug, Clone, Copy)]
@@ -928,7 +938,19 @@ impl Queue {
                     match spool.write(job, width, height, rect, rgb) {
                         Ok(crc) => (&[], Some(i64::from(crc))),
                         Err(SpoolError::Outside { .. }) => (&[], None),
-                        Err(e) => return Err(e.into()),
+                        Err(e) => {
+                            // The service's own trouble: the tile goes back to the queue
+                            // uncharged, rather than wait for its lease to run out and
+                            // count against the worker (whose job would fail, blaming
+                            // workers, after `--max-attempts` such posts).
+                            tracing::error!(
+                                job,
+                                tile = idx,
+                                "cannot store the tile's pixels, queued again: {e}"
+                            );
+                            self.release(job, idx, lease).await?;
+                            return Ok(Completion::Unstored(e.to_string()));
+                        }
                     }
                 }
                 _ => (&[], None),
@@ -1112,7 +1134,19 @@ impl Queue {
         .bind(lease)
         .execute(&mut *self.writer.lock().await?)
         .await?;
-        Ok(r.rows_affected() == 1)
+        let released = r.rows_affected() == 1;
+        if released {
+            // The lease is no longer current: a late post under it writes nothing.
+            self.issued_map().remove(&(job.to_string(), idx));
+        }
+        Ok(released)
+    }
+
+    /// Why tile pixels cannot be stored now, if the spool failed to write a tile's pixels
+    /// less than `within` ago and has written none since ([`crate::spool::Spool::trouble`]);
+    /// `None` for an in-memory database, which keeps them in SQLite.
+    pub fn storage_trouble(&self, within: Duration) -> Option<String> {
+        self.spool.as_ref().and_then(|s| s.trouble(within))
     }
 
     /// Requeues tiles whose lease expired and fails jobs with a tile out of attempts.

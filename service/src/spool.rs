@@ -35,12 +35,18 @@
 //! that ran out: until the tile is handed out again, the late holder's result still
 //! lands in the tile's own (then unused) slot. Nothing in this module decides what is
 //! current; it only moves bytes.
+//!
+//! A write that fails (a full disk, a folder gone read-only) is remembered with its reason
+//! until one succeeds ([`Spool::trouble`]), so that the queue can tell workers and stop
+//! handing out tiles whose results could not be stored; the job's file is opened afresh at
+//! the next write.
 
 use std::collections::{HashMap, HashSet};
 use std::fs::{File, OpenOptions};
 use std::io;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, Instant};
 
 use tessera_tracer::Rect;
 
@@ -112,6 +118,8 @@ pub struct Spool {
     open: Mutex<HashMap<String, Arc<JobFile>>>,
     /// Files the sweep could not remove and has said so once (it tries every sweep).
     stuck: Mutex<HashSet<PathBuf>>,
+    /// The last write that failed, when none has succeeded since: when, and why.
+    failing: Mutex<Option<(Instant, String)>>,
 }
 
 /// Why a spooled tile could not be used.
@@ -163,6 +171,7 @@ impl Spool {
             dir,
             open: Mutex::new(HashMap::new()),
             stuck: Mutex::new(HashSet::new()),
+            failing: Mutex::new(None),
         };
         spool.probe()?;
         Ok(spool)
@@ -278,9 +287,36 @@ impl Spool {
         if len != rgb.len() {
             return Err(outside);
         }
-        let f = self.job(id, width, height, true)?;
-        write_at(&f.file, rgb, offset).map_err(self.io(id))?;
-        Ok(crc32fast::hash(rgb))
+        let written = self
+            .job(id, width, height, true)
+            .and_then(|f| write_at(&f.file, rgb, offset).map_err(self.io(id)));
+        let mut failing = self.failing.lock().unwrap_or_else(PoisonError::into_inner);
+        match written {
+            Ok(()) => {
+                *failing = None;
+                Ok(crc32fast::hash(rgb))
+            }
+            Err(e) => {
+                *failing = Some((Instant::now(), e.to_string()));
+                // The next write opens the file afresh: the one open may be what failed.
+                self.open
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .remove(id);
+                Err(e)
+            }
+        }
+    }
+
+    /// Why tile pixels could not be written, if a write failed less than `within` ago and
+    /// none has succeeded since (a full disk, a folder gone read-only): the queue hands out
+    /// no work meanwhile, since no result could be stored.
+    pub fn trouble(&self, within: Duration) -> Option<String> {
+        let failing = self.failing.lock().unwrap_or_else(PoisonError::into_inner);
+        failing
+            .as_ref()
+            .filter(|(at, _)| at.elapsed() < within)
+            .map(|(_, why)| why.clone())
     }
 
     /// Appends a tile's bytes from job `id`'s file to `buf` and checks them against `crc`:

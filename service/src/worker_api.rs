@@ -17,7 +17,7 @@ use tessera_worker::protocol::{
 };
 
 use crate::error::{ApiError, ok_json};
-use crate::queue::Completion;
+use crate::queue::{Completion, STORAGE_PAUSE};
 use crate::{AppState, now_ms};
 
 /// `POST /worker/claim?wait_ms=N`: with no work at hand, wait up to `N` ms (at most 10 s)
@@ -77,6 +77,18 @@ async fn claim_now(
     worker: &str,
     with_result: bool,
 ) -> Result<Option<Claim>, ApiError> {
+    // No work while results cannot be stored: it would be rendered for nothing. A claim
+    // riding on a result just brings none (the result itself was stored).
+    if let Some(why) = state.queue.storage_trouble(STORAGE_PAUSE) {
+        if with_result {
+            return Ok(None);
+        }
+        return Err(ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            format!("no work is handed out while tile pixels cannot be stored: {why}"),
+        )
+        .retry_after(STORAGE_PAUSE.as_secs() as u32));
+    }
     let claimed = state
         .queue
         .claim(worker, now_ms(), state.cfg.lease_ms, state.cfg.max_attempts)
@@ -196,6 +208,16 @@ pub async fn result(
             return Err(ApiError::not_found(format_args!(
                 "tile {idx} of job `{id}`"
             )));
+        }
+        Completion::Unstored(why) => {
+            return Err(ApiError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                format!(
+                    "the service cannot store tile pixels now ({why}); the tile is queued \
+                     again, and no work is handed out until they can be stored"
+                ),
+            )
+            .retry_after(STORAGE_PAUSE.as_secs() as u32));
         }
         Completion::WrongTile(expected) => {
             let e = BlobError::WrongTile {

@@ -1622,3 +1622,76 @@ async fn bands_are_encoded_from_tiles_side_by_side_only() {
         "{err}"
     );
 }
+
+/// A spool that cannot write (here its job file is `/dev/full`: every write fails with
+/// "no space left") stores nothing, hands the tile back uncharged, and says why; once the
+/// file can be written again the same tile is handed out and stored.
+#[cfg(target_os = "linux")]
+#[tokio::test]
+async fn a_tile_whose_pixels_cannot_be_written_is_queued_again_uncharged() {
+    use tessera_service::queue::STORAGE_PAUSE;
+    let db = Db::new("full");
+    let q = Queue::open(&db.url()).await.expect("open");
+    job(&q, "f", 16, 8, 8).await;
+    let file = db.0.join("q.db-tiles").join("f.rgb");
+    std::os::unix::fs::symlink("/dev/full", &file).expect("a full file");
+    assert_eq!(q.storage_trouble(STORAGE_PAUSE), None);
+    let c = q
+        .claim("w", 0, 60_000, 4)
+        .await
+        .expect("claim")
+        .expect("a tile");
+    let done = q
+        .complete("f", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+        .await
+        .expect("complete");
+    let Completion::Unstored(why) = done else {
+        panic!("stored on a full disk: {done:?}");
+    };
+    assert!(why.contains("No space left"), "{why}");
+    let trouble = q
+        .storage_trouble(STORAGE_PAUSE)
+        .expect("the spool's trouble");
+    assert!(trouble.contains("No space left"), "{trouble}");
+    assert_eq!(failures(&db, "f").await, vec![0, 0], "nobody is charged");
+    let job = q.job("f").await.expect("job").expect("exists");
+    assert_eq!((job.state.as_str(), job.tiles_done), ("running", 0));
+    // The old lease stores nothing, even with the disk free again.
+    std::fs::remove_file(&file).expect("free");
+    let stale = q
+        .complete("f", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+        .await
+        .expect("complete");
+    assert!(matches!(stale, Completion::Stale(_)), "{stale:?}");
+    assert!(
+        !file.exists(),
+        "a post under a lease given back writes nothing"
+    );
+    // The tile is handed out again, first in line, and stored.
+    let again = q
+        .claim("v", 0, 60_000, 4)
+        .await
+        .expect("claim")
+        .expect("a tile");
+    assert_eq!(again.idx, c.idx);
+    let stored = q
+        .complete(
+            "f",
+            again.idx,
+            &again.lease,
+            again.rect(),
+            &tile_rgb(again.rect()),
+        )
+        .await
+        .expect("complete");
+    assert!(
+        matches!(stored, Completion::Stored { last: false, .. }),
+        "{stored:?}"
+    );
+    assert_eq!(
+        q.storage_trouble(STORAGE_PAUSE),
+        None,
+        "a write succeeded since"
+    );
+    assert_eq!(band(&q, "f", 0).await[0].3, tile_rgb(c.rect()));
+}

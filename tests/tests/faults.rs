@@ -1533,3 +1533,60 @@ fn a_multipart_type_in_any_case_is_multipart() {
         assert_eq!(r.status(), 201, "{ct}: {:?}", r.text());
     }
 }
+
+/// A disk that fills under the tile spool (here the job's spool file is `/dev/full`, where
+/// every write fails with "no space left"): the result is answered `503` with the reason
+/// and its tile queued again, claims get `503` and the health check fails meanwhile; once
+/// the disk is free a worker finishes the job with the exact image. Before, the post was a
+/// `500`, the tile waited for its lease to run out and counted against the worker, and
+/// after `--max-attempts` such tiles the job failed blaming workers.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_full_disk_under_the_spool_pauses_the_farm_and_loses_nothing() {
+    let dir = TempDir::new("full");
+    let svc = Service::start(&dir, &["--local-workers", "0", "--max-attempts", "1"]);
+    let id = svc.submit_id(&read("checker.ray"), "?tile=64");
+    let spool_file =
+        std::path::PathBuf::from(format!("{}-tiles", svc.db.display())).join(format!("{id}.rgb"));
+    std::os::unix::fs::symlink("/dev/full", &spool_file).expect("a full file");
+    let c: Value = svc.claim("t").json().expect("claim");
+    let u = |k: &str| c[k].as_u64().expect("number") as u32;
+    let rect = Rect::new(u("x"), u("y"), u("w"), u("h"));
+    let r = client()
+        .put(format!(
+            "{}/worker/jobs/{id}/tiles/{}?lease={}",
+            svc.url,
+            c["idx"],
+            c["lease"].as_str().expect("lease")
+        ))
+        .body(encode_tile(rect, &vec![7u8; rect.pixel_count() * 3]))
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 503);
+    assert!(r.headers().contains_key("retry-after"));
+    let e: Value = r.json().expect("json");
+    let says = e["error"].as_str().expect("message");
+    assert!(
+        says.contains("No space left") && says.contains("queued again"),
+        "{says}"
+    );
+    let claim = svc.claim("t");
+    assert_eq!(
+        claim.status(),
+        503,
+        "no work while results cannot be stored"
+    );
+    assert_eq!(svc.get("/healthz").status(), 503);
+    assert_eq!(svc.get_json(&format!("/jobs/{id}"))["state"], "running");
+
+    std::fs::remove_file(&spool_file).expect("the disk is free again");
+    let _w = Worker::start(&svc.url, "w", &[]);
+    let job = svc.wait_finished(&id, JOB_TIME);
+    // With `--max-attempts 1`, one failure charged to the tile would have failed the job.
+    assert_eq!(job["state"], "done", "{job}");
+    assert_eq!(
+        svc.image(&id),
+        local_png(&examples().join("checker.ray"), None, None)
+    );
+    assert_eq!(svc.get("/healthz").status(), 200);
+}
