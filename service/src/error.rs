@@ -62,7 +62,14 @@ impl From<QueueError> for ApiError {
         let busy = matches!(&e, QueueError::Db(sqlx::Error::PoolTimedOut))
             || e.to_string().contains("database is locked");
         tracing::error!("storage error: {e}");
-        if busy {
+        if e.is_storage() {
+            // A full disk or a failing one: the service's trouble, and it may pass.
+            ApiError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                format!("the service's storage takes no writes now: {e}"),
+            )
+            .retry_after(5)
+        } else if busy {
             ApiError::new(
                 StatusCode::SERVICE_UNAVAILABLE,
                 "the database is busy; try again",

@@ -477,6 +477,8 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
     let every = Duration::from_millis((state.cfg.lease_ms / 4).clamp(25, 1000));
     let mut last = std::time::Instant::now();
     let mut swept = std::time::Instant::now();
+    // Leases are being extended for the storage's failures (said once, not every pass).
+    let mut extending = false;
     loop {
         tokio::select! {
             _ = tokio::time::sleep(every) => {}
@@ -489,7 +491,34 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
         // as a restart does.
         let paused = last.elapsed();
         last = std::time::Instant::now();
-        if paused > Duration::from_millis(state.cfg.lease_ms / 2) + every {
+        // So with storage that failed within half a lease (a full disk): the renewals and
+        // results of workers may have been refused meanwhile.
+        let window = Duration::from_millis(state.cfg.lease_ms / 2) + every;
+        if state.queue.storage_failed_within(window) {
+            match state
+                .queue
+                .extend_leases(now_ms(), state.cfg.lease_ms)
+                .await
+            {
+                Ok(n) if n > 0 && !extending => {
+                    extending = true;
+                    warn!(
+                        "the service's storage failed lately: leases are extended, none \
+                         reaped, until it has written again for half a lease ({n} now)"
+                    );
+                }
+                Ok(_) => {}
+                Err(e) => {
+                    let _ = state.queue.noted(e);
+                }
+            }
+            continue;
+        }
+        if extending {
+            extending = false;
+            info!("the service's storage writes again: expired leases are reaped again");
+        }
+        if paused > window {
             match state
                 .queue
                 .extend_leases(now_ms(), state.cfg.lease_ms)

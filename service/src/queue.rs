@@ -65,6 +65,23 @@ pub enum QueueError {
 
 type Result<T> = std::result::Result<T, QueueError>;
 
+impl QueueError {
+    /// Whether this is the storage failing (a full disk, an I/O error, a file gone
+    /// read-only) rather than anything a request did: SQLite's `SQLITE_FULL`, `SQLITE_IOERR`
+    /// (with its extended codes) and `SQLITE_READONLY`, or the tile spool's writes.
+    pub fn is_storage(&self) -> bool {
+        match self {
+            QueueError::Db(sqlx::Error::Database(e)) => e
+                .code()
+                .and_then(|c| c.parse::<i32>().ok())
+                .is_some_and(|c| matches!(c & 0xff, 8 | 10 | 13)),
+            QueueError::Db(sqlx::Error::Io(_)) => true,
+            QueueError::Spool(SpoolError::Io { .. } | SpoolError::Unwritable { .. }) => true,
+            _ => false,
+        }
+    }
+}
+
 /// A job as users see it.
 #[derive(Debug, Clone, Serialize, sqlx::FromRow)]
 pub struct JobRow {
@@ -321,6 +338,9 @@ pub struct Queue {
     /// current lease and rectangle (see [`Queue::complete`]). After a restart the tile's row
     /// is read instead. Entries of ended jobs go with their spool files.
     issued: Arc<std::sync::Mutex<Issued>>,
+    /// When a write last failed for the storage's sake ([`QueueError::is_storage`]), as
+    /// noted by [`Queue::noted`].
+    storage_failed: Arc<std::sync::Mutex<Option<std::time::Instant>>>,
 }
 
 /// Leases handed out and not yet stored: `(job, idx)` → `(lease, rectangle)`.
@@ -542,6 +562,7 @@ impl Queue {
             spool,
             max_attempts: DEFAULT_MAX_ATTEMPTS,
             issued: Arc::default(),
+            storage_failed: Arc::default(),
         })
     }
 
@@ -938,17 +959,44 @@ impl Queue {
                     match spool.write(job, width, height, rect, rgb) {
                         Ok(crc) => (&[], Some(i64::from(crc))),
                         Err(SpoolError::Outside { .. }) => (&[], None),
-                        Err(e) => {
-                            // The service's own trouble: the tile goes back to the queue
-                            // uncharged, rather than wait for its lease to run out and
-                            // count against the worker (whose job would fail, blaming
-                            // workers, after `--max-attempts` such posts).
+                        Err(e) if e.is_capacity() => {
+                            // A full disk: the service's trouble, and it passes. The tile
+                            // goes back to the queue uncharged, rather than wait for its
+                            // lease to run out and count against the worker (whose job
+                            // would fail, blaming workers, after `--max-attempts` such
+                            // posts). With the database on the same full disk the requeue
+                            // may fail too: then the tile stays leased, and the reaper
+                            // extends leases rather than charge anyone while it fails.
+                            let e = QueueError::from(e);
+                            if let Err(requeue) = self.release(job, idx, lease).await {
+                                tracing::error!(
+                                    job,
+                                    tile = idx,
+                                    "cannot store the tile's pixels ({e}), nor queue it again: {requeue}"
+                                );
+                                return Err(self.noted(requeue));
+                            }
                             tracing::error!(
                                 job,
                                 tile = idx,
                                 "cannot store the tile's pixels, queued again: {e}"
                             );
-                            self.release(job, idx, lease).await?;
+                            return Ok(Completion::Unstored(e.to_string()));
+                        }
+                        Err(e) => {
+                            // Any other failure (an I/O error, a file that cannot be
+                            // written) may not pass: the tile is queued again with a failure
+                            // counted against it, not the worker, as a lost tile is, so that
+                            // a disk that keeps failing fails the job with the reason after
+                            // `--max-attempts` instead of rendering the tile for ever.
+                            tracing::error!(
+                                job,
+                                tile = idx,
+                                "cannot store the tile's pixels, queued again with a failure: {e}"
+                            );
+                            let reason = format!("its pixels could not be stored: {e}");
+                            self.requeue_unstored(job, idx, lease, &reason, crate::now_ms())
+                                .await?;
                             return Ok(Completion::Unstored(e.to_string()));
                         }
                     }
@@ -1140,6 +1188,67 @@ impl Queue {
             self.issued_map().remove(&(job.to_string(), idx));
         }
         Ok(released)
+    }
+
+    /// Passes `e` through, noting when it is the database's storage failing (a full disk
+    /// under it): renewals may be refused then, so the reaper gives leases a fresh term
+    /// instead of reaping them ([`Queue::storage_failed_within`]). The spool's own failures
+    /// refuse no renewal (and their tiles are queued again at once), so they do not count.
+    pub fn noted(&self, e: QueueError) -> QueueError {
+        if matches!(e, QueueError::Db(_)) && e.is_storage() {
+            *self
+                .storage_failed
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner) =
+                Some(std::time::Instant::now());
+        }
+        e
+    }
+
+    /// Whether a database write failed for the storage's sake less than `within` ago (as
+    /// [`Queue::noted`]): renewals may have been refused meanwhile, so leases that ran out
+    /// are no worker's fault, as after a pause of the service.
+    pub fn storage_failed_within(&self, within: Duration) -> bool {
+        let noted = *self
+            .storage_failed
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        noted.is_some_and(|at| at.elapsed() < within)
+    }
+
+    /// Queues tile `idx` again, under `lease`, with a failure counted against the tile
+    /// alone (its pixels could not be stored for a reason that may not pass), failing the
+    /// job if the tile is out of attempts.
+    async fn requeue_unstored(
+        &self,
+        job: &str,
+        idx: u32,
+        lease: &str,
+        reason: &str,
+        now: i64,
+    ) -> Result<()> {
+        let mut conn = self.writer.lock().await?;
+        let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
+        let r = sqlx::query(
+            "UPDATE tiles SET state = 'queued', lease = NULL, worker = NULL,
+                    lease_expires = NULL, rendering = 0, failures = failures + 1,
+                    last_error = ?4
+             WHERE job_id = ?1 AND idx = ?2 AND lease = ?3 AND state = 'leased'
+               AND EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ('queued', 'running'))",
+        )
+        .bind(job)
+        .bind(i64::from(idx))
+        .bind(lease)
+        .bind(reason)
+        .execute(&mut *tx)
+        .await?;
+        if r.rows_affected() == 1 {
+            Self::fail_exhausted(&mut tx, now, self.max_attempts).await?;
+        }
+        tx.commit().await?;
+        drop(conn);
+        self.issued_map().remove(&(job.to_string(), idx));
+        Ok(())
     }
 
     /// Why tile pixels cannot be stored now, if the spool failed to write a tile's pixels
@@ -1724,7 +1833,29 @@ mod tests {
         }
         let big = "# x\n".repeat(200_000);
         let full = q.insert_job(&job("a", big), &rects, &[]).await;
-        assert!(full.is_err(), "the database is full");
+        let full = full.expect_err("the database is full");
+        // SQLite's own `SQLITE_FULL`, which the service answers `503` and which makes the
+        // reaper extend leases rather than charge workers.
+        assert!(full.is_storage(), "{full:?}");
+        assert!(!q.storage_failed_within(Duration::from_secs(60)));
+        let _ = q.noted(full);
+        assert!(q.storage_failed_within(Duration::from_secs(60)));
+        let not_storage = QueueError::Url {
+            url: "x".into(),
+            reason: "y".into(),
+        };
+        assert!(!not_storage.is_storage());
+        // The spool's failures are storage failures, but refuse no renewal: not noted.
+        let spool = QueueError::Spool(SpoolError::Io {
+            path: dir.join("x.rgb"),
+            source: std::io::Error::from_raw_os_error(28),
+        });
+        assert!(spool.is_storage());
+        let q2 = Queue::open(&format!("sqlite://{}", dir.join("q2.db").display()))
+            .await
+            .expect("open");
+        let _ = q2.noted(spool);
+        assert!(!q2.storage_failed_within(Duration::from_secs(60)));
         // Room again (a fresh connection has no page limit; the old one keeps it).
         {
             let mut w = q.writer.lock().await.expect("the writer");

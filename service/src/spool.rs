@@ -146,6 +146,20 @@ pub enum SpoolError {
     },
 }
 
+impl SpoolError {
+    /// Whether the disk (or the user's quota) is full: a trouble that passes once there is
+    /// room, and no fault of the tile or of the worker that rendered it.
+    pub fn is_capacity(&self) -> bool {
+        match self {
+            SpoolError::Io { source, .. } | SpoolError::Unwritable { source, .. } => matches!(
+                source.kind(),
+                io::ErrorKind::StorageFull | io::ErrorKind::QuotaExceeded
+            ),
+            _ => false,
+        }
+    }
+}
+
 /// Fails when `dir` exists but is not a folder (checked before the database is opened, so
 /// that nothing is created beside it).
 pub fn check_folder(dir: &Path) -> Result<(), SpoolError> {
@@ -251,9 +265,13 @@ impl Spool {
             Err(e) if create && e.kind() == io::ErrorKind::NotFound => {
                 std::fs::create_dir_all(&self.dir).and_then(|()| opening())
             }
-            // A file left that this service cannot open (another user's, say): its bytes
+            // A file left that this service may not open (another user's, say): its bytes
             // are of no use to anyone but this job, whose tiles they are; start it afresh.
-            Err(_) if create => std::fs::remove_file(&path).and_then(|()| opening()),
+            // Not for other failures (too many open files, an I/O error), which may pass,
+            // while the file holds the job's stored tiles.
+            Err(e) if create && e.kind() == io::ErrorKind::PermissionDenied => {
+                std::fs::remove_file(&path).and_then(|()| opening())
+            }
             other => other,
         }
         .map_err(self.io(id))?;

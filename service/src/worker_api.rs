@@ -92,7 +92,8 @@ async fn claim_now(
     let claimed = state
         .queue
         .claim(worker, now_ms(), state.cfg.lease_ms, state.cfg.max_attempts)
-        .await?;
+        .await
+        .map_err(|e| state.queue.noted(e))?;
     let n = u64::from(claimed.is_some());
     state.seen(worker, |w| {
         w.claims += n;
@@ -156,7 +157,8 @@ pub async fn renew(
             state.cfg.lease_ms,
             q.rendering,
         )
-        .await?
+        .await
+        .map_err(|e| state.queue.noted(e))?
     {
         Some(worker) => {
             state.seen(&worker, |_| {});
@@ -190,7 +192,8 @@ pub async fn result(
     let next_for = q.next.as_deref().map(worker_name).transpose()?;
     let (rect, rgb) = split_tile(&body)
         .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
-    let repeat = match state.queue.complete(&id, idx, &q.lease, rect, rgb).await? {
+    let completed = state.queue.complete(&id, idx, &q.lease, rect, rgb).await;
+    let repeat = match completed.map_err(|e| state.queue.noted(e))? {
         Completion::Stored { last, worker } => {
             if let Some(worker) = &worker {
                 state.seen(worker, |w| w.tiles_done += 1);
@@ -210,6 +213,10 @@ pub async fn result(
             )));
         }
         Completion::Unstored(why) => {
+            // The tile is back in the queue (claims waiting for work hear of it once the
+            // pause is over, or at once if it came back with a failure instead).
+            state.work.notify_waiters();
+            state.ended.notify_waiters();
             return Err(ApiError::new(
                 StatusCode::SERVICE_UNAVAILABLE,
                 format!(

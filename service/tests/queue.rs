@@ -1695,3 +1695,49 @@ async fn a_tile_whose_pixels_cannot_be_written_is_queued_again_uncharged() {
     );
     assert_eq!(band(&q, "f", 0).await[0].3, tile_rgb(c.rect()));
 }
+
+/// A spool write that fails for another reason than a full disk may never pass (here the
+/// job file is a FIFO, where every positioned write is an "illegal seek"): the tile is
+/// charged, never the worker, so that the job fails with the reason once the tile is out
+/// of attempts instead of the tile being rendered for ever.
+#[cfg(target_os = "linux")]
+#[tokio::test]
+async fn a_tile_whose_pixels_keep_failing_to_be_written_fails_its_job() {
+    let db = Db::new("fifo");
+    let q = Queue::open(&db.url()).await.expect("open").max_attempts(2);
+    job(&q, "p", 16, 8, 8).await;
+    let file = db.0.join("q.db-tiles").join("p.rgb");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&file)
+        .status()
+        .expect("mkfifo runs");
+    assert!(made.success());
+    for worker in ["w", "v"] {
+        let c = q
+            .claim(worker, 0, 60_000, 2)
+            .await
+            .expect("claim")
+            .expect("a tile");
+        assert_eq!(c.idx, 0, "the same tile, handed out again");
+        let done = q
+            .complete("p", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .await
+            .expect("complete");
+        let Completion::Unstored(why) = done else {
+            panic!("stored into a FIFO: {done:?}");
+        };
+        assert!(why.contains("Illegal seek"), "{why}");
+    }
+    assert_eq!(failures(&db, "p").await, vec![2, 0]);
+    let job = q.job("p").await.expect("job").expect("exists");
+    assert_eq!(job.state, "failed");
+    let error = job.error.expect("a reason");
+    assert!(error.contains("could not be stored"), "{error}");
+    let pool = sqlx::SqlitePool::connect(&db.url()).await.expect("open");
+    let (kept,): (i64,) = sqlx::query_as("SELECT COUNT(*) FROM keep_away")
+        .fetch_one(&pool)
+        .await
+        .expect("count");
+    assert_eq!(kept, 0, "no worker is charged");
+    pool.close().await;
+}

@@ -1118,6 +1118,14 @@ fn stop_worker_with_the_service_out(
         .spawn()
         .expect("worker starts");
     wait_claimed(&svc, &id);
+    // Claimed is not yet rendering: the worker fetches and builds the scene first, and a
+    // service gone before that is a tile given back, not one to post (on a loaded machine
+    // the test once stopped the service in between).
+    wait_until(
+        "the worker to build the scene",
+        Duration::from_secs(60),
+        || std::fs::read_to_string(&log_path).is_ok_and(|l| l.contains("scene built")),
+    );
     if freeze {
         let stopped = std::process::Command::new("kill")
             .args(["-STOP", &svc.pid().to_string()])

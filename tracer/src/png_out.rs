@@ -19,6 +19,8 @@ pub enum PngError {
     Encode(png::EncodingError),
     #[error("expected {expected} bytes of rows in all, got {got}")]
     Length { expected: u64, got: u64 },
+    #[error("a tile {width} pixels wide and {height} rows high holds {len} bytes")]
+    Piece { width: u32, height: u32, len: usize },
 }
 
 impl From<png::EncodingError> for PngError {
@@ -88,11 +90,18 @@ impl<W: Write + 'static> PngWriter<W> {
     pub fn write_band(&mut self, height: u32, tiles: &[(u32, &[u8])]) -> Result<(), PngError> {
         let band = self.row_bytes as u64 * u64::from(height);
         let got = self.written + band;
-        let pieces_fit = tiles
+        if let Some(&(width, bytes)) = tiles
             .iter()
-            .all(|&(w, bytes)| bytes.len() as u64 == u64::from(w) * 3 * u64::from(height));
+            .find(|&&(w, bytes)| bytes.len() as u64 != u64::from(w) * 3 * u64::from(height))
+        {
+            return Err(PngError::Piece {
+                width,
+                height,
+                len: bytes.len(),
+            });
+        }
         let widths: u64 = tiles.iter().map(|&(w, _)| u64::from(w) * 3).sum();
-        if got > self.expected || !pieces_fit || widths != self.row_bytes as u64 {
+        if got > self.expected || widths != self.row_bytes as u64 {
             return Err(PngError::Length {
                 expected: self.expected,
                 got,
@@ -233,7 +242,14 @@ mod tests {
         let mut pw = PngWriter::new(SharedBuffer::new(), 4, 2).expect("header");
         // Widths short of the image's, a tile with a byte too many, and one band too many.
         assert!(pw.write_band(1, &[(3, &[0; 9])]).is_err());
-        assert!(pw.write_band(1, &[(3, &[0; 9]), (1, &[0; 4])]).is_err());
+        assert!(matches!(
+            pw.write_band(1, &[(3, &[0; 9]), (1, &[0; 4])]),
+            Err(PngError::Piece {
+                width: 1,
+                height: 1,
+                len: 4
+            })
+        ));
         pw.write_band(2, &[(3, &[0; 18]), (1, &[0; 6])])
             .expect("the whole image");
         assert!(pw.write_band(1, &[(4, &[0; 12])]).is_err());
