@@ -11,7 +11,11 @@
 
 pub mod cli;
 pub mod client;
+mod pool;
 pub mod protocol;
+
+use pool::Rendered;
+pub use pool::{RenderPool, STRIP_PIXELS};
 
 use std::future::Future;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -269,76 +273,7 @@ type ClaimTask = JoinHandle<Result<Option<Claim>, ClientError>>;
 /// A rendered tile on its way to the service.
 type PostTask = JoinHandle<Result<(), ClientError>>;
 
-/// What a render thread sends back: the tile's sRGB bytes, or why it could not render.
-type Rendered = Result<Vec<u8>, String>;
-
-/// The render threads of a worker, shared by its slots, and by the service's local workers
-/// (see [`run_with`]): one queue of tiles in line, which any idle thread takes from, oldest
-/// first. A slot puts its next tile in line while its current one renders, so a thread goes
-/// from one tile to the next without waiting for the async side (which, on a machine whose
-/// cores are all rendering, may wait milliseconds for a time slice). A thread whose slot has
-/// nothing for it (at a job's end, or while that slot's next claim is on its way) takes the
-/// tile another slot put in line, instead of idling while that slot's thread finishes the
-/// tile before it.
-///
-/// The threads end when the last clone of the pool is dropped.
-#[derive(Clone)]
-pub struct RenderPool {
-    queue: std::sync::mpsc::Sender<Task>,
-}
-
-/// A tile's render, with its answer, as one call for a render thread.
-type Task = Box<dyn FnOnce() + Send>;
-
-impl std::fmt::Debug for RenderPool {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("RenderPool").finish_non_exhaustive()
-    }
-}
-
 impl RenderPool {
-    /// Starts `threads` render threads (`tessera-render-0`, …); at least one.
-    pub fn new(threads: usize) -> std::io::Result<RenderPool> {
-        if threads == 0 {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::InvalidInput,
-                "a render pool needs at least one thread",
-            ));
-        }
-        let (queue, tasks) = std::sync::mpsc::channel::<Task>();
-        let tasks = Arc::new(std::sync::Mutex::new(tasks));
-        for index in 0..threads {
-            let tasks = tasks.clone();
-            std::thread::Builder::new()
-                .name(format!("tessera-render-{index}"))
-                .spawn(move || {
-                    loop {
-                        // One idle thread waits on the queue while holding the lock, the others
-                        // on the lock: each task goes to exactly one thread. A task cannot panic
-                        // (renders are caught), so the lock is never poisoned; if it were, the
-                        // queue behind it is still sound.
-                        let next = tasks
-                            .lock()
-                            .unwrap_or_else(std::sync::PoisonError::into_inner)
-                            .recv();
-                        match next {
-                            Ok(task) => task(),
-                            Err(_) => break,
-                        }
-                    }
-                })?;
-        }
-        Ok(RenderPool { queue })
-    }
-
-    /// Puts `task` in line for the next idle thread.
-    fn run(&self, task: Task) {
-        // The threads only stop once every sender is gone, and `self` is one: the send
-        // cannot fail while a thread lives. If none could be started, the task (and the
-        // answer channel it holds) is dropped, which reads as a failed render.
-        let _ = self.queue.send(task);
-    }
-
     /// Puts a claimed tile in line; a no-op worker's black tile (`scene` is `None`) is
     /// answered at once, without a trip through a thread.
     fn submit(&self, claim: Claim, scene: Option<Arc<Prepared>>) -> Ticket {
@@ -354,40 +289,25 @@ impl RenderPool {
                 started,
             };
         };
-        let rect = claim.rect();
         let stop = cancel.clone();
-        let begun = started.clone();
-        self.run(Box::new(move || {
-            if stop.load(Ordering::Relaxed) {
-                return;
-            }
-            begun.store(true, Ordering::Relaxed);
+        // The adaptive sampler's strips would trace their borders' rows again.
+        let shareable = !matches!(scene.sampler, Sampler::Adaptive { .. });
+        self.render(pool::TileWork {
+            rect: claim.rect(),
+            shareable,
             // The same bytes `tessera-render` writes: a pixel's value does not depend on
-            // its tile.
-            let p = &scene;
-            // Given up mid-tile once the slot sets `cancel` (the lease was lost).
-            let rendered = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                p.scene
-                    .render_rect_stats_until(rect, &p.sampler, &stop)
+            // the rectangle it is rendered in. Given up mid-strip once the slot sets
+            // `cancel` (the lease was lost).
+            render: Box::new(move |strip| {
+                scene
+                    .scene
+                    .render_rect_stats_until(strip, &scene.sampler, &stop)
                     .map(|(rgb, _)| rgb)
-            }))
-            .map_err(|panic| {
-                let what = panic
-                    .downcast_ref::<&str>()
-                    .map(|s| s.to_string())
-                    .or_else(|| panic.downcast_ref::<String>().cloned())
-                    .unwrap_or_else(|| "unknown panic".into());
-                format!("rendering panicked: {what}")
-            });
-            let rendered = match rendered {
-                Ok(Some(rgb)) => Ok(rgb),
-                // Given up: the slot has moved on and waits for no answer.
-                Ok(None) => return,
-                Err(panicked) => Err(panicked),
-            };
-            // The slot may have given the tile up meanwhile: nobody to tell.
-            let _ = reply.send(rendered);
-        }));
+            }),
+            stop: cancel.clone(),
+            started: started.clone(),
+            reply,
+        });
         Ticket {
             claim,
             rendered,
@@ -1003,75 +923,6 @@ fn ignore_transient(e: ClientError) -> Result<(), ClientError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A tile in line is "rendering" (what its lease renewals say) only once a thread has
-    /// begun it, whichever slot's thread that is.
-    #[test]
-    fn a_tile_is_started_when_a_thread_begins_it() {
-        let pool = RenderPool::new(1).expect("a thread");
-        let (release, released) = std::sync::mpsc::channel::<()>();
-        pool.run(Box::new(move || {
-            let _ = released.recv();
-        }));
-        let src = "[GLOBALS]\nwidth = 4\nheight = 4\n[/GLOBALS]\n";
-        let desc = tessera_tracer::parse(src, &Limits::default()).expect("a scene");
-        let scene = Scene::build(&desc, &MemoryAssets::new(), &TextureLimits::default())
-            .expect("it builds");
-        let prepared = Arc::new(Prepared {
-            sampler: desc.sampler,
-            scene,
-        });
-        let claim = Claim {
-            job: "j".into(),
-            idx: 0,
-            x: 0,
-            y: 0,
-            w: 4,
-            h: 4,
-            lease: "l".into(),
-            lease_ms: 1000,
-        };
-        let t = pool.submit(claim, Some(prepared));
-        // The only thread is busy: the tile waits in line, not begun.
-        assert!(!t.started.load(Ordering::Relaxed));
-        release.send(()).expect("the thread waits");
-        let rgb = t
-            .rendered
-            .blocking_recv()
-            .expect("an answer")
-            .expect("rendered");
-        assert_eq!(rgb.len(), 4 * 4 * 3);
-        assert!(t.started.load(Ordering::Relaxed));
-    }
-
-    #[test]
-    fn a_pool_needs_a_thread() {
-        assert!(RenderPool::new(0).is_err());
-    }
-
-    /// The tail of a job: one thread busy with a long tile, another slot's tile in line. The
-    /// idle thread takes it (with a thread per slot, it waited for the busy one).
-    #[test]
-    fn an_idle_thread_takes_the_tile_another_slot_put_in_line() {
-        let pool = RenderPool::new(2).expect("threads");
-        let (started_tx, started) = std::sync::mpsc::channel::<()>();
-        let (release, released) = std::sync::mpsc::channel::<()>();
-        pool.run(Box::new(move || {
-            let _ = started_tx.send(());
-            // Busy until the test lets it go.
-            let _ = released.recv();
-        }));
-        let wait = Duration::from_secs(30);
-        started.recv_timeout(wait).expect("the first tile started");
-        let (done_tx, done) = std::sync::mpsc::channel::<()>();
-        pool.run(Box::new(move || {
-            let _ = done_tx.send(());
-        }));
-        // Only the other thread can answer while the first is held.
-        done.recv_timeout(wait)
-            .expect("the tile in line was rendered");
-        release.send(()).expect("the first thread waits");
-    }
 
     #[test]
     fn backoff_grows_to_its_cap_with_bounded_jitter() {
