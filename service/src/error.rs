@@ -66,7 +66,7 @@ impl From<QueueError> for ApiError {
             // A full disk or a failing one: the service's trouble, and it may pass.
             ApiError::new(
                 StatusCode::SERVICE_UNAVAILABLE,
-                format!("the service's storage takes no writes now: {e}"),
+                format!("the service's storage is failing now: {e}"),
             )
             .retry_after(5)
         } else if busy {

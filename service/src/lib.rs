@@ -495,12 +495,13 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
         // results of workers may have been refused meanwhile.
         let window = Duration::from_millis(state.cfg.lease_ms / 2) + every;
         if state.queue.storage_failed_within(window) {
+            // Not reaped meanwhile (the rest of the pass goes on). Said once an episode.
             match state
                 .queue
                 .extend_leases(now_ms(), state.cfg.lease_ms)
                 .await
             {
-                Ok(n) if n > 0 && !extending => {
+                Ok(n) if !extending => {
                     extending = true;
                     warn!(
                         "the service's storage failed lately: leases are extended, none \
@@ -508,17 +509,12 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                     );
                 }
                 Ok(_) => {}
-                Err(e) => {
-                    let _ = state.queue.noted(e);
-                }
+                Err(e) => warn!(
+                    "extending leases while the storage fails: {}",
+                    state.queue.noted(e)
+                ),
             }
-            continue;
-        }
-        if extending {
-            extending = false;
-            info!("the service's storage writes again: expired leases are reaped again");
-        }
-        if paused > window {
+        } else if paused > window {
             match state
                 .queue
                 .extend_leases(now_ms(), state.cfg.lease_ms)
@@ -531,20 +527,25 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                 Err(e) => warn!("extending leases after a pause: {e}"),
             }
             continue;
-        }
-        match state
-            .queue
-            .reap(now_ms(), state.cfg.max_attempts, state.keep_away())
-            .await
-        {
-            Ok(0) => {}
-            Ok(n) => {
-                warn!("{n} expired leases: tiles handed out again");
-                state.work.notify_waiters();
-                // A tile out of attempts fails its job.
-                state.ended.notify_waiters();
+        } else {
+            if extending {
+                extending = false;
+                info!("the service's storage writes again: expired leases are reaped again");
             }
-            Err(e) => warn!("reaping expired leases: {e}"),
+            match state
+                .queue
+                .reap(now_ms(), state.cfg.max_attempts, state.keep_away())
+                .await
+            {
+                Ok(0) => {}
+                Ok(n) => {
+                    warn!("{n} expired leases: tiles handed out again");
+                    state.work.notify_waiters();
+                    // A tile out of attempts fails its job.
+                    state.ended.notify_waiters();
+                }
+                Err(e) => warn!("reaping expired leases: {e}"),
+            }
         }
         // The spool files of jobs that ended without an image (cancelled, failed, deleted).
         if swept.elapsed() >= SWEEP_EVERY {

@@ -36,10 +36,10 @@
 //! lands in the tile's own (then unused) slot. Nothing in this module decides what is
 //! current; it only moves bytes.
 //!
-//! A write that fails (a full disk, a folder gone read-only) is remembered with its reason
-//! until one succeeds ([`Spool::trouble`]), so that the queue can tell workers and stop
-//! handing out tiles whose results could not be stored; the job's file is opened afresh at
-//! the next write.
+//! A write that fails for want of room (a full disk) is remembered with its reason until
+//! one succeeds ([`Spool::trouble`]), so that the queue can tell workers and stop handing
+//! out tiles whose results could not be stored; after any failed write, the job's file is
+//! opened afresh at the next one.
 
 use std::collections::{HashMap, HashSet};
 use std::fs::{File, OpenOptions};
@@ -147,14 +147,21 @@ pub enum SpoolError {
 }
 
 impl SpoolError {
-    /// Whether the disk (or the user's quota) is full: a trouble that passes once there is
-    /// room, and no fault of the tile or of the worker that rendered it.
+    /// Whether the machine is out of room: the disk or the user's quota full, or no file
+    /// descriptor or memory to spare (`EMFILE`, `ENFILE`, `ENOMEM`), or the write was
+    /// interrupted. A trouble that passes, and no fault of the tile or of the worker that
+    /// rendered it.
     pub fn is_capacity(&self) -> bool {
         match self {
-            SpoolError::Io { source, .. } | SpoolError::Unwritable { source, .. } => matches!(
-                source.kind(),
-                io::ErrorKind::StorageFull | io::ErrorKind::QuotaExceeded
-            ),
+            SpoolError::Io { source, .. } | SpoolError::Unwritable { source, .. } => {
+                matches!(
+                    source.kind(),
+                    io::ErrorKind::StorageFull
+                        | io::ErrorKind::QuotaExceeded
+                        | io::ErrorKind::OutOfMemory
+                        | io::ErrorKind::Interrupted
+                ) || matches!(source.raw_os_error(), Some(23 | 24))
+            }
             _ => false,
         }
     }
@@ -315,7 +322,11 @@ impl Spool {
                 Ok(crc32fast::hash(rgb))
             }
             Err(e) => {
-                *failing = Some((Instant::now(), e.to_string()));
+                // Only a lack of room pauses the farm (see `trouble`): another failure is
+                // this job file's, and its tile is charged instead.
+                if e.is_capacity() {
+                    *failing = Some((Instant::now(), e.to_string()));
+                }
                 // The next write opens the file afresh: the one open may be what failed.
                 self.open
                     .lock()
@@ -326,9 +337,9 @@ impl Spool {
         }
     }
 
-    /// Why tile pixels could not be written, if a write failed less than `within` ago and
-    /// none has succeeded since (a full disk, a folder gone read-only): the queue hands out
-    /// no work meanwhile, since no result could be stored.
+    /// Why tile pixels could not be written, if a write failed for want of room
+    /// ([`SpoolError::is_capacity`]) less than `within` ago and none has succeeded since:
+    /// the queue hands out no work meanwhile, since no result could be stored.
     pub fn trouble(&self, within: Duration) -> Option<String> {
         let failing = self.failing.lock().unwrap_or_else(PoisonError::into_inner);
         failing

@@ -1729,6 +1729,11 @@ async fn a_tile_whose_pixels_keep_failing_to_be_written_fails_its_job() {
         assert!(why.contains("Illegal seek"), "{why}");
     }
     assert_eq!(failures(&db, "p").await, vec![2, 0]);
+    // This job file's trouble, not a lack of room: the farm is not paused for it.
+    assert_eq!(
+        q.storage_trouble(tessera_service::queue::STORAGE_PAUSE),
+        None
+    );
     let job = q.job("p").await.expect("job").expect("exists");
     assert_eq!(job.state, "failed");
     let error = job.error.expect("a reason");

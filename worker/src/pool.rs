@@ -150,10 +150,19 @@ impl Tile {
             let rendered =
                 std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| (self.render)(strip)));
             match rendered {
-                Ok(Some(bytes)) => {
+                Ok(Some(bytes)) if bytes.len() == strip.pixel_count() * 3 => {
                     let at = (i * self.rows * self.rect.width) as usize * 3;
                     let mut out = self.out.lock().unwrap_or_else(PoisonError::into_inner);
                     out[at..at + bytes.len()].copy_from_slice(&bytes);
+                }
+                Ok(Some(bytes)) => {
+                    self.stop.store(true, Ordering::Relaxed);
+                    self.answer(Err(format!(
+                        "a strip of {} pixels rendered to {} bytes",
+                        strip.pixel_count(),
+                        bytes.len()
+                    )));
+                    return;
                 }
                 // Given up: the slot has moved on and waits for no answer.
                 Ok(None) => return,
@@ -242,6 +251,9 @@ impl RenderPool {
 fn thread_main(inner: &Inner) {
     let mut state = inner.lock();
     loop {
+        // Tiles with no strips left to hand out go (and with them their scenes, which a
+        // finished job would otherwise keep while the line stays busy).
+        state.sharing.retain(|t| t.has_strips());
         if let Some(tile) = state.line.pop_front() {
             inner.in_line.fetch_sub(1, Ordering::Relaxed);
             // Given up while in line: skipped, no answer (nobody waits for one).
@@ -261,7 +273,6 @@ fn thread_main(inner: &Inner) {
             state = inner.lock();
             continue;
         }
-        state.sharing.retain(|t| t.has_strips());
         if let Some(tile) = state.sharing.first().cloned() {
             drop(state);
             tile.work(inner, true);
@@ -492,6 +503,22 @@ mod tests {
             .expect("an answer")
             .expect_err("a panic");
         assert!(err.starts_with("rendering panicked: strip at"), "{err}");
+        let next = submit(&pool, Rect::new(0, 0, 4, 4), true, |r| Some(shaded(r)));
+        assert!(next.rendered.blocking_recv().expect("answer").is_ok());
+    }
+
+    /// A strip rendered to the wrong number of bytes fails its tile instead of panicking
+    /// the thread (which would leave every later tile unanswered).
+    #[test]
+    fn a_strip_of_the_wrong_size_fails_its_tile() {
+        let pool = RenderPool::new(1).expect("a thread");
+        let tile = submit(&pool, Rect::new(0, 0, 8, 8), true, |_| Some(vec![0; 5]));
+        let err = tile
+            .rendered
+            .blocking_recv()
+            .expect("an answer")
+            .expect_err("refused");
+        assert!(err.contains("rendered to 5 bytes"), "{err}");
         let next = submit(&pool, Rect::new(0, 0, 4, 4), true, |r| Some(shaded(r)));
         assert!(next.rendered.blocking_recv().expect("answer").is_ok());
     }
