@@ -1547,23 +1547,6 @@ async fn an_unusable_spool_is_refused_at_start_and_by_the_health_probe() {
     assert!(err.to_string().contains("does not take a file"), "{err}");
 }
 
-/// The image a job's tiles of [`tile_rgb`] make, encoded whole by the tracer's encoder.
-fn whole_png(w: u32, h: u32) -> Vec<u8> {
-    let rgb: Vec<u8> = (0..h)
-        .flat_map(|y| (0..w).flat_map(move |x| (0..3).map(move |c| shade(x, y, c))))
-        .collect();
-    tessera_tracer::encode_png(w, h, &rgb).expect("encode")
-}
-
-/// A job's stored PNG, its chunks in order.
-async fn stored_png(q: &Queue, id: &str) -> Vec<u8> {
-    let mut png = Vec::new();
-    for seq in 0..q.image_chunks(id).await.expect("chunks") {
-        png.extend(q.image_chunk(id, seq).await.expect("chunk").expect("there"));
-    }
-    png
-}
-
 /// Pixels kept in the tile rows (as before the spool) are assembled band by band into the
 /// same PNG as the whole image encoded at once; a band whose tiles do not lie side by side
 /// from the left edge is refused, not encoded with a hole, although their widths add up to
@@ -1608,7 +1591,8 @@ async fn bands_are_encoded_from_tiles_side_by_side_only() {
         .expect("misplace");
     pool.close().await;
     assemble(&q, "g").await.expect("assembled");
-    assert_eq!(stored_png(&q, "g").await, whole_png(w, h));
+    let whole = tessera_tracer::encode_png(w, h, &tile_rgb(Rect::new(0, 0, w, h))).expect("png");
+    assert_eq!(png_of(&q, "g").await, whole);
     let err = assemble(&q, "h").await.expect_err("a hole");
     assert!(
         matches!(
