@@ -220,8 +220,7 @@ pub async fn result(
             return Err(ApiError::new(
                 StatusCode::SERVICE_UNAVAILABLE,
                 format!(
-                    "the service cannot store tile pixels now ({why}); the tile is queued \
-                     again, and no work is handed out until they can be stored"
+                    "the service cannot store tile pixels now ({why}); the tile is queued again"
                 ),
             )
             .retry_after(STORAGE_PAUSE.as_secs() as u32));
