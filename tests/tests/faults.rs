@@ -1598,3 +1598,53 @@ fn a_full_disk_under_the_spool_pauses_the_farm_and_loses_nothing() {
     );
     assert_eq!(svc.get("/healthz").status(), 200);
 }
+
+/// A worker whose claim is answered `503` with `Retry-After` (a service pausing its farm
+/// for a full disk says 5 s) asks again no sooner: it backed off from 25 ms, some fifteen
+/// claims in a five-second pause.
+#[test]
+fn a_worker_waits_as_long_as_retry_after_says() {
+    use std::io::{BufRead, BufReader, Write};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    let url = format!("http://{}", listener.local_addr().expect("addr"));
+    let asked = std::sync::Arc::new(std::sync::Mutex::new(Vec::<Instant>::new()));
+    let seen = asked.clone();
+    std::thread::spawn(move || {
+        for stream in listener.incoming() {
+            let Ok(stream) = stream else { continue };
+            let mut reader = BufReader::new(stream);
+            let mut line = String::new();
+            // The request's head; a claim's small body is left unread (the connection closes).
+            while reader.read_line(&mut line).unwrap_or(0) > 0 && line != "\r\n" {
+                line.clear();
+            }
+            seen.lock().expect("not poisoned").push(Instant::now());
+            let answer = json!({"error": "paused"}).to_string();
+            let _ = write!(
+                reader.into_inner(),
+                "HTTP/1.1 503 Service Unavailable\r\nretry-after: 1\r\n\
+                 content-type: application/json\r\ncontent-length: {}\r\n\
+                 connection: close\r\n\r\n{answer}",
+                answer.len()
+            );
+        }
+    });
+    let mut worker = one_thread_worker(&url, "1")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("worker starts");
+    wait_until("three claims", Duration::from_secs(30), || {
+        asked.lock().expect("not poisoned").len() >= 3
+    });
+    let _ = worker.kill();
+    let _ = worker.wait();
+    let at = asked.lock().expect("not poisoned").clone();
+    for pair in at.windows(2) {
+        let gap = pair[1] - pair[0];
+        assert!(
+            gap >= Duration::from_millis(900),
+            "asked again after {gap:?}"
+        );
+    }
+}

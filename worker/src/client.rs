@@ -29,6 +29,8 @@ pub enum ClientError {
         what: &'static str,
         status: u16,
         body: String,
+        /// The answer's `Retry-After`, in seconds (at most [`MAX_RETRY_AFTER`]).
+        retry_after: Option<Duration>,
     },
     #[error("{what}: unreadable answer: {source}")]
     Decode {
@@ -54,7 +56,20 @@ fn with_causes(e: &(dyn std::error::Error + 'static)) -> String {
     out
 }
 
+/// The longest `Retry-After` a worker honours: a service that asks for more is asked
+/// again after this.
+pub const MAX_RETRY_AFTER: Duration = Duration::from_secs(60);
+
 impl ClientError {
+    /// How long the service asked to be left alone (`Retry-After` on its answer), if it did:
+    /// a service pausing its work for a full disk says 5 s.
+    pub fn retry_after(&self) -> Option<Duration> {
+        match self {
+            ClientError::Status { retry_after, .. } => *retry_after,
+            _ => None,
+        }
+    }
+
     /// Whether waiting and trying again may help (the service is down or busy), as opposed
     /// to a refusal that will not change.
     pub fn is_transient(&self) -> bool {
@@ -158,8 +173,19 @@ impl Client {
 
     async fn fail_status(what: &'static str, resp: reqwest::Response) -> ClientError {
         let status = resp.status().as_u16();
+        let retry_after = resp
+            .headers()
+            .get(reqwest::header::RETRY_AFTER)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.trim().parse::<u64>().ok())
+            .map(|secs| Duration::from_secs(secs).min(MAX_RETRY_AFTER));
         let body = resp.text().await.unwrap_or_default();
-        ClientError::Status { what, status, body }
+        ClientError::Status {
+            what,
+            status,
+            body,
+            retry_after,
+        }
     }
 
     /// Claims the next tile; `None` when there is no work. With no work at hand the

@@ -497,7 +497,9 @@ async fn slot(
                 }
                 idle = idle.saturating_add(1);
                 let max = shared.cfg.idle_max.max(Duration::from_secs(2));
-                if pause(backoff(idle, max, &mut rng), &mut stop).await {
+                // At least as long as the service asked (a farm paused for a full disk).
+                let wait = backoff(idle, max, &mut rng).max(e.retry_after().unwrap_or_default());
+                if pause(wait, &mut stop).await {
                     break Ok(());
                 }
             }
