@@ -228,7 +228,7 @@ pub fn router(state: AppState) -> Router {
         .fallback(error::no_route)
         .method_not_allowed_fallback(error::wrong_method)
         .layer(axum::middleware::from_fn(error::json_errors))
-        .layer(tower_http::trace::TraceLayer::new_for_http())
+        .layer(tower_http::trace::TraceLayer::new_for_http().on_failure(log_failure))
         .with_state(state)
 }
 
@@ -402,6 +402,25 @@ pub async fn serve(
     }
     info!("stopped");
     Ok(())
+}
+
+/// tower-http's log line for a failed response: an error, except a `503`, which the
+/// service answers on purpose (a busy database, a farm paused for a full disk, a
+/// submission waiting for room: each logged where it is decided) and which came once per
+/// waiting worker's claim, ten ERROR lines a second with two local workers.
+fn log_failure(
+    class: tower_http::classify::ServerErrorsFailureClass,
+    latency: Duration,
+    _span: &tracing::Span,
+) {
+    use tower_http::classify::ServerErrorsFailureClass::StatusCode as Status;
+    let ms = latency.as_millis() as u64;
+    match class {
+        Status(s) if s == axum::http::StatusCode::SERVICE_UNAVAILABLE => {
+            tracing::debug!(ms, "answered 503")
+        }
+        other => error!(ms, "response failed: {other}"),
+    }
 }
 
 /// How long requests still open when a stop begins (after the local workers are done) may
