@@ -149,9 +149,10 @@ pub enum Completion {
     WrongTile(Rect),
     /// The job has no such tile (or no longer exists).
     Missing,
-    /// The pixels could not be written to the spool (a full disk, a folder gone read-only):
-    /// nothing was stored, and the tile was queued again without a failure counted against
-    /// it or the worker, neither of which did anything wrong. Says why.
+    /// The pixels could not be written to the spool: nothing was stored, and the tile was
+    /// queued again, never charged to the worker. For want of room (a full disk) it is not
+    /// charged at all; after any other write error the tile is charged, as a lost tile is
+    /// (see [`Queue::complete`]). Says why.
     Unstored(String),
 }
 
@@ -1012,7 +1013,7 @@ impl Queue {
         };
         if let Some((done_before, total, worker)) = stored {
             if spooled {
-                self.issued_map().remove(&(job.to_string(), idx));
+                self.forget_lease(job, idx);
             } else {
                 self.wrote(rgb.len());
             }
@@ -1044,6 +1045,12 @@ impl Queue {
         self.issued
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Forgets the lease this process handed out for tile `idx` of `job` (stored, given
+    /// back, or queued again): a later post under it writes nothing to the spool.
+    fn forget_lease(&self, job: &str, idx: u32) {
+        self.issued_map().remove(&(job.to_string(), idx));
     }
 
     /// Whether `lease` is tile `idx`'s current lease and `rect` its rectangle: as this
@@ -1185,7 +1192,7 @@ impl Queue {
         let released = r.rows_affected() == 1;
         if released {
             // The lease is no longer current: a late post under it writes nothing.
-            self.issued_map().remove(&(job.to_string(), idx));
+            self.forget_lease(job, idx);
         }
         Ok(released)
     }
@@ -1247,7 +1254,7 @@ impl Queue {
         }
         tx.commit().await?;
         drop(conn);
-        self.issued_map().remove(&(job.to_string(), idx));
+        self.forget_lease(job, idx);
         Ok(())
     }
 

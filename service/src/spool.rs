@@ -315,17 +315,19 @@ impl Spool {
         let written = self
             .job(id, width, height, true)
             .and_then(|f| write_at(&f.file, rgb, offset).map_err(self.io(id)));
-        let mut failing = self.failing.lock().unwrap_or_else(PoisonError::into_inner);
         match written {
             Ok(()) => {
-                *failing = None;
-                Ok(crc32fast::hash(rgb))
+                // Hashed before the lock, which every result's write takes, is held.
+                let crc = crc32fast::hash(rgb);
+                *self.failing.lock().unwrap_or_else(PoisonError::into_inner) = None;
+                Ok(crc)
             }
             Err(e) => {
                 // Only a lack of room pauses the farm (see `trouble`): another failure is
                 // this job file's, and its tile is charged instead.
                 if e.is_capacity() {
-                    *failing = Some((Instant::now(), e.to_string()));
+                    *self.failing.lock().unwrap_or_else(PoisonError::into_inner) =
+                        Some((Instant::now(), e.to_string()));
                 }
                 // The next write opens the file afresh: the one open may be what failed.
                 self.open

@@ -111,6 +111,8 @@ pub(crate) struct Tile {
     render: RenderRect,
     stop: Arc<AtomicBool>,
     started: Arc<AtomicBool>,
+    /// The tile's bytes as its strips come in; allocated by the first (a tile of one strip
+    /// never needs it).
     out: Mutex<Vec<u8>>,
     reply: Mutex<Option<oneshot::Sender<Rendered>>>,
 }
@@ -150,9 +152,18 @@ impl Tile {
             let rendered =
                 std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| (self.render)(strip)));
             match rendered {
+                // A tile of one strip (the adaptive sampler's) is answered with the render's
+                // own bytes, not a copy.
+                Ok(Some(bytes)) if self.strips == 1 && bytes.len() == strip.pixel_count() * 3 => {
+                    self.answer(Ok(bytes));
+                    return;
+                }
                 Ok(Some(bytes)) if bytes.len() == strip.pixel_count() * 3 => {
                     let at = (i * self.rows * self.rect.width) as usize * 3;
                     let mut out = self.out.lock().unwrap_or_else(PoisonError::into_inner);
+                    if out.is_empty() {
+                        out.resize(self.rect.pixel_count() * 3, 0);
+                    }
                     out[at..at + bytes.len()].copy_from_slice(&bytes);
                 }
                 Ok(Some(bytes)) => {
@@ -241,7 +252,7 @@ impl RenderPool {
             render: t.render,
             stop: t.stop,
             started: t.started,
-            out: Mutex::new(vec![0; t.rect.pixel_count() * 3]),
+            out: Mutex::new(Vec::new()),
             reply: Mutex::new(Some(t.reply)),
         };
         self.inner.push(Arc::new(tile));
