@@ -391,7 +391,7 @@ pub fn run(args: &Args) -> Result<()> {
             // The measurement behind the automatic tile size (`auto_tile` in the service).
             let svc = Service::start(&["--local-workers", &threads.to_string()])?;
             let mut line = format!("  tile size ({label}):");
-            for tile in [32, 64, 128, 256] {
+            for tile in [32, 64, 128, 256, 512] {
                 let sep = if query.is_empty() { '?' } else { '&' };
                 let q = format!("{query}{sep}tile={tile}");
                 let (_, t) = runs(reps, || svc.render(&http, &scene, &q))?;

@@ -11,11 +11,13 @@ use tessera_tracer::{Limits, MAX_THREADS, TextureLimits};
 pub const TILE_RAYS: u64 = 262_144;
 
 /// Tiles a job should have at least when the service picks their size, so that a handful of
-/// workers can share even a small image and finish together.
-pub const MIN_AUTO_TILES: u64 = 16;
+/// workers can share even a small image and finish together. Twelve lets a 1080p frame at
+/// one ray per pixel have 512 px tiles (4 × 3), which is what makes the farm cost about
+/// nothing there (docs/PERFORMANCE.md, "Larger tiles at one ray per pixel").
+pub const MIN_AUTO_TILES: u64 = 12;
 
 /// The tile edges the service picks from.
-pub const AUTO_TILE_RANGE: (u32, u32) = (32, 256);
+pub const AUTO_TILE_RANGE: (u32, u32) = (32, 512);
 
 /// Shortest lease a service hands out, in milliseconds: workers renew at a third of it,
 /// and below this a round trip could outlast the renewal interval.
@@ -24,8 +26,8 @@ pub const MIN_LEASE_MS: u64 = 100;
 /// The tile edge for a `width × height` job whose pixels cost at least `rays_per_pixel`
 /// primary rays, when neither the job nor `--tile` sets one: the smallest power of two whose
 /// tile carries [`TILE_RAYS`], then halved while the job would have fewer than
-/// [`MIN_AUTO_TILES`] tiles, always within [`AUTO_TILE_RANGE`]. A 1080p frame gets 256 px
-/// tiles at one ray per pixel (40 tiles) and 128 px tiles at 16 (135 tiles).
+/// [`MIN_AUTO_TILES`] tiles, always within [`AUTO_TILE_RANGE`]. A 1080p frame gets 512 px
+/// tiles at one ray per pixel (12 tiles) and 128 px tiles at 16 (135 tiles).
 pub fn auto_tile(width: u32, height: u32, rays_per_pixel: u32) -> u32 {
     let (lo, hi) = AUTO_TILE_RANGE;
     let rays = u64::from(rays_per_pixel.max(1));
@@ -267,6 +269,7 @@ mod tests {
             (64, 64),
             (320, 180),
             (640, 480),
+            (1280, 720),
             (1920, 1080),
             (7680, 4320),
         ] {
@@ -305,11 +308,13 @@ mod tests {
 
     #[test]
     fn a_1080p_frame_gets_large_tiles_at_one_ray_and_small_ones_at_sixteen() {
-        // 512² would be 262,144 rays at one ray per pixel, but the range ends at 256;
-        // 128² × 16 = 262,144 at 16.
-        assert_eq!(auto_tile(1920, 1080, 1), 256);
+        // 512² = 262,144 rays at one ray per pixel, in 4 × 3 = 12 tiles; 128² × 16 =
+        // 262,144 at 16.
+        assert_eq!(auto_tile(1920, 1080, 1), 512);
         assert_eq!(auto_tile(1920, 1080, 16), 128);
-        // 640×480 at one ray: 256 px would be 6 tiles, 128 px is 20.
+        // 1280×720 at one ray: 512 px would be 3 × 2 = 6 tiles, 256 px is 5 × 3 = 15.
+        assert_eq!(auto_tile(1280, 720, 1), 256);
+        // 640×480 at one ray: 512 px would be 2 tiles, 256 px 6, 128 px is 20.
         assert_eq!(auto_tile(640, 480, 1), 128);
     }
 }

@@ -589,8 +589,8 @@ fn tile_size_comes_from_the_job_then_the_flag_then_the_service() {
 
     let dir = TempDir::new("tileauto");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
-    // thesis.ray: 640×480 at one ray per pixel. 256 px tiles, the largest picked, would be
-    // only 3 × 2 = 6 tiles (under 16), so 128 px: 5 × 4 = 20.
+    // thesis.ray: 640×480 at one ray per pixel. 512 px tiles, the largest picked, would be
+    // only 2 × 1 = 2 tiles and 256 px 3 × 2 = 6 (under 12), so 128 px: 5 × 4 = 20.
     assert_eq!(covers(&svc.submit(&scene, "")), 128);
     // With 8×8 jitter, 64² × 64 rays is the 262,144 a picked tile carries.
     assert_eq!(covers(&svc.submit(&scene, "?sampler=jitter&samples=8")), 64);
