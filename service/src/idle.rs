@@ -49,9 +49,9 @@ impl Listener for IdleListener {
         let (stream, addr) = Listener::accept(&mut self.inner).await;
         // Without TCP_NODELAY a response written in more than one piece (a PNG streamed
         // chunk by chunk, headers before a body) waits for the client's delayed ACK before
-        // its last small segment (Nagle's algorithm): 40 ms on Linux, on about every second
-        // download. Every write here is a whole piece of a response, so nothing is gained by
-        // holding it back. A socket that refuses the option still works, only slower.
+        // its last small segment (Nagle's algorithm): 40 ms on Linux, on a third to a half
+        // of downloads. Every write here is a whole piece of a response, so nothing is
+        // gained by holding it back. A socket that refuses the option still works, slower.
         if let Err(e) = stream.set_nodelay(true) {
             tracing::debug!("TCP_NODELAY on a connection from {addr}: {e}");
         }
