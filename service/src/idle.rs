@@ -164,7 +164,7 @@ mod tests {
 
     /// An accepted socket sends each write at once: with Nagle's algorithm on, the last
     /// small piece of a PNG streamed chunk by chunk waited for the client's delayed ACK
-    /// (40 ms on about every second download, seen with Python's `http.client`).
+    /// (40 ms on a third to a half of downloads, seen with Python's `http.client`).
     #[tokio::test]
     async fn accepted_connections_send_without_delay() {
         // A loopback listener on a free port: binding cannot fail on a working host.
