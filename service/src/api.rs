@@ -776,8 +776,9 @@ fn scene_error(e: &SceneError) -> ApiError {
     .with("errors", Value::Array(all))
 }
 
-/// The fewest primary rays per pixel a sampler traces: the automatic tile size's measure of
-/// a job's cost (an adaptive pixel may take more, never fewer).
+/// Primary rays per pixel as the automatic tile size counts a job's cost: what a fixed
+/// pattern traces, and for the adaptive sampler its first pass of four (a pixel that the
+/// scene's geometry shows smooth ends after one ray; one at an edge takes more).
 fn min_rays_per_pixel(sampler: &Sampler) -> u32 {
     match sampler {
         Sampler::Adaptive { .. } => 4,
