@@ -779,7 +779,7 @@ fn scene_error(e: &SceneError) -> ApiError {
 /// Primary rays per pixel as the automatic tile size counts a job's cost: what a fixed
 /// pattern traces, and for the adaptive sampler its first pass of four (a pixel that the
 /// scene's geometry shows smooth ends after one ray; one at an edge takes more).
-fn min_rays_per_pixel(sampler: &Sampler) -> u32 {
+fn tile_rays_per_pixel(sampler: &Sampler) -> u32 {
     match sampler {
         Sampler::Adaptive { .. } => 4,
         other => other.max_samples_per_pixel(),
@@ -879,7 +879,7 @@ async fn validate(
                 err.with("missing_assets", missing)
             }
         })?;
-        let rays = min_rays_per_pixel(&chosen);
+        let rays = tile_rays_per_pixel(&chosen);
         Ok::<_, ApiError>((source, desc.width, desc.height, kept, rays))
     })
     .await
