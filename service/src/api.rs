@@ -890,11 +890,12 @@ async fn validate(
     let checked = checked?;
     let (source, width, height, kept, rays) = checked;
     // The service's own pick grows to the smallest edge that `--max-tiles` allows (a job
-    // that asked for no size was refused for the service's choice); an edge the job or
-    // `--tile` asked for is refused below instead, naming the smallest that fits.
+    // that asked for no size was refused for the service's choice), and where none does,
+    // the refusal below counts the largest edge's tiles; an edge the job or `--tile` asked
+    // for is refused below instead, naming the smallest that fits.
     let tile = tile.unwrap_or_else(|| {
         let auto = auto_tile(width, height, rays);
-        smallest_fitting_tile(width, height, auto, state.cfg.max_tiles).unwrap_or(auto)
+        smallest_fitting_tile(width, height, auto, state.cfg.max_tiles).unwrap_or(MAX_TILE)
     });
     check_tile_count(width, height, tile, state.cfg.max_tiles)?;
     let job = NewJob {

@@ -426,6 +426,33 @@ fn limits_refuse_oversized_input_and_store_nothing() {
     );
 }
 
+/// A job that asks for no tile size, on an image that even the largest tiles cut into more
+/// than `--max-tiles`: the refusal counts the largest edge's tiles, not those of a pick the
+/// job never asked for.
+#[test]
+fn an_image_too_large_for_any_tile_is_refused_for_the_largest() {
+    let dir = TempDir::new("maxtiles");
+    let svc = Service::start(&dir, &["--local-workers", "0", "--max-tiles", "2"]);
+    let r = reqwest::blocking::Client::new()
+        .post(format!("{}/jobs", svc.url))
+        .body(
+            "[GLOBALS]\nwidth = 3000\nheight = 8\n[/GLOBALS]\n\
+             [OBJECT]\ntype = sphere\nradius = 1\n[/OBJECT]\n",
+        )
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 400);
+    let e: Value = r.json().expect("json");
+    // The service's own pick for 3000×8 is 256 px, 12 tiles, which the message named.
+    assert_eq!(e["tiles"], 3, "3 × 1 tiles of 1024 px: {e}");
+    let msg = e["error"].as_str().unwrap_or("");
+    assert!(
+        msg.contains("tiles of 1024 px") && msg.contains("no tile edge up to 1024"),
+        "{e}"
+    );
+    assert_eq!(svc.get_json("/jobs"), json!([]), "nothing stored");
+}
+
 #[test]
 fn tokens_guard_worker_routes_and_submission() {
     let dir = TempDir::new("tokens");
