@@ -36,6 +36,10 @@ pub struct JobView {
     pub progress: f64,
     pub url: String,
     pub image_url: String,
+    /// Why a job still to finish makes no progress now: the service cannot store tile
+    /// pixels (a full disk), so no tile is handed out until it can again. Absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub paused: Option<String>,
 }
 
 impl From<JobRow> for JobView {
@@ -50,7 +54,27 @@ impl From<JobRow> for JobView {
             image_url: format!("/jobs/{}/image.png", row.id),
             progress,
             row,
+            paused: None,
         }
+    }
+}
+
+impl JobView {
+    /// The job as the API shows it now: one still to finish says so while the farm is
+    /// paused for storage ([`Queue::storage_trouble`](crate::queue::Queue::storage_trouble)),
+    /// which otherwise only `/healthz` told.
+    fn now(state: &AppState, row: JobRow) -> JobView {
+        let active = matches!(row.state.as_str(), "queued" | "running");
+        let mut view = JobView::from(row);
+        if active {
+            view.paused = state.queue.storage_trouble(STORAGE_PAUSE).map(|why| {
+                format!(
+                    "the service cannot store tile pixels now ({why}); tiles are handed out \
+                     again once it can"
+                )
+            });
+        }
+        view
     }
 }
 
@@ -133,7 +157,7 @@ pub async fn list_jobs(
             before.unwrap_or("")
         ))
     })?;
-    let jobs: Vec<JobView> = rows.into_iter().map(JobView::from).collect();
+    let jobs: Vec<JobView> = rows.into_iter().map(|r| JobView::now(&state, r)).collect();
     Ok(ok_json(jobs))
 }
 
@@ -185,7 +209,7 @@ pub async fn get_job(
         let now = tokio::time::Instant::now();
         let stopping = *state.stopping.borrow();
         if !matches!(row.state.as_str(), "queued" | "running") || now >= deadline || stopping {
-            return Ok(ok_json(JobView::from(row)));
+            return Ok(ok_json(JobView::now(&state, row)));
         }
         tokio::select! {
             _ = &mut ended => {}
@@ -485,7 +509,7 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     };
     state.work.notify_waiters();
     let location = format!("/jobs/{}", row.id);
-    let mut resp = (StatusCode::CREATED, ok_json(JobView::from(row))).into_response();
+    let mut resp = (StatusCode::CREATED, ok_json(JobView::now(&state, row))).into_response();
     if let Ok(v) = HeaderValue::from_str(&location) {
         resp.headers_mut().insert(header::LOCATION, v);
     }
