@@ -397,6 +397,25 @@ pub const MIN_PRIORITY: i64 = -1000;
 /// The highest `?priority=`.
 pub const MAX_PRIORITY: i64 = 1000;
 
+/// The answer to a submission's query that does not parse: serde's reason, and what the
+/// parameter it names takes (`?tile=abc` said only "invalid digit found in string").
+fn bad_query(reason: &str) -> String {
+    let field = reason
+        .strip_prefix("Failed to deserialize query string: ")
+        .and_then(|r| r.split_once(':'))
+        .map(|(f, _)| f);
+    let takes = match field {
+        Some("tile") => format!("; `tile` is a whole number of pixels, {MIN_TILE} to {MAX_TILE}"),
+        Some("samples") => "; `samples` is a whole number".to_string(),
+        Some("threshold") => "; `threshold` is a number".to_string(),
+        Some("priority") => {
+            format!("; `priority` is a whole number, {MIN_PRIORITY} to {MAX_PRIORITY}")
+        }
+        _ => String::new(),
+    };
+    format!("bad query: {reason}{takes}")
+}
+
 /// `POST /jobs`: the raw scene as the body, or multipart with a `scene` part and one part
 /// per asset named as the scene names it.
 pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Response, ApiError> {
@@ -407,12 +426,7 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     }
     let params: SubmitParams = match Query::<SubmitParams>::try_from_uri(req.uri()) {
         Ok(Query(p)) => p,
-        Err(e) => {
-            return Err(ApiError::bad_request(format!(
-                "bad query: {}",
-                e.body_text()
-            )));
-        }
+        Err(e) => return Err(ApiError::bad_request(bad_query(&e.body_text()))),
     };
     // The submission's share of `--max-receiving-bytes`: its body's room, taken before the
     // body is read, and its textures' before they are decoded; given back once answered.
@@ -973,8 +987,43 @@ fn check_tile_count(width: u32, height: u32, tile: u32, max_tiles: u64) -> Resul
 #[cfg(test)]
 mod tests {
     use super::{
-        MAX_TILE, MIN_TILE, check_asset_name, check_tile_count, percent_decode, texture_key,
+        MAX_TILE, MIN_TILE, SubmitParams, bad_query, check_asset_name, check_tile_count,
+        percent_decode, texture_key,
     };
+
+    /// A parameter that does not parse is named with what it takes, from serde's own
+    /// rejection of it; a query that fails for another reason keeps serde's words alone.
+    #[test]
+    fn a_bad_query_says_what_the_parameter_takes() {
+        let reason = |q: &str| {
+            let uri: axum::http::Uri = format!("/jobs?{q}").parse().expect("a valid URI");
+            match axum::extract::Query::<SubmitParams>::try_from_uri(&uri) {
+                Ok(_) => panic!("`{q}` parsed"),
+                Err(e) => bad_query(&e.body_text()),
+            }
+        };
+        for (q, takes) in [
+            ("tile=abc", "`tile` is a whole number of pixels, 8 to 1024"),
+            ("tile=-1", "`tile` is a whole number of pixels, 8 to 1024"),
+            ("samples=x", "`samples` is a whole number"),
+            ("threshold=x", "`threshold` is a number"),
+            (
+                "priority=1.5",
+                "`priority` is a whole number, -1000 to 1000",
+            ),
+        ] {
+            let m = reason(q);
+            assert!(
+                m.starts_with("bad query: ") && m.ends_with(takes),
+                "{q}: {m}"
+            );
+        }
+        let m = reason("tlie=8");
+        assert!(
+            m.contains("unknown field") && !m.contains("whole number"),
+            "{m}"
+        );
+    }
 
     /// Over many sizes and caps: a job is refused exactly when the tiler would make more
     /// tiles than the cap (counted by the tiler itself), and the edge it suggests is the
