@@ -511,23 +511,43 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
         let paused = last.elapsed();
         last = std::time::Instant::now();
         // So with storage that failed within half a lease (a full disk): the renewals and
-        // results of workers may have been refused meanwhile.
+        // results of workers may have been refused meanwhile. A worker at work renews each
+        // lease every third of one, so one heard from within a lease is alive.
         let window = Duration::from_millis(state.cfg.lease_ms / 2) + every;
+        let heard_within = Duration::from_millis(state.cfg.lease_ms) + every;
+        state.queue.forget_unheard(heard_within);
         if state.queue.storage_failed_within(window) {
-            // Not reaped meanwhile (the rest of the pass goes on). Said once an episode.
+            // The leases of workers heard from are extended, the others reaped (the rest
+            // of the pass goes on). Said once an episode.
             match state
                 .queue
-                .extend_leases(now_ms(), state.cfg.lease_ms)
+                .reap_unheard(
+                    now_ms(),
+                    state.cfg.lease_ms,
+                    heard_within,
+                    state.cfg.max_attempts,
+                    state.keep_away(),
+                )
                 .await
             {
-                Ok(n) if !extending => {
-                    extending = true;
-                    warn!(
-                        "the service's storage failed lately: leases are extended, none \
-                         reaped, until it has written again for half a lease ({n} now)"
-                    );
+                Ok((extended, reaped)) => {
+                    if !extending {
+                        extending = true;
+                        warn!(
+                            "the service's storage failed lately: leases of workers heard from \
+                             are extended, until it has written again for half a lease \
+                             ({extended} now)"
+                        );
+                    }
+                    if reaped > 0 {
+                        warn!(
+                            "{reaped} expired leases of workers not heard from: tiles handed \
+                             out again"
+                        );
+                        state.work.notify_waiters();
+                        state.ended.notify_waiters();
+                    }
                 }
-                Ok(_) => {}
                 Err(e) => warn!(
                     "extending leases while the storage fails: {}",
                     state.queue.noted(e)

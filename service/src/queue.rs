@@ -18,7 +18,7 @@
 //! Times are integer milliseconds since the Unix epoch, passed in by the caller so that the
 //! SQL stays portable and tests control the clock. This module knows nothing of HTTP.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::str::FromStr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -342,10 +342,18 @@ pub struct Queue {
     /// When a write last failed for the storage's sake ([`QueueError::is_storage`]), as
     /// noted by [`Queue::noted`].
     storage_failed: Arc<std::sync::Mutex<Option<std::time::Instant>>>,
+    /// Leases that a request came under lately (a renewal or a result, whatever became of
+    /// it), and when: see [`Queue::heard`].
+    heard: Arc<std::sync::Mutex<HashMap<String, std::time::Instant>>>,
 }
 
 /// Leases handed out and not yet stored: `(job, idx)` → `(lease, rectangle)`.
 type Issued = HashMap<(String, u32), (String, Rect)>;
+
+/// The most leases [`Queue::heard`] keeps at once (a worker holds two per render thread):
+/// a few MB at most. Past it, a lease not yet heard from is not noted, and so is reaped as
+/// it would be without the record if the storage fails while its lease runs out.
+pub const HEARD_LEASES: usize = 1 << 16;
 
 /// [`Queue::max_attempts`] until set: the service's default `--max-attempts`.
 const DEFAULT_MAX_ATTEMPTS: u32 = 4;
@@ -564,6 +572,7 @@ impl Queue {
             max_attempts: DEFAULT_MAX_ATTEMPTS,
             issued: Arc::default(),
             storage_failed: Arc::default(),
+            heard: Arc::default(),
         })
     }
 
@@ -1467,6 +1476,87 @@ impl Queue {
         }
         tx.commit().await?;
         Ok(requeued)
+    }
+
+    /// Notes that a request came under `lease`, a renewal or a result, before anything is
+    /// written for it: its worker is alive, even when the storage refuses what it asks.
+    /// Only what could be a lease is noted, and at most [`HEARD_LEASES`] at once: requests
+    /// with made-up leases cannot grow the record past that.
+    pub fn heard(&self, lease: &str) {
+        if lease.len() != 32 || !lease.bytes().all(|b| b.is_ascii_hexdigit()) {
+            return;
+        }
+        let mut heard = self
+            .heard
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if heard.len() < HEARD_LEASES || heard.contains_key(lease) {
+            heard.insert(lease.to_string(), std::time::Instant::now());
+        }
+    }
+
+    /// Forgets the leases not heard from within `within` (the reaper's every pass, so that
+    /// the record holds only the leases of workers at work).
+    pub fn forget_unheard(&self, within: Duration) {
+        let mut heard = self
+            .heard
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        heard.retain(|_, at| at.elapsed() < within);
+    }
+
+    /// The reaper's pass while the storage fails ([`Queue::storage_failed_within`]): the
+    /// leases heard from within `within` ([`Queue::heard`]: their workers asked to renew
+    /// them or to store their results, and may have been refused for the storage's sake)
+    /// get a fresh `lease_ms`; the others are reaped as ever, since a worker that died
+    /// meanwhile asks nothing. Extending every lease, as it did, kept a dead worker's tiles
+    /// for as long as failures kept coming, which on a nearly full disk, failing now and
+    /// then, could be for ever. Returns how many leases were extended and how many reaped.
+    pub async fn reap_unheard(
+        &self,
+        now: i64,
+        lease_ms: u64,
+        within: Duration,
+        max_attempts: u32,
+        keep: KeepAway,
+    ) -> Result<(u64, u64)> {
+        let heard: HashSet<String> = {
+            let heard = self
+                .heard
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            heard
+                .iter()
+                .filter(|(_, at)| at.elapsed() < within)
+                .map(|(lease, _)| lease.clone())
+                .collect()
+        };
+        let mut extended = 0;
+        if !heard.is_empty() {
+            let mut conn = self.writer.lock().await?;
+            let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
+            let leased: Vec<(String, i64, String)> = sqlx::query_as(
+                "SELECT job_id, idx, lease FROM tiles WHERE state = 'leased' AND lease IS NOT NULL",
+            )
+            .fetch_all(&mut *tx)
+            .await?;
+            for (job, idx, lease) in leased.iter().filter(|(_, _, l)| heard.contains(l)) {
+                extended += sqlx::query(
+                    "UPDATE tiles SET lease_expires = ?1
+                     WHERE job_id = ?2 AND idx = ?3 AND lease = ?4 AND state = 'leased'",
+                )
+                .bind(now.saturating_add(lease_ms as i64))
+                .bind(job)
+                .bind(idx)
+                .bind(lease)
+                .execute(&mut *tx)
+                .await?
+                .rows_affected();
+            }
+            tx.commit().await?;
+        }
+        let reaped = self.reap(now, max_attempts, keep).await?;
+        Ok((extended, reaped))
     }
 
     /// After a restart: every live lease gets a fresh `lease_ms`, so workers that rode

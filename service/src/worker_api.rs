@@ -147,6 +147,7 @@ pub async fn renew(
     Path((id, idx)): Path<(String, u32)>,
     Query(q): Query<RenewParams>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
+    state.queue.heard(&q.lease);
     match state
         .queue
         .renew(
@@ -189,6 +190,7 @@ pub async fn result(
     Query(q): Query<ResultParams>,
     body: Bytes,
 ) -> Result<Json<serde_json::Value>, ApiError> {
+    state.queue.heard(&q.lease);
     let next_for = q.next.as_deref().map(worker_name).transpose()?;
     let (rect, rgb) = split_tile(&body)
         .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;

@@ -1730,3 +1730,58 @@ async fn a_tile_whose_pixels_keep_failing_to_be_written_fails_its_job() {
     assert_eq!(kept, 0, "no worker is charged");
     pool.close().await;
 }
+
+/// While the storage fails, the reaper gives a fresh lease to the tiles whose workers were
+/// heard from (a renewal or a result came under the lease, refused or not) and reaps the
+/// others as ever: a worker that died meanwhile says nothing. Extending every lease, as it
+/// did, kept a dead worker's tile for as long as failures kept coming.
+#[tokio::test]
+async fn while_the_storage_fails_the_leases_of_silent_workers_are_reaped() {
+    let db = Db::new("unheard");
+    let q = Queue::open(&db.url()).await.expect("open");
+    job(&q, "j", 24, 8, 8).await;
+    let claim = |w: &'static str, now: i64| {
+        let q = &q;
+        async move {
+            q.claim(w, now, 1_000, 4)
+                .await
+                .expect("claim")
+                .expect("a tile")
+        }
+    };
+    let alive = claim("alive", 0).await;
+    let dead = claim("dead", 0).await;
+    q.heard(&alive.lease);
+    let within = std::time::Duration::from_secs(60);
+    let pass = |now: i64| q.reap_unheard(now, 1_000, within, 4, KEEP);
+    assert_eq!(pass(5_000).await.expect("pass"), (1, 1));
+    // The silent worker's tile is handed out again, charged its failure; the live worker's
+    // lease stands, uncharged.
+    let again = claim("other", 5_000).await;
+    assert_eq!(again.idx, dead.idx);
+    let charged = failures(&db, "j").await;
+    assert_eq!(
+        (charged[alive.idx as usize], charged[dead.idx as usize]),
+        (0, 1),
+        "{charged:?}"
+    );
+    // A worker no longer heard from is forgotten, and its lease, once past, reaped too.
+    q.heard(&again.lease);
+    q.forget_unheard(std::time::Duration::ZERO);
+    assert_eq!(pass(7_000).await.expect("pass"), (0, 2));
+    // Until then its result is stored as any other.
+    let third = claim("alive", 7_000).await;
+    q.heard(&third.lease);
+    assert_eq!(pass(7_500).await.expect("pass"), (1, 0));
+    let stored = q
+        .complete(
+            "j",
+            third.idx,
+            &third.lease,
+            third.rect(),
+            &pixels(third.rect()),
+        )
+        .await
+        .expect("complete");
+    assert!(matches!(stored, Completion::Stored { .. }), "{stored:?}");
+}
