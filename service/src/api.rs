@@ -60,19 +60,21 @@ impl From<JobRow> for JobView {
 }
 
 impl JobView {
-    /// The job as the API shows it now: one still to finish says so while the farm is
-    /// paused for storage ([`Queue::storage_trouble`](crate::queue::Queue::storage_trouble)),
-    /// which otherwise only `/healthz` told.
-    fn now(state: &AppState, row: JobRow) -> JobView {
-        let active = matches!(row.state.as_str(), "queued" | "running");
+    /// The job as the API shows it, with the service's state: one with tiles still to
+    /// render says so while the farm is paused for storage
+    /// ([`Queue::storage_trouble`](crate::queue::Queue::storage_trouble)), which otherwise
+    /// only `/healthz` told. The reason is given in general terms: the failed write's own
+    /// message names another job's spool file.
+    fn of(state: &AppState, row: JobRow) -> JobView {
+        let waiting =
+            matches!(row.state.as_str(), "queued" | "running") && row.tiles_done < row.tiles_total;
         let mut view = JobView::from(row);
-        if active {
-            view.paused = state.queue.storage_trouble(STORAGE_PAUSE).map(|why| {
-                format!(
-                    "the service cannot store tile pixels now ({why}); tiles are handed out \
-                     again once it can"
-                )
-            });
+        if waiting && state.queue.storage_trouble(STORAGE_PAUSE).is_some() {
+            view.paused = Some(
+                "the service has no room to store tile pixels now (a full disk, or no file \
+                 descriptors to spare): tiles are handed out again once it has"
+                    .to_string(),
+            );
         }
         view
     }
@@ -157,7 +159,7 @@ pub async fn list_jobs(
             before.unwrap_or("")
         ))
     })?;
-    let jobs: Vec<JobView> = rows.into_iter().map(|r| JobView::now(&state, r)).collect();
+    let jobs: Vec<JobView> = rows.into_iter().map(|r| JobView::of(&state, r)).collect();
     Ok(ok_json(jobs))
 }
 
@@ -209,7 +211,7 @@ pub async fn get_job(
         let now = tokio::time::Instant::now();
         let stopping = *state.stopping.borrow();
         if !matches!(row.state.as_str(), "queued" | "running") || now >= deadline || stopping {
-            return Ok(ok_json(JobView::now(&state, row)));
+            return Ok(ok_json(JobView::of(&state, row)));
         }
         tokio::select! {
             _ = &mut ended => {}
@@ -406,7 +408,7 @@ fn bad_query(reason: &str) -> String {
         .map(|(f, _)| f);
     let takes = match field {
         Some("tile") => format!("; `tile` is a whole number of pixels, {MIN_TILE} to {MAX_TILE}"),
-        Some("samples") => "; `samples` is a whole number".to_string(),
+        Some("samples") => "; `samples` is a positive whole number".to_string(),
         Some("threshold") => "; `threshold` is a number".to_string(),
         Some("priority") => {
             format!("; `priority` is a whole number, {MIN_PRIORITY} to {MAX_PRIORITY}")
@@ -523,7 +525,7 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     };
     state.work.notify_waiters();
     let location = format!("/jobs/{}", row.id);
-    let mut resp = (StatusCode::CREATED, ok_json(JobView::now(&state, row))).into_response();
+    let mut resp = (StatusCode::CREATED, ok_json(JobView::of(&state, row))).into_response();
     if let Ok(v) = HeaderValue::from_str(&location) {
         resp.headers_mut().insert(header::LOCATION, v);
     }
@@ -1005,7 +1007,7 @@ mod tests {
         for (q, takes) in [
             ("tile=abc", "`tile` is a whole number of pixels, 8 to 1024"),
             ("tile=-1", "`tile` is a whole number of pixels, 8 to 1024"),
-            ("samples=x", "`samples` is a whole number"),
+            ("samples=-1", "`samples` is a positive whole number"),
             ("threshold=x", "`threshold` is a number"),
             (
                 "priority=1.5",

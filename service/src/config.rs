@@ -23,8 +23,8 @@ pub const AUTO_TILE_RANGE: (u32, u32) = (32, 512);
 /// and below this a round trip could outlast the renewal interval.
 pub const MIN_LEASE_MS: u64 = 100;
 
-/// The tile edge for a `width × height` job whose pixels cost at least `rays_per_pixel`
-/// primary rays, when neither the job nor `--tile` sets one: the smallest power of two whose
+/// The tile edge for a `width × height` job whose pixels are counted as `rays_per_pixel`
+/// primary rays each, when neither the job nor `--tile` sets one: the smallest power of two whose
 /// tile carries [`TILE_RAYS`], then halved while the job would have fewer than
 /// [`MIN_AUTO_TILES`] tiles, always within [`AUTO_TILE_RANGE`]. A 1080p frame gets 512 px
 /// tiles at one ray per pixel (12 tiles) and 128 px tiles at 16 (135 tiles).

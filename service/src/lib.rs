@@ -488,6 +488,10 @@ fn spawn_local_workers(
         .collect()
 }
 
+/// The least time a refused request keeps its lease from being reaped while the storage
+/// fails: a worker retries a refused result at most 3 s apart, whatever the lease.
+const HEARD_AT_LEAST: Duration = Duration::from_secs(5);
+
 /// How often the reaper deletes the spool files of ended jobs.
 const SWEEP_EVERY: Duration = Duration::from_secs(10);
 
@@ -511,49 +515,15 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
         let paused = last.elapsed();
         last = std::time::Instant::now();
         // So with storage that failed within half a lease (a full disk): the renewals and
-        // results of workers may have been refused meanwhile. A worker at work renews each
-        // lease every third of one, so one heard from within a lease is alive.
+        // results of workers may have been refused meanwhile. Those refused are noted
+        // (`Queue::heard_refused`); a worker at work renews each lease every third of one,
+        // and retries a refused result at most 3 s apart (its back-off's cap, with jitter),
+        // so one heard from within a lease, and never less than 5 s, is alive.
         let window = Duration::from_millis(state.cfg.lease_ms / 2) + every;
-        let heard_within = Duration::from_millis(state.cfg.lease_ms) + every;
+        let heard_within = Duration::from_millis(state.cfg.lease_ms).max(HEARD_AT_LEAST) + every;
         state.queue.forget_unheard(heard_within);
-        if state.queue.storage_failed_within(window) {
-            // The leases of workers heard from are extended, the others reaped (the rest
-            // of the pass goes on). Said once an episode.
-            match state
-                .queue
-                .reap_unheard(
-                    now_ms(),
-                    state.cfg.lease_ms,
-                    heard_within,
-                    state.cfg.max_attempts,
-                    state.keep_away(),
-                )
-                .await
-            {
-                Ok((extended, reaped)) => {
-                    if !extending {
-                        extending = true;
-                        warn!(
-                            "the service's storage failed lately: leases of workers heard from \
-                             are extended, until it has written again for half a lease \
-                             ({extended} now)"
-                        );
-                    }
-                    if reaped > 0 {
-                        warn!(
-                            "{reaped} expired leases of workers not heard from: tiles handed \
-                             out again"
-                        );
-                        state.work.notify_waiters();
-                        state.ended.notify_waiters();
-                    }
-                }
-                Err(e) => warn!(
-                    "extending leases while the storage fails: {}",
-                    state.queue.noted(e)
-                ),
-            }
-        } else if paused > window {
+        // The pause first: it heard no one, so every lease is extended, whatever failed.
+        if paused > window {
             match state
                 .queue
                 .extend_leases(now_ms(), state.cfg.lease_ms)
@@ -563,28 +533,53 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                     "the service did not run for {:.1} s: {n} leases extended, none reaped",
                     paused.as_secs_f64()
                 ),
-                Err(e) => warn!("extending leases after a pause: {e}"),
+                Err(e) => warn!("extending leases after a pause: {}", state.queue.noted(e)),
             }
             continue;
+        }
+        let reaped = if state.queue.storage_failed_within(window) {
+            // The leases of workers heard from are extended, the others reaped (the rest
+            // of the pass goes on). Said once an episode.
+            let pass = state
+                .queue
+                .reap_unheard(
+                    now_ms(),
+                    state.cfg.lease_ms,
+                    heard_within,
+                    state.cfg.max_attempts,
+                    state.keep_away(),
+                )
+                .await;
+            if let Ok((extended, _)) = &pass
+                && !extending
+            {
+                extending = true;
+                warn!(
+                    "the service's storage failed lately: the leases of workers whose requests \
+                     it refused are extended, the others reaped as ever, until it has written \
+                     again for half a lease ({extended} now)"
+                );
+            }
+            pass.map(|(_, reaped)| reaped)
         } else {
             if extending {
                 extending = false;
                 info!("the service's storage writes again: expired leases are reaped again");
             }
-            match state
+            state
                 .queue
                 .reap(now_ms(), state.cfg.max_attempts, state.keep_away())
                 .await
-            {
-                Ok(0) => {}
-                Ok(n) => {
-                    warn!("{n} expired leases: tiles handed out again");
-                    state.work.notify_waiters();
-                    // A tile out of attempts fails its job.
-                    state.ended.notify_waiters();
-                }
-                Err(e) => warn!("reaping expired leases: {e}"),
+        };
+        match reaped {
+            Ok(0) => {}
+            Ok(n) => {
+                warn!("{n} expired leases: tiles handed out again");
+                state.work.notify_waiters();
+                // A tile out of attempts fails its job.
+                state.ended.notify_waiters();
             }
+            Err(e) => warn!("reaping expired leases: {}", state.queue.noted(e)),
         }
         // The spool files of jobs that ended without an image (cancelled, failed, deleted).
         if swept.elapsed() >= SWEEP_EVERY {

@@ -342,8 +342,8 @@ pub struct Queue {
     /// When a write last failed for the storage's sake ([`QueueError::is_storage`]), as
     /// noted by [`Queue::noted`].
     storage_failed: Arc<std::sync::Mutex<Option<std::time::Instant>>>,
-    /// Leases that a request came under lately (a renewal or a result, whatever became of
-    /// it), and when: see [`Queue::heard`].
+    /// Leases whose renewal or result was refused lately for a failure of the service's,
+    /// and when: see [`Queue::heard_refused`].
     heard: Arc<std::sync::Mutex<HashMap<String, std::time::Instant>>>,
 }
 
@@ -976,7 +976,7 @@ impl Queue {
                             // would fail, blaming workers, after `--max-attempts` such
                             // posts). With the database on the same full disk the requeue
                             // may fail too: then the tile stays leased, and the reaper
-                            // extends leases rather than charge anyone while it fails.
+                            // extends the leases of workers it hears from while it fails.
                             let e = QueueError::from(e);
                             if let Err(requeue) = self.release(job, idx, lease).await {
                                 tracing::error!(
@@ -1207,8 +1207,9 @@ impl Queue {
     }
 
     /// Passes `e` through, noting when it is the database's storage failing (a full disk
-    /// under it): renewals may be refused then, so the reaper gives leases a fresh term
-    /// instead of reaping them ([`Queue::storage_failed_within`]). The spool's own failures
+    /// under it): renewals may be refused then, so the reaper gives the leases of workers
+    /// it hears from a fresh term instead of reaping them ([`Queue::storage_failed_within`],
+    /// [`Queue::reap_unheard`]). The spool's own failures
     /// refuse no renewal (and their tiles are queued again at once), so they do not count.
     pub fn noted(&self, e: QueueError) -> QueueError {
         if matches!(e, QueueError::Db(_)) && e.is_storage() {
@@ -1222,8 +1223,8 @@ impl Queue {
     }
 
     /// Whether a database write failed for the storage's sake less than `within` ago (as
-    /// [`Queue::noted`]): renewals may have been refused meanwhile, so leases that ran out
-    /// are no worker's fault, as after a pause of the service.
+    /// [`Queue::noted`]): renewals may have been refused meanwhile, so the leases of workers
+    /// that asked and were refused ran out through no fault of theirs.
     pub fn storage_failed_within(&self, within: Duration) -> bool {
         let noted = *self
             .storage_failed
@@ -1478,25 +1479,41 @@ impl Queue {
         Ok(requeued)
     }
 
-    /// Notes that a request came under `lease`, a renewal or a result, before anything is
-    /// written for it: its worker is alive, even when the storage refuses what it asks.
-    /// Only what could be a lease is noted, and at most [`HEARD_LEASES`] at once: requests
-    /// with made-up leases cannot grow the record past that.
+    /// [`Queue::noted`], for a renewal or a result under `lease` that failed: its worker is
+    /// alive and asked in time, so while the storage fails the reaper gives the lease a
+    /// fresh term rather than reap it ([`Queue::reap_unheard`]). Only refusals are noted (a
+    /// renewal that went through has moved the lease on by itself), only what could be a
+    /// lease, and at most [`HEARD_LEASES`] at once: requests under made-up leases cannot
+    /// grow the record past that.
+    pub fn heard_refused(&self, lease: &str, e: QueueError) -> QueueError {
+        self.heard(lease);
+        self.noted(e)
+    }
+
+    /// Notes a refused request under `lease` now (see [`Queue::heard_refused`]).
     pub fn heard(&self, lease: &str) {
-        if lease.len() != 32 || !lease.bytes().all(|b| b.is_ascii_hexdigit()) {
-            return;
-        }
-        let mut heard = self
-            .heard
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        if heard.len() < HEARD_LEASES || heard.contains_key(lease) {
-            heard.insert(lease.to_string(), std::time::Instant::now());
+        let plausible = lease.len() == 32
+            && lease
+                .bytes()
+                .all(|b| matches!(b, b'0'..=b'9' | b'a'..=b'f'));
+        if plausible {
+            let mut heard = self
+                .heard
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            let room = heard.len() < HEARD_LEASES;
+            match heard.get_mut(lease) {
+                Some(at) => *at = std::time::Instant::now(),
+                None if room => {
+                    heard.insert(lease.to_string(), std::time::Instant::now());
+                }
+                None => {}
+            }
         }
     }
 
     /// Forgets the leases not heard from within `within` (the reaper's every pass, so that
-    /// the record holds only the leases of workers at work).
+    /// the record holds only the leases of workers still asking).
     pub fn forget_unheard(&self, within: Duration) {
         let mut heard = self
             .heard
@@ -1506,10 +1523,10 @@ impl Queue {
     }
 
     /// The reaper's pass while the storage fails ([`Queue::storage_failed_within`]): the
-    /// leases heard from within `within` ([`Queue::heard`]: their workers asked to renew
-    /// them or to store their results, and may have been refused for the storage's sake)
-    /// get a fresh `lease_ms`; the others are reaped as ever, since a worker that died
-    /// meanwhile asks nothing. Extending every lease, as it did, kept a dead worker's tiles
+    /// leases heard from within `within` ([`Queue::heard_refused`]: their workers asked to
+    /// renew them or to store their results, and were refused) get a fresh `lease_ms`; the
+    /// others are reaped as ever, since a worker that died meanwhile asks nothing, and one
+    /// whose renewals went through holds a lease that has not run out. Extending every lease, as it did, kept a dead worker's tiles
     /// for as long as failures kept coming, which on a nearly full disk, failing now and
     /// then, could be for ever. Returns how many leases were extended and how many reaped.
     pub async fn reap_unheard(

@@ -147,7 +147,6 @@ pub async fn renew(
     Path((id, idx)): Path<(String, u32)>,
     Query(q): Query<RenewParams>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
-    state.queue.heard(&q.lease);
     match state
         .queue
         .renew(
@@ -159,7 +158,7 @@ pub async fn renew(
             q.rendering,
         )
         .await
-        .map_err(|e| state.queue.noted(e))?
+        .map_err(|e| state.queue.heard_refused(&q.lease, e))?
     {
         Some(worker) => {
             state.seen(&worker, |_| {});
@@ -190,12 +189,11 @@ pub async fn result(
     Query(q): Query<ResultParams>,
     body: Bytes,
 ) -> Result<Json<serde_json::Value>, ApiError> {
-    state.queue.heard(&q.lease);
     let next_for = q.next.as_deref().map(worker_name).transpose()?;
     let (rect, rgb) = split_tile(&body)
         .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
     let completed = state.queue.complete(&id, idx, &q.lease, rect, rgb).await;
-    let repeat = match completed.map_err(|e| state.queue.noted(e))? {
+    let repeat = match completed.map_err(|e| state.queue.heard_refused(&q.lease, e))? {
         Completion::Stored { last, worker } => {
             if let Some(worker) = &worker {
                 state.seen(worker, |w| w.tiles_done += 1);

@@ -1732,8 +1732,8 @@ async fn a_tile_whose_pixels_keep_failing_to_be_written_fails_its_job() {
 }
 
 /// While the storage fails, the reaper gives a fresh lease to the tiles whose workers were
-/// heard from (a renewal or a result came under the lease, refused or not) and reaps the
-/// others as ever: a worker that died meanwhile says nothing. Extending every lease, as it
+/// heard from (a renewal or a result under the lease was refused) and reaps the others as
+/// ever: a worker that died meanwhile says nothing. Extending every lease, as it
 /// did, kept a dead worker's tile for as long as failures kept coming.
 #[tokio::test]
 async fn while_the_storage_fails_the_leases_of_silent_workers_are_reaped() {
@@ -1769,7 +1769,7 @@ async fn while_the_storage_fails_the_leases_of_silent_workers_are_reaped() {
     q.heard(&again.lease);
     q.forget_unheard(std::time::Duration::ZERO);
     assert_eq!(pass(7_000).await.expect("pass"), (0, 2));
-    // Until then its result is stored as any other.
+    // A lease extended so takes its worker's result as any other.
     let third = claim("alive", 7_000).await;
     q.heard(&third.lease);
     assert_eq!(pass(7_500).await.expect("pass"), (1, 0));
