@@ -439,6 +439,59 @@ mod tests {
         }
     }
 
+    /// A ray's direction may be of any length: an object scaled by 1e200 sees the eye's
+    /// unit directions at 1e-200, and one scaled by 1e-200 at 1e200. Every shape finds the
+    /// same hit, face and spans for the direction scaled by `k`, with `t` scaled by `1/k`.
+    /// The sphere squared the direction's length, which underflowed to 0 below about
+    /// 1e-154 (and overflowed above 1e154): it found no hit at all.
+    #[test]
+    fn hits_do_not_depend_on_the_direction_s_length() {
+        let mut rng = Rng::new(23);
+        for shape in ALL {
+            let mut hits = 0;
+            for _ in 0..200 {
+                let o = rng.direction() * 5.0;
+                let d = (rng.in_ball(1.0) - o).normalize();
+                let unit = Ray::new(o, d);
+                let want = shape.intersect(&unit, f64::INFINITY);
+                let mut want_spans = Vec::new();
+                shape.spans(&unit, &mut want_spans);
+                hits += usize::from(want.is_some());
+                for k in [1e-201, 1e-160, 1e-100, 1e100, 1e160, 1e200] {
+                    let r = Ray::new(o, d * k);
+                    let got = shape.intersect(&r, f64::INFINITY);
+                    let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(1.0);
+                    match (&want, &got) {
+                        (None, None) => {}
+                        (Some(w), Some(g)) => {
+                            assert!(
+                                close(w.t, g.t * k) && w.face == g.face,
+                                "{shape:?} at {k:e}: t {} against {}",
+                                g.t * k,
+                                w.t
+                            );
+                            assert!((w.p - g.p).length() <= 1e-12, "{shape:?} at {k:e}");
+                        }
+                        _ => panic!("{shape:?} at {k:e}: {got:?} against {want:?}"),
+                    }
+                    let mut spans = Vec::new();
+                    shape.spans(&r, &mut spans);
+                    assert_eq!(spans.len(), want_spans.len(), "{shape:?} at {k:e}");
+                    for (g, w) in spans.iter().zip(&want_spans) {
+                        for (gc, wc) in [(g.enter, w.enter), (g.exit, w.exit)] {
+                            assert!(
+                                wc.t.is_infinite() && gc.t == wc.t
+                                    || close(wc.t, gc.t * k) && gc.face == wc.face,
+                                "{shape:?} at {k:e}: span {g:?} against {w:?}"
+                            );
+                        }
+                    }
+                }
+            }
+            assert!(hits > 20, "{shape:?}: only {hits} rays hit");
+        }
+    }
+
     #[test]
     fn bounds_contain_every_hit() {
         let mut rng = Rng::new(22);
