@@ -289,9 +289,16 @@ pub async fn delete_job(
 }
 
 /// The finished PNG, streamed from the database chunk by chunk.
+/// Query parameters of a route that takes none: one given is a mistake, refused as on the
+/// routes that take some (`?x=1` on the image was answered as if absent).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NoParams {}
+
 pub async fn image(
     State(state): State<AppState>,
     Path(id): Path<String>,
+    Query(NoParams {}): Query<NoParams>,
 ) -> Result<Response, ApiError> {
     let row = state
         .queue

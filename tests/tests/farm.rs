@@ -295,8 +295,13 @@ fn bad_requests_get_json_errors_and_store_nothing() {
             .expect("purge");
         assert_eq!(purge.status(), 204);
     }
-    // So are the reading routes': `limt` listed every job, `wiat` answered at once.
-    for (path, bad) in [("/jobs?limt=5", "`limt`"), ("/jobs/j?wiat=60", "`wiat`")] {
+    // So are the reading routes': `limt` listed every job, `wiat` answered at once, and the
+    // image took anything.
+    for (path, bad) in [
+        ("/jobs?limt=5", "`limt`"),
+        ("/jobs/j?wiat=60", "`wiat`"),
+        ("/jobs/j/image.png?x=1", "`x`"),
+    ] {
         let r = http
             .get(format!("{}{path}", svc.url))
             .send()

@@ -691,14 +691,44 @@ fn service_flags_out_of_range_are_usage_errors() {
         // Not a URL (exit 1), or https, which this build cannot speak: it retried for ever.
         ("--server", "notaurl", "http://HOST:PORT"),
         ("--server", "https://127.0.0.1:1", "plain HTTP"),
+        // A password went to the service in clear and into the log; a query was merged
+        // into every request's; white space was dropped without a word.
+        (
+            "--server",
+            "http://user:secret@127.0.0.1:1",
+            "no user name or password",
+        ),
+        (
+            "--server",
+            "http://127.0.0.1:1/?x=1",
+            "no ?query or #fragment",
+        ),
+        (
+            "--server",
+            "http://127.0.0.1:1/#f",
+            "no ?query or #fragment",
+        ),
+        ("--server", " http://127.0.0.1:1", "white space"),
+        // Sent with its spaces, and refused by the service whose token it was.
+        ("--token", " secret", "white space"),
     ] {
-        let server = if flag == "--server" {
-            value
+        let args: &[&str] = if flag == "--server" {
+            &[flag, value]
         } else {
-            "http://127.0.0.1:1"
+            &[flag, value, "--server", "http://127.0.0.1:1"]
         };
-        usage_error(WORKER, &[flag, value, "--server", server], says);
+        usage_error(WORKER, args, says);
     }
+    // The refusal does not repeat the password either.
+    let out = std::process::Command::new(WORKER)
+        .args(["--server", "http://user:secret@127.0.0.1:1"])
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("user:***@") && !stderr.contains("secret"),
+        "{stderr}"
+    );
 }
 
 /// Runs `program` with `args`, whose first is a flag given a value out of its range: clap's

@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use std::process::ExitCode;
 
-use clap::Parser;
+use clap::{CommandFactory, Parser};
 use tessera_tracer::MAX_THREADS;
 
 use crate::{WorkerConfig, default_name, run};
@@ -15,15 +15,14 @@ use crate::{WorkerConfig, default_name, run};
 #[command(name = "tessera-worker", version, about)]
 struct Args {
     /// The service's base URL, http:// (this worker speaks plain HTTP, no TLS).
-    #[arg(long, env = "TESSERA_SERVER", default_value = "http://127.0.0.1:8080",
-          value_parser = server_url)]
+    #[arg(long, env = "TESSERA_SERVER", default_value = "http://127.0.0.1:8080")]
     server: String,
     /// Tiles rendered at once, 1 to 1024 (default: one per core).
     #[arg(long, env = "TESSERA_THREADS",
           value_parser = clap::value_parser!(u16).range(1..=i64::from(MAX_THREADS)))]
     threads: Option<u16>,
-    /// Bearer token for the worker routes, when the service requires one.
-    #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true)]
+    /// Bearer token for the worker routes, when the service requires one (empty: none).
+    #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true, value_parser = token)]
     token: Option<String>,
     /// This worker's name in the service's lists (default: host-pid-random).
     #[arg(long, env = "TESSERA_WORKER_NAME", value_parser = worker_name)]
@@ -43,10 +42,15 @@ struct Args {
     noop: bool,
 }
 
-fn server_url(url: &str) -> Result<String, String> {
-    crate::client::service_url(url)
-        .map(|_| url.to_string())
-        .map_err(|e| e.to_string())
+/// A token as the service takes one, or empty for none (an environment variable set to
+/// nothing): white space around it was sent as part of it, and refused with 401 by a
+/// service whose token it was meant to be.
+fn token(t: &str) -> Result<String, String> {
+    if t.trim() != t {
+        Err("a token may not start or end with white space".to_string())
+    } else {
+        Ok(t.to_string())
+    }
 }
 
 fn worker_name(name: &str) -> Result<String, String> {
@@ -56,6 +60,16 @@ fn worker_name(name: &str) -> Result<String, String> {
 /// The program: parses flags, runs the worker until SIGINT/SIGTERM, reports errors.
 pub fn main() -> ExitCode {
     let args = Args::parse();
+    // Checked here rather than by clap, whose message repeats the value as given: a
+    // password in it would be printed back (usage error, status 2, all the same).
+    if let Err(e) = crate::client::service_url(&args.server) {
+        Args::command()
+            .error(
+                clap::error::ErrorKind::ValueValidation,
+                format!("--server: {e}"),
+            )
+            .exit();
+    }
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),

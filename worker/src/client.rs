@@ -13,11 +13,8 @@ use crate::protocol::{Accepted, Claim, ClaimRequest, FailRequest, JobSpec, Renew
 /// Why a request to the service did not give a usable answer.
 #[derive(Debug, thiserror::Error)]
 pub enum ClientError {
-    #[error(
-        "bad service URL `{0}`: expected http://HOST:PORT (this worker speaks plain HTTP, not \
-         TLS: reach a service behind https through a local tunnel or proxy)"
-    )]
-    BadUrl(String),
+    #[error("bad service URL `{url}`: {why}")]
+    BadUrl { url: String, why: &'static str },
     /// Shown with its causes: reqwest's own message is "error sending request for url"
     /// whether the connection was refused, the name did not resolve or TLS failed.
     #[error("cannot reach the service: {}", with_causes(.0))]
@@ -81,13 +78,42 @@ impl ClientError {
     }
 }
 
-/// The service's base URL, checked: `http://` with a host. This build has no TLS, so
-/// `https://` is refused here, at start, rather than failing every request for ever.
+/// The service's base URL, checked: `http://` with a host (and a path, for a service behind
+/// a proxy that adds one). This build has no TLS, so `https://` is refused here, at start,
+/// rather than failing every request for ever. A user name or password is refused too: it
+/// would go to the service in clear on every request and show in the worker's log (the
+/// token is `--token`'s); so are a query and a fragment, which every request's own would
+/// have been appended to, and white space around the URL, which the parser dropped
+/// silently. A password is not repeated in the message.
 pub fn service_url(server: &str) -> Result<Url> {
-    let bad = || ClientError::BadUrl(server.to_string());
-    let url = Url::parse(server).map_err(|_| bad())?;
+    const EXPECTED: &str = "expected http://HOST:PORT (this worker speaks plain HTTP, not TLS: \
+                            reach a service behind https through a local tunnel or proxy)";
+    let bad = |shown: &str, why| ClientError::BadUrl {
+        url: shown.to_string(),
+        why,
+    };
+    if server.trim() != server {
+        return Err(bad(server, "it starts or ends with white space"));
+    }
+    let url = Url::parse(server).map_err(|_| bad(server, EXPECTED))?;
     if url.scheme() != "http" || url.cannot_be_a_base() || url.host().is_none() {
-        return Err(bad());
+        return Err(bad(server, EXPECTED));
+    }
+    if !url.username().is_empty() || url.password().is_some() {
+        let mut shown = url.clone();
+        // Setting a password on a URL with a host cannot fail: a host was checked above.
+        let _ = shown.set_password(url.password().map(|_| "***"));
+        return Err(bad(
+            shown.as_str(),
+            "no user name or password: they would go to the service in clear and show in \
+             logs (a token goes in --token)",
+        ));
+    }
+    if url.query().is_some() || url.fragment().is_some() {
+        return Err(bad(
+            server,
+            "no ?query or #fragment: the worker's requests carry their own",
+        ));
     }
     Ok(url)
 }
