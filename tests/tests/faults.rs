@@ -525,6 +525,23 @@ fn tokens_guard_worker_routes_and_submission() {
         || bad.try_wait().is_some(),
     );
     assert!(!bad.try_wait().expect("exited").success());
+    // One with none is told that a token is wanted, not that its token was refused.
+    let mut none = std::process::Command::new(WORKER)
+        .args(["--server", &svc.url, "--threads", "1"])
+        .env_remove("TESSERA_WORKER_TOKEN")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("worker starts");
+    wait_until(
+        "the worker without a token to exit",
+        Duration::from_secs(30),
+        || none.try_wait().is_ok_and(|s| s.is_some()),
+    );
+    let mut said = String::new();
+    std::io::Read::read_to_string(&mut none.stderr.take().expect("piped"), &mut said)
+        .expect("stderr");
+    assert!(said.contains("requires a worker token"), "{said}");
     // The right token renders the job.
     let _good = Worker::start(&svc.url, "good", &["--token", "w-secret"]);
     assert_eq!(svc.wait_finished(&id, JOB_TIME)["state"], "done");

@@ -21,6 +21,11 @@ pub enum ClientError {
     Unreachable(#[source] reqwest::Error),
     #[error("the service refused this worker's token (401); check --token")]
     Unauthorized,
+    #[error(
+        "the service requires a worker token (401); give it with --token or \
+         TESSERA_WORKER_TOKEN"
+    )]
+    NoToken,
     #[error("{what}: the service answered {status}: {body}")]
     Status {
         what: &'static str,
@@ -192,7 +197,11 @@ impl Client {
             .await
             .map_err(ClientError::Unreachable)?;
         if resp.status() == StatusCode::UNAUTHORIZED {
-            return Err(ClientError::Unauthorized);
+            return Err(if self.token.is_some() {
+                ClientError::Unauthorized
+            } else {
+                ClientError::NoToken
+            });
         }
         Ok(resp)
     }
