@@ -288,13 +288,13 @@ pub async fn delete_job(
     Ok(ok_json(job).into_response())
 }
 
-/// The finished PNG, streamed from the database chunk by chunk.
 /// Query parameters of a route that takes none: one given is a mistake, refused as on the
 /// routes that take some (`?x=1` on the image was answered as if absent).
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct NoParams {}
 
+/// The finished PNG, streamed from the database chunk by chunk.
 pub async fn image(
     State(state): State<AppState>,
     Path(id): Path<String>,
