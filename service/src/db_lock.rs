@@ -7,13 +7,9 @@
 //!
 //! The lock is `flock` on `<database>-service.lock`, which the kernel releases when the
 //! process ends however it ends (SIGKILL, out of memory): a service that was killed never
-//! keeps the next one out, and the file left behind is empty and harmless. That file is
-//! found by the database's path, through symbolic links; a hard link is another path to the
-//! same file, so a second `flock` is taken on the database file itself (created empty if it
-//! is not there yet, as SQLite would), which every name of it shares: two services through
-//! two hard links wrote one database through two WAL files. That descriptor is never
-//! closed, only unlocked when the lock is dropped: SQLite's own locks on the file are POSIX
-//! record locks, which a process loses when it closes *any* descriptor of the file.
+//! keeps the next one out, and the file left behind is empty and harmless. It is not taken on
+//! the database file itself: SQLite's own locks on that are POSIX record locks, which a
+//! process loses when it closes *any* descriptor of the file.
 //!
 //! What it is not: a guard against other programs using the database (SQLite's own locking
 //! keeps those consistent), nor against a service on another machine sharing the file over
@@ -37,23 +33,11 @@ pub enum LockError {
     )]
     Held { database: PathBuf, lock: PathBuf },
     #[error(
-        "another tessera-service is using the database {database} under another name (a hard \
-         link to the same file): one service per database. Stop that one first, or give this \
-         one another --database."
-    )]
-    HeldElsewhere { database: PathBuf },
-    #[error(
         "cannot open {lock}, the lock file beside the database: {source} (the database's \
          folder must exist and be writable)"
     )]
     Open {
         lock: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("cannot open the database {database} to lock it: {source}")]
-    OpenDatabase {
-        database: PathBuf,
         #[source]
         source: std::io::Error,
     },
@@ -63,27 +47,9 @@ pub enum LockError {
 #[derive(Debug)]
 pub struct DbLock {
     _file: File,
-    /// The database file itself, locked too (see the module comment); unlocked on drop and
-    /// then kept open in [`KEPT`].
-    database: Option<File>,
-}
-
-/// Descriptors of database files that this process locked and has let go of: never closed,
-/// since closing one would drop the POSIX locks SQLite holds on the file in this process.
-/// One per lock taken, so a handful in a program that starts its service a few times.
-static KEPT: std::sync::Mutex<Vec<File>> = std::sync::Mutex::new(Vec::new());
-
-impl Drop for DbLock {
-    fn drop(&mut self) {
-        if let Some(file) = self.database.take() {
-            // Unlocking an open file that this process locked cannot fail but for a bad
-            // descriptor; the lock goes with the process at worst.
-            let _ = file.unlock();
-            KEPT.lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .push(file);
-        }
-    }
+    /// How many names (hard links) the database file has, when it has more than one: the
+    /// lock is found by name, so a service started through another of them is not kept out.
+    pub other_names: Option<u64>,
 }
 
 impl DbLock {
@@ -107,39 +73,28 @@ impl DbLock {
                 lock: lock.clone(),
                 source,
             })?;
+        // A hard link is another name of the same file, whose lock file is another: not
+        // locked here, since a lock on the database file itself would meet SQLite's own
+        // record locks on macOS and the BSDs and over NFS or SMB (where `flock` and `fcntl`
+        // locks interact), but said, so that whoever runs two services can find out why.
+        let links = std::fs::metadata(&database).map_or(1, |m| {
+            #[cfg(unix)]
+            {
+                std::os::unix::fs::MetadataExt::nlink(&m)
+            }
+            #[cfg(not(unix))]
+            {
+                let _ = m;
+                1
+            }
+        });
         match file.try_lock() {
-            Ok(()) => {}
-            Err(TryLockError::WouldBlock) => return Err(LockError::Held { database, lock }),
-            Err(TryLockError::Error(source)) => return Err(LockError::Open { lock, source }),
-        }
-        // The database file's own lock: a hard link's path took its own lock file above.
-        let db_file = OpenOptions::new()
-            .create(true)
-            .truncate(false)
-            .read(true)
-            .write(true)
-            .open(&database)
-            .map_err(|source| LockError::OpenDatabase {
-                database: database.clone(),
-                source,
-            })?;
-        match db_file.try_lock() {
             Ok(()) => Ok(Some(DbLock {
                 _file: file,
-                database: Some(db_file),
+                other_names: (links > 1).then_some(links),
             })),
-            Err(e) => {
-                // Not closed: see `KEPT`.
-                KEPT.lock()
-                    .unwrap_or_else(std::sync::PoisonError::into_inner)
-                    .push(db_file);
-                match e {
-                    TryLockError::WouldBlock => Err(LockError::HeldElsewhere { database }),
-                    TryLockError::Error(source) => {
-                        Err(LockError::OpenDatabase { database, source })
-                    }
-                }
-            }
+            Err(TryLockError::WouldBlock) => Err(LockError::Held { database, lock }),
+            Err(TryLockError::Error(source)) => Err(LockError::Open { lock, source }),
         }
     }
 }
@@ -148,8 +103,8 @@ impl DbLock {
 /// database takes one lock (a link to the file took a lock of its own, and a second service
 /// started beside the first); for a database not created yet, its folder's real path and
 /// its name. As written where even the folder cannot be resolved (opening the lock then
-/// says why). Hard links are other paths to the same file: the database file's own lock
-/// catches those.
+/// says why). Hard links are other paths to the same file and are not recognised (the
+/// service warns when the file has more than one).
 fn real_path(database: PathBuf) -> PathBuf {
     if let Ok(real) = std::fs::canonicalize(&database) {
         return real;
@@ -238,28 +193,23 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
-    /// A hard link is another path to the same file: its lock file is another, but the
-    /// database file's own lock is shared, and is free again once the first is dropped.
+    /// A hard link is another name whose lock file is another: not locked out, but counted,
+    /// for the service's warning.
     #[test]
-    fn a_hard_link_to_the_database_shares_its_lock() {
+    fn a_database_with_hard_links_says_how_many_names_it_has() {
         let dir = temp("hard");
         let db = dir.join("q.db");
-        let first = DbLock::take(db.to_str().expect("UTF-8"))
+        let alone = DbLock::take(db.to_str().expect("UTF-8"))
             .expect("free")
             .expect("a file");
-        let link = dir.join("hard.db");
-        std::fs::hard_link(&db, &link).expect("hard link");
-        match DbLock::take(link.to_str().expect("UTF-8")) {
-            Err(e @ LockError::HeldElsewhere { .. }) => {
-                assert!(e.to_string().contains("hard link"), "{e}");
-            }
-            other => panic!("a hard link took its own lock: {other:?}"),
-        }
-        drop(first);
-        assert!(matches!(
-            DbLock::take(link.to_str().expect("UTF-8")),
-            Ok(Some(_))
-        ));
+        assert_eq!(alone.other_names, None, "no file yet");
+        drop(alone);
+        std::fs::write(&db, b"").expect("the database file");
+        std::fs::hard_link(&db, dir.join("hard.db")).expect("hard link");
+        let linked = DbLock::take(db.to_str().expect("UTF-8"))
+            .expect("free")
+            .expect("a file");
+        assert_eq!(linked.other_names, Some(2));
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -309,7 +309,13 @@ pub async fn serve(
     }
     // Before anything touches the queue: a second service's start requeued the first's
     // local workers' tiles (see `db_lock`).
-    let _db_lock = db_lock::DbLock::take(&cfg.database)?;
+    let lock = db_lock::DbLock::take(&cfg.database)?;
+    if let Some(names) = lock.as_ref().and_then(|l| l.other_names) {
+        warn!(
+            "the database file has {names} names (hard links): one service per database is \
+             enforced by name, so no service may use the file under another of them"
+        );
+    }
     let queue = Queue::open(&cfg.database)
         .await?
         .max_attempts(cfg.max_attempts);

@@ -600,34 +600,6 @@ fn a_second_service_on_the_same_database_refuses_to_start() {
             && !stderr.contains("requeued"),
         "{stderr}"
     );
-    // Nor through a hard link, another path to the same file (with a lock file of its own
-    // beside it): it started, and wrote the database through a WAL file of its own.
-    let link = dir.path().join("hard.db");
-    std::fs::hard_link(&first.db, &link).expect("hard link");
-    let log = dir.path().join("hard.log");
-    let mut linked = std::process::Command::new(SERVICE)
-        .args([
-            "--listen",
-            "127.0.0.1:0",
-            "--local-workers",
-            "1",
-            "--database",
-        ])
-        .arg(format!("sqlite://{}", link.display()))
-        .stdout(std::process::Stdio::null())
-        .stderr(std::fs::File::create(&log).expect("log file"))
-        .spawn()
-        .expect("runs");
-    let status = common::wait_exit(&mut linked, Duration::from_secs(30));
-    if status.is_none() {
-        let _ = linked.kill();
-    }
-    let stderr = std::fs::read_to_string(&log).unwrap_or_default();
-    assert_eq!(status.and_then(|s| s.code()), Some(1), "{stderr}");
-    assert!(
-        stderr.contains("one service per database") && stderr.contains("hard link"),
-        "{stderr}"
-    );
     let job = first.wait_finished(&id, Duration::from_secs(60));
     assert_eq!(job["state"], "done", "{job}");
     first.kill();
