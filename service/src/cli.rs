@@ -19,6 +19,13 @@ where
     T: Into<std::ffi::OsString> + Clone,
 {
     let cfg = Config::parse_from(args);
+    if let Some(why) = cfg.token_problem() {
+        // Here rather than in clap's parsing, whose refusal repeats the token as given;
+        // clap's usage status (2) all the same.
+        Config::command()
+            .error(clap::error::ErrorKind::ValueValidation, why)
+            .exit();
+    }
     if cfg.receiving_bytes() < cfg.max_body_bytes {
         // Exits with clap's usage status (2), as a value out of its range does.
         Config::command()

@@ -63,13 +63,17 @@ fn listen_addr(s: &str) -> Result<String, String> {
     }
 }
 
-/// A bearer token: not empty, and no white space at either end, which HTTP trims from the
-/// header that carries it (`--token ' '` locked out every worker, as an empty one did).
-fn token(s: &str) -> Result<String, String> {
+/// Why a bearer token cannot be used: empty, or white space at either end, which HTTP
+/// trims from the header that carries it (`--token ' '` locked out every worker, as an
+/// empty one did), or a control character, which no header may hold. Checked after clap has
+/// parsed the flags ([`Config::token_problem`]), since clap's own refusal repeats the value.
+fn token_problem(s: &str) -> Option<&'static str> {
     if s.is_empty() || s.trim() != s {
-        Err("a token may not be empty nor start or end with white space".to_string())
+        Some("a token may not be empty nor start or end with white space")
+    } else if s.chars().any(char::is_control) {
+        Some("a token may not hold control characters")
     } else {
-        Ok(s.to_string())
+        None
     }
 }
 
@@ -111,13 +115,11 @@ pub struct Config {
     pub local_workers: Option<u16>,
     /// Bearer token the worker routes require (none: open). An empty one is refused: it
     /// would lock out every worker, its own local ones too.
-    #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true,
-          value_parser = token)]
+    #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
     /// Bearer token that job submission and deletion require (none: open, which is allowed
     /// only on a loopback address unless --open-submit is given). An empty one is refused.
-    #[arg(long, env = "TESSERA_SUBMIT_TOKEN", hide_env_values = true,
-          value_parser = token)]
+    #[arg(long, env = "TESSERA_SUBMIT_TOKEN", hide_env_values = true)]
     pub submit_token: Option<String>,
     /// Accept jobs from anyone even when listening beyond loopback without --submit-token.
     #[arg(long, env = "TESSERA_OPEN_SUBMIT")]
@@ -222,6 +224,22 @@ impl Config {
     /// silent connection with no answer at all.
     pub fn longest_silence(&self) -> std::time::Duration {
         std::time::Duration::from_secs(self.idle_timeout_secs.saturating_sub(1))
+    }
+
+    /// The first token flag that cannot be used and why, named as the user gives it.
+    pub fn token_problem(&self) -> Option<String> {
+        [
+            ("--token (or TESSERA_WORKER_TOKEN)", &self.token),
+            (
+                "--submit-token (or TESSERA_SUBMIT_TOKEN)",
+                &self.submit_token,
+            ),
+        ]
+        .into_iter()
+        .find_map(|(flag, t)| {
+            let why = token_problem(t.as_deref()?)?;
+            Some(format!("{flag}: {why}"))
+        })
     }
 
     /// The submission budget in bytes (`--max-receiving-bytes`, or twice the body limit).

@@ -689,6 +689,20 @@ fn service_flags_out_of_range_are_usage_errors() {
             range,
         );
     }
+    // A token the service refuses is not printed back (clap's own refusal repeated it),
+    // nor one that no header could carry.
+    for (flag, token) in [("--token", " s3cret"), ("--submit-token", "s3\u{7}cret")] {
+        let out = std::process::Command::new(SERVICE)
+            .args([flag, token, "--local-workers", "0", "--database", &db])
+            .output()
+            .expect("runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{flag}: {stderr}");
+        assert!(
+            stderr.contains(flag) && !stderr.contains("s3"),
+            "{flag}: {stderr}"
+        );
+    }
     for blank in ["", " "] {
         usage_error(
             SERVICE,
@@ -705,7 +719,7 @@ fn service_flags_out_of_range_are_usage_errors() {
         ("--idle-max-ms", "0", "25.."),
         ("--idle-max-ms", "60001", "25..=60000"),
         ("--grace-secs", "86401", "0..=86400"),
-        // Not a URL (exit 1), or https, which this build cannot speak: it retried for ever.
+        // Not a URL, or https, which this build cannot speak: it retried for ever.
         ("--server", "notaurl", "http://HOST:PORT"),
         ("--server", "https://127.0.0.1:1", "plain HTTP"),
         // A password went to the service in clear and into the log; a query was merged
@@ -736,16 +750,26 @@ fn service_flags_out_of_range_are_usage_errors() {
         };
         usage_error(WORKER, args, says);
     }
-    // The refusal does not repeat the password either.
-    let out = std::process::Command::new(WORKER)
-        .args(["--server", "http://user:secret@127.0.0.1:1"])
-        .output()
-        .expect("runs");
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        stderr.contains("user:***@") && !stderr.contains("secret"),
-        "{stderr}"
-    );
+    // No refusal repeats a password or a token, whatever it refuses the URL for.
+    for args in [
+        ["--server", "http://user:secret@127.0.0.1:1"],
+        ["--server", "https://user:secret@127.0.0.1:1"],
+        ["--server", " http://user:secret@127.0.0.1:1"],
+        ["--server", "http://user:secret@no host"],
+        ["--token", " secret"],
+        ["--token", "sec\nret"],
+    ] {
+        let out = std::process::Command::new(WORKER)
+            .args(args)
+            .output()
+            .expect("runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(
+            !stderr.contains("secret") && !stderr.contains("sec\nret"),
+            "{args:?}: {stderr}"
+        );
+    }
 }
 
 /// Runs `program` with `args`, whose first is a flag given a value out of its range: clap's

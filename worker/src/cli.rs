@@ -22,7 +22,7 @@ struct Args {
           value_parser = clap::value_parser!(u16).range(1..=i64::from(MAX_THREADS)))]
     threads: Option<u16>,
     /// Bearer token for the worker routes, when the service requires one (empty: none).
-    #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true, value_parser = token)]
+    #[arg(long, env = "TESSERA_WORKER_TOKEN", hide_env_values = true)]
     token: Option<String>,
     /// This worker's name in the service's lists (default: host-pid-random).
     #[arg(long, env = "TESSERA_WORKER_NAME", value_parser = worker_name)]
@@ -42,14 +42,17 @@ struct Args {
     noop: bool,
 }
 
-/// A token as the service takes one, or empty for none (an environment variable set to
-/// nothing): white space around it was sent as part of it, and refused with 401 by a
-/// service whose token it was meant to be.
-fn token(t: &str) -> Result<String, String> {
+/// Why a token cannot be sent as it is (empty means none: an environment variable set to
+/// nothing). White space around it was sent as part of it, and refused with 401 by a
+/// service whose token it was meant to be; a control character could not go in a header at
+/// all, and every request failed as if the service were unreachable, for ever.
+fn token_problem(t: &str) -> Option<&'static str> {
     if t.trim() != t {
-        Err("a token may not start or end with white space".to_string())
+        Some("a token may not start or end with white space")
+    } else if t.chars().any(char::is_control) {
+        Some("a token may not hold control characters")
     } else {
-        Ok(t.to_string())
+        None
     }
 }
 
@@ -61,14 +64,17 @@ fn worker_name(name: &str) -> Result<String, String> {
 pub fn main() -> ExitCode {
     let args = Args::parse();
     // Checked here rather than by clap, whose message repeats the value as given: a
-    // password in it would be printed back (usage error, status 2, all the same).
-    if let Err(e) = crate::client::service_url(&args.server) {
+    // password or a token would be printed back (usage error, status 2, all the same).
+    let refuse = |msg: String| {
         Args::command()
-            .error(
-                clap::error::ErrorKind::ValueValidation,
-                format!("--server: {e}"),
-            )
-            .exit();
+            .error(clap::error::ErrorKind::ValueValidation, msg)
+            .exit()
+    };
+    if let Err(e) = crate::client::service_url(&args.server) {
+        refuse(format!("--server: {e}"));
+    }
+    if let Some(why) = args.token.as_deref().and_then(token_problem) {
+        refuse(format!("--token (or TESSERA_WORKER_TOKEN): {why}"));
     }
     tracing_subscriber::fmt()
         .with_env_filter(

@@ -93,34 +93,44 @@ impl ClientError {
 pub fn service_url(server: &str) -> Result<Url> {
     const EXPECTED: &str = "expected http://HOST:PORT (this worker speaks plain HTTP, not TLS: \
                             reach a service behind https through a local tunnel or proxy)";
-    let bad = |shown: &str, why| ClientError::BadUrl {
-        url: shown.to_string(),
+    let shown = without_password(server);
+    let bad = |why| ClientError::BadUrl {
+        url: shown.clone(),
         why,
     };
     if server.trim() != server {
-        return Err(bad(server, "it starts or ends with white space"));
+        return Err(bad("it starts or ends with white space"));
     }
-    let url = Url::parse(server).map_err(|_| bad(server, EXPECTED))?;
+    let url = Url::parse(server).map_err(|_| bad(EXPECTED))?;
     if url.scheme() != "http" || url.cannot_be_a_base() || url.host().is_none() {
-        return Err(bad(server, EXPECTED));
+        return Err(bad(EXPECTED));
     }
     if !url.username().is_empty() || url.password().is_some() {
-        let mut shown = url.clone();
-        // Setting a password on a URL with a host cannot fail: a host was checked above.
-        let _ = shown.set_password(url.password().map(|_| "***"));
         return Err(bad(
-            shown.as_str(),
             "no user name or password: they would go to the service in clear and show in \
              logs (a token goes in --token)",
         ));
     }
     if url.query().is_some() || url.fragment().is_some() {
         return Err(bad(
-            server,
             "no ?query or #fragment: the worker's requests carry their own",
         ));
     }
     Ok(url)
+}
+
+/// `server` as a message may show it: whatever stands between `://` and the last `@`
+/// before the host's end (a user name and password) as `***`, whether or not the rest
+/// parses.
+fn without_password(server: &str) -> String {
+    let Some((scheme, rest)) = server.split_once("://") else {
+        return server.to_string();
+    };
+    let authority_end = rest.find(['/', '?', '#']).unwrap_or(rest.len());
+    match rest[..authority_end].rfind('@') {
+        Some(at) => format!("{scheme}://***{}", &rest[at..]),
+        None => server.to_string(),
+    }
 }
 
 /// What became of a posted tile.
