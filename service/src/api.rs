@@ -290,7 +290,7 @@ pub async fn delete_job(
 
 /// Query parameters of a route that takes none: one given is a mistake, refused as on the
 /// routes that take some (`?x=1` on the image was answered as if absent).
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct NoParams {}
 
