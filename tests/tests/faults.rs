@@ -692,12 +692,10 @@ fn service_flags_out_of_range_are_usage_errors() {
     // A token the service refuses is not printed back (clap's own refusal repeated it),
     // nor one that no header could carry.
     for (flag, token) in [("--token", " s3cret"), ("--submit-token", "s3\u{7}cret")] {
-        let out = std::process::Command::new(SERVICE)
-            .args([flag, token, "--local-workers", "0", "--database", &db])
-            .output()
-            .expect("runs");
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{flag}: {stderr}");
+        let stderr = usage_refusal(
+            SERVICE,
+            &[flag, token, "--local-workers", "0", "--database", &db],
+        );
         assert!(
             stderr.contains(flag) && !stderr.contains("s3"),
             "{flag}: {stderr}"
@@ -759,12 +757,7 @@ fn service_flags_out_of_range_are_usage_errors() {
         ["--token", " secret"],
         ["--token", "sec\nret"],
     ] {
-        let out = std::process::Command::new(WORKER)
-            .args(args)
-            .output()
-            .expect("runs");
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        let stderr = usage_refusal(WORKER, &args);
         assert!(
             !stderr.contains("secret") && !stderr.contains("sec\nret"),
             "{args:?}: {stderr}"
@@ -776,16 +769,24 @@ fn service_flags_out_of_range_are_usage_errors() {
 /// usage error (status 2) naming the flag and saying `says`.
 #[track_caller]
 fn usage_error(program: &str, args: &[&str], says: &str) {
-    let out = std::process::Command::new(program)
-        .args(args)
-        .output()
-        .expect("runs");
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+    let stderr = usage_refusal(program, args);
     assert!(
         stderr.contains(args[0]) && stderr.contains(says),
         "{args:?}: {stderr}"
     );
+}
+
+/// Runs `program` with `args`, which it must refuse with clap's usage status (2), and
+/// returns what it said.
+#[track_caller]
+fn usage_refusal(program: &str, args: &[&str]) -> String {
+    let out = std::process::Command::new(program)
+        .args(args)
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+    stderr
 }
 
 #[test]
