@@ -207,7 +207,7 @@ pub async fn get_job(
             .queue
             .job(&id)
             .await?
-            .ok_or_else(|| ApiError::not_found(format_args!("job `{id}`")))?;
+            .ok_or_else(|| ApiError::no_job(&id))?;
         let now = tokio::time::Instant::now();
         let stopping = *state.stopping.borrow();
         if !matches!(row.state.as_str(), "queued" | "running") || now >= deadline || stopping {
@@ -255,10 +255,7 @@ pub async fn delete_job(
     Path(id): Path<String>,
     Query(params): Query<DeleteParams>,
 ) -> Result<Response, ApiError> {
-    let view = |row: Option<JobRow>| {
-        row.map(JobView::from)
-            .ok_or_else(|| ApiError::not_found(format_args!("job `{id}`")))
-    };
+    let view = |row: Option<JobRow>| row.map(JobView::from).ok_or_else(|| ApiError::no_job(&id));
     if params.purge {
         let job = view(state.queue.job(&id).await?)?;
         if matches!(job.row.state.as_str(), "queued" | "running") {
@@ -276,7 +273,7 @@ pub async fn delete_job(
     // Waiting requests look again now.
     state.ended.notify_waiters();
     if outcome == Cancel::Unknown {
-        return Err(ApiError::not_found(format_args!("job `{id}`")));
+        return Err(ApiError::no_job(&id));
     }
     let job = view(state.queue.job(&id).await?)?;
     if outcome == Cancel::Complete && job.row.state == "running" {
@@ -304,7 +301,7 @@ pub async fn image(
         .queue
         .job(&id)
         .await?
-        .ok_or_else(|| ApiError::not_found(format_args!("job `{id}`")))?;
+        .ok_or_else(|| ApiError::no_job(&id))?;
     if row.state != "done" {
         let why = match row.state.as_str() {
             "failed" => format!("job failed: {}", row.error.clone().unwrap_or_default()),

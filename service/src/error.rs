@@ -46,6 +46,12 @@ impl ApiError {
         ApiError::new(StatusCode::NOT_FOUND, format!("no {what}"))
     }
 
+    /// `404` for a job id that names no job, shown cut to its first 64 characters: any
+    /// path segment is taken as an id, and a 5,000-character one was repeated whole.
+    pub fn no_job(id: &str) -> ApiError {
+        ApiError::not_found(format_args!("job `{}`", shown(id)))
+    }
+
     pub fn conflict(message: impl Into<String>) -> ApiError {
         ApiError::new(StatusCode::CONFLICT, message)
     }
@@ -204,4 +210,12 @@ pub fn declared_length(headers: &axum::http::HeaderMap) -> Option<u64> {
         .get(axum::http::header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse().ok())
+}
+
+/// A name the user sent, cut for a message to its first 64 characters (with `…`).
+pub fn shown(name: &str) -> std::borrow::Cow<'_, str> {
+    match name.char_indices().nth(64) {
+        Some((end, _)) => format!("{}…", &name[..end]).into(),
+        None => name.into(),
+    }
 }

@@ -112,7 +112,7 @@ pub async fn job(
         .queue
         .job_scene(&id)
         .await?
-        .ok_or_else(|| ApiError::not_found(format_args!("job `{id}`")))?;
+        .ok_or_else(|| ApiError::no_job(&id))?;
     if !matches!(job_state.as_str(), "queued" | "running") {
         return Err(ApiError::new(
             StatusCode::GONE,

@@ -360,6 +360,16 @@ fn bad_requests_get_json_errors_and_store_nothing() {
     assert_eq!(r.status(), 404);
     assert!(r.json::<Value>().expect("json")["error"].is_string());
     assert_eq!(svc.get("/jobs/does-not-exist/image.png").status(), 404);
+    // An id of 5,000 characters is named by its first 64, not repeated whole.
+    let long = "é".repeat(5000);
+    let r = svc.get(&format!("/jobs/{long}"));
+    assert_eq!(r.status(), 404);
+    let e: Value = r.json().expect("json");
+    let said = e["error"].as_str().unwrap_or("");
+    assert!(
+        said.contains(&format!("{}…", "é".repeat(64))) && said.chars().count() < 100,
+        "{said}"
+    );
     assert_eq!(svc.get("/nothing-here").status(), 404);
     let r = svc.get("/jobs/");
     assert_eq!(r.status(), 404);
