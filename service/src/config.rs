@@ -63,17 +63,14 @@ fn listen_addr(s: &str) -> Result<String, String> {
     }
 }
 
-/// Why a bearer token cannot be used: empty, or white space at either end, which HTTP
-/// trims from the header that carries it (`--token ' '` locked out every worker, as an
-/// empty one did), or a control character, which no header may hold. Checked after clap has
-/// parsed the flags ([`Config::token_problem`]), since clap's own refusal repeats the value.
+/// Why a bearer token cannot be used: empty (which to a worker means none, and here locked
+/// out every worker, the local ones too, while the service looked healthy), or as
+/// [`tessera_worker::protocol::token_problem`] says.
 fn token_problem(s: &str) -> Option<&'static str> {
-    if s.is_empty() || s.trim() != s {
-        Some("a token may not be empty nor start or end with white space")
-    } else if s.chars().any(char::is_control) {
-        Some("a token may not hold control characters")
+    if s.is_empty() {
+        Some("a token may not be empty")
     } else {
-        None
+        tessera_worker::protocol::token_problem(s)
     }
 }
 

@@ -527,7 +527,6 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
         // so one heard from within a lease, and never less than 5 s, is alive.
         let window = Duration::from_millis(state.cfg.lease_ms / 2) + every;
         let heard_within = Duration::from_millis(state.cfg.lease_ms).max(HEARD_AT_LEAST) + every;
-        state.queue.forget_unheard(heard_within);
         // The pause first: it heard no one, so every lease is extended, whatever failed.
         if paused > window {
             match state
@@ -572,6 +571,9 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                 extending = false;
                 info!("the service's storage writes again: expired leases are reaped again");
             }
+            // `reap_unheard` forgets the leases refused too long ago; here, with nothing
+            // refused lately, the record is only kept small.
+            state.queue.forget_unheard(heard_within);
             state
                 .queue
                 .reap(now_ms(), state.cfg.max_attempts, state.keep_away())

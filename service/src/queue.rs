@@ -1526,9 +1526,10 @@ impl Queue {
     /// leases heard from within `within` ([`Queue::heard_refused`]: their workers asked to
     /// renew them or to store their results, and were refused) get a fresh `lease_ms`; the
     /// others are reaped as ever, since a worker that died meanwhile asks nothing, and one
-    /// whose renewals went through holds a lease that has not run out. Extending every lease, as it did, kept a dead worker's tiles
-    /// for as long as failures kept coming, which on a nearly full disk, failing now and
-    /// then, could be for ever. Returns how many leases were extended and how many reaped.
+    /// whose renewals went through holds a lease that has not run out. Extending every
+    /// lease, as it did, kept a dead worker's tiles for as long as failures kept coming,
+    /// which on a nearly full disk, failing now and then, could be for ever. Returns how
+    /// many leases were extended and how many reaped.
     pub async fn reap_unheard(
         &self,
         now: i64,
@@ -1537,17 +1538,14 @@ impl Queue {
         max_attempts: u32,
         keep: KeepAway,
     ) -> Result<(u64, u64)> {
-        let heard: HashSet<String> = {
-            let heard = self
-                .heard
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner);
-            heard
-                .iter()
-                .filter(|(_, at)| at.elapsed() < within)
-                .map(|(lease, _)| lease.clone())
-                .collect()
-        };
+        self.forget_unheard(within);
+        let heard: HashSet<String> = self
+            .heard
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .keys()
+            .cloned()
+            .collect();
         let mut extended = 0;
         if !heard.is_empty() {
             let mut conn = self.writer.lock().await?;

@@ -42,20 +42,6 @@ struct Args {
     noop: bool,
 }
 
-/// Why a token cannot be sent as it is (empty means none: an environment variable set to
-/// nothing). White space around it was sent as part of it, and refused with 401 by a
-/// service whose token it was meant to be; a control character could not go in a header at
-/// all, and every request failed as if the service were unreachable, for ever.
-fn token_problem(t: &str) -> Option<&'static str> {
-    if t.trim() != t {
-        Some("a token may not start or end with white space")
-    } else if t.chars().any(char::is_control) {
-        Some("a token may not hold control characters")
-    } else {
-        None
-    }
-}
-
 fn worker_name(name: &str) -> Result<String, String> {
     crate::protocol::check_worker_name(name).map(|()| name.to_string())
 }
@@ -73,7 +59,11 @@ pub fn main() -> ExitCode {
     if let Err(e) = crate::client::service_url(&args.server) {
         refuse(format!("--server: {e}"));
     }
-    if let Some(why) = args.token.as_deref().and_then(token_problem) {
+    if let Some(why) = args
+        .token
+        .as_deref()
+        .and_then(crate::protocol::token_problem)
+    {
         refuse(format!("--token (or TESSERA_WORKER_TOKEN): {why}"));
     }
     tracing_subscriber::fmt()

@@ -156,6 +156,23 @@ pub fn check_worker_name(name: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// Why a bearer token cannot be sent as it is, if it cannot: white space at either end,
+/// which HTTP trims from the header that carries it (a worker's token was refused with 401
+/// by the service whose token it was meant to be, and `--token ' '` locked every worker
+/// out), or a control character, which no header may hold (every request failed as if the
+/// service were unreachable, for ever). Both programs check their tokens by it after clap
+/// has parsed them, since clap's own refusal repeats the value; the service also refuses an
+/// empty one, which to a worker means none.
+pub fn token_problem(token: &str) -> Option<&'static str> {
+    if token.trim() != token {
+        Some("a token may not start or end with white space")
+    } else if token.chars().any(char::is_control) {
+        Some("a token may not hold control characters")
+    } else {
+        None
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
