@@ -414,8 +414,8 @@ fn limits_refuse_oversized_input_and_store_nothing() {
     let r = hundred("?tile=34");
     assert_eq!(r.status(), 201, "the smallest edge that fits is taken");
     assert_eq!(r.json::<Value>().expect("json")["tiles_total"], 9);
-    // A job that asks for no size gets the service's pick grown to that edge (its own pick,
-    // 32 px here, was refused as if the job had asked for it).
+    // A job that asks for no size gets the service's pick grown to that edge: the pick (32 px
+    // here) is the service's choice, not the job's, so it must not be refused as the job's.
     let r = hundred("");
     assert_eq!(r.status(), 201);
     let job: Value = r.json().expect("json");
@@ -566,8 +566,8 @@ fn an_open_service_beyond_loopback_must_be_asked_for() {
 }
 
 /// One service per database: a second one on the same file refuses to start, before it
-/// touches the queue (it used to requeue the first's local workers' tiles as theirs had
-/// ended), and the first keeps serving. The lock goes with the process however it ends: after
+/// touches the queue (touching it would requeue the first's local workers' tiles as if theirs
+/// had ended), and the first keeps serving. The lock goes with the process however it ends: after
 /// a SIGKILL the next service starts.
 #[test]
 fn a_second_service_on_the_same_database_refuses_to_start() {
@@ -675,7 +675,7 @@ fn service_flags_out_of_range_are_usage_errors() {
         // The largest submission could never be received.
         ("--max-receiving-bytes", "1000", "at least --max-body-bytes"),
         // A service that refuses every submission, and a keep-away after no failure at all
-        // (it was read as one).
+        // (zero must not be read as one).
         ("--max-body-bytes", "0", "1.."),
         ("--keep-away-after", "0", "1.."),
         // Found only when the service tried to listen (exit 1).
@@ -717,11 +717,11 @@ fn service_flags_out_of_range_are_usage_errors() {
         ("--idle-max-ms", "0", "25.."),
         ("--idle-max-ms", "60001", "25..=60000"),
         ("--grace-secs", "86401", "0..=86400"),
-        // Not a URL, or https, which this build cannot speak: it retried for ever.
+        // Not a URL, or https, which this build cannot speak: a worker would retry for ever.
         ("--server", "notaurl", "http://HOST:PORT"),
         ("--server", "https://127.0.0.1:1", "plain HTTP"),
-        // A password went to the service in clear and into the log; a query was merged
-        // into every request's; white space was dropped without a word.
+        // A password would go to the service in clear and into the log; a query would be
+        // merged into every request's; white space would be dropped without a word.
         (
             "--server",
             "http://user:secret@127.0.0.1:1",
@@ -905,8 +905,9 @@ fn a_result_can_carry_the_next_claim() {
 }
 
 /// A connection that falls silent is closed after `--idle-timeout-secs`, whether it stopped
-/// in its headers or in its body (before, both were held for ever, with the body read so
-/// far); one that keeps sending, however slowly, is not, and neither is a wait for a job.
+/// in its headers or in its body (either would otherwise hold its connection and the body
+/// read so far for ever); one that keeps sending, however slowly, is not, and neither is a
+/// wait for a job.
 #[test]
 fn silent_connections_are_closed() {
     use std::io::{Read, Write};
@@ -967,8 +968,8 @@ fn silent_connections_are_closed() {
     let job = svc.get_json(&format!("/jobs/{id}?wait=1"));
     assert_eq!(job["state"], "queued");
     assert!(started.elapsed() >= Duration::from_secs(1));
-    // A wait longer than the timeout is cut to a second less than it, and answered: it was
-    // held until the silent connection was closed, with no answer at all.
+    // A wait longer than the timeout is cut to a second less than it, and answered, rather
+    // than held until the silent connection is closed with no answer at all.
     let started = Instant::now();
     let job = svc.get_json(&format!("/jobs/{id}?wait=5"));
     assert_eq!(job["state"], "queued");
@@ -985,8 +986,8 @@ fn silent_connections_are_closed() {
 
 /// A service that was itself suspended longer than a lease does not blame its workers for
 /// the renewals it could not take: it gives every lease a fresh term, and a worker's lease
-/// from before the pause is still good after it (it was reaped, and the tile handed out
-/// again, as if the worker had died).
+/// from before the pause is still good after it (not reaped and its tile handed out again,
+/// as if the worker had died).
 #[test]
 fn a_paused_service_extends_leases_instead_of_reaping_them() {
     let dir = TempDir::new("paused");
@@ -1025,8 +1026,8 @@ fn a_paused_service_extends_leases_instead_of_reaping_them() {
 }
 
 /// A cancelled job's tile stops rendering when the worker's next renewal is refused: the
-/// worker is free for the next job within a fraction of a lease. It used to render the tile
-/// to its end (here a billion rays, minutes), and every job waited behind it.
+/// worker is free for the next job within a fraction of a lease, instead of rendering the
+/// tile to its end (here a billion rays, minutes) while every job waits behind it.
 #[test]
 fn a_cancelled_jobs_tile_stops_rendering() {
     let dir = TempDir::new("cancel-tile");
@@ -1393,10 +1394,10 @@ fn a_worker_that_cannot_fetch_a_texture_gives_the_tile_back() {
 /// A texture answered `404` (its job deleted between the worker's fetch of the scene and of
 /// the texture, or a proxy that refuses the texture's URL, which no retry mends): the worker
 /// reports the tile failed, naming the texture, and carries on, so that the service keeps it
-/// away from the job and a job no worker can fetch fails with that reason. It stopped the
-/// worker with an error; then the tile was dropped unreleased (its lease ran out and was
-/// charged as a crash); then given back uncharged, which a review found came back to the
-/// same tile for ever.
+/// away from the job and a job no worker can fetch fails with that reason. Neither stopping
+/// the worker, nor dropping the tile unreleased (its lease would run out and be charged as a
+/// crash), nor giving it back uncharged (the worker would come back to the same tile for
+/// ever) would do.
 #[test]
 fn a_worker_whose_texture_is_not_found_reports_the_tile_failed_and_carries_on() {
     let (url, seen) = fake_service("404 Not Found");
@@ -1481,8 +1482,8 @@ fn the_service_raises_its_open_file_limit() {
 /// Submissions share one budget of body bytes (`--max-receiving-bytes`): each holds its
 /// declared length, all or nothing, while its body arrives, and a body that stops arriving
 /// is cut. A submission that finds no room waits its turn, gets it when another ends, and is
-/// answered `503` with `Retry-After` if none ends in time. (Nothing bounded how many were
-/// received at once: sixteen 64 MiB uploads held 1.9 GB.) Textures' own budget:
+/// answered `503` with `Retry-After` if none ends in time, so that many large uploads at
+/// once cannot hold unbounded memory. Textures' own budget:
 /// `a_submission_waiting_to_decode_its_textures_answers_when_the_service_stops`.
 #[test]
 fn submissions_past_the_receiving_budget_wait_their_turn() {
@@ -1621,8 +1622,7 @@ fn submissions_past_the_receiving_budget_wait_their_turn() {
 }
 
 /// Media types are case-insensitive (RFC 9110): a multipart body sent as
-/// `Multipart/Form-Data` is read as multipart (it was read as a raw scene and refused at
-/// 1:1).
+/// `Multipart/Form-Data` is read as multipart, not as a raw scene refused at 1:1.
 #[test]
 fn a_multipart_type_in_any_case_is_multipart() {
     let dir = TempDir::new("multipart-case");
@@ -1644,9 +1644,9 @@ fn a_multipart_type_in_any_case_is_multipart() {
 /// A disk that fills under the tile spool (here the job's spool file is `/dev/full`, where
 /// every write fails with "no space left"): the result is answered `503` with the reason
 /// and its tile queued again, claims get `503` and the health check fails meanwhile; once
-/// the disk is free a worker finishes the job with the exact image. Before, the post was a
-/// `500`, the tile waited for its lease to run out and counted against the worker, and
-/// after `--max-attempts` such tiles the job failed blaming workers.
+/// the disk is free a worker finishes the job with the exact image. The full disk is the
+/// service's trouble, not the worker's: no `500`, no tile left to its lease and charged to
+/// the worker, no job failed blaming workers after `--max-attempts` such tiles.
 #[cfg(target_os = "linux")]
 #[test]
 fn a_full_disk_under_the_spool_pauses_the_farm_and_loses_nothing() {
