@@ -1,7 +1,7 @@
 # Multi-stage build: one builder for the workspace, then one slim runtime stage per binary.
 #   docker build --target service -t tessera-service .
 #   docker build --target worker  -t tessera-worker  .
-# How to run them: README.md, "Docker". Checked without an engine by scripts/docker-emulate.py.
+# How to run them: docs/OPERATIONS.md, "Docker". Checked without an engine by scripts/docker-emulate.py.
 
 FROM rust:1-bookworm AS builder
 WORKDIR /src
@@ -34,7 +34,7 @@ VOLUME /data
 EXPOSE 8080
 # Listening on all of the container's interfaces is beyond loopback, so the service refuses
 # to start until `docker run` says who may submit: -e TESSERA_SUBMIT_TOKEN=... or, said out
-# loud, -e TESSERA_OPEN_SUBMIT=true (README.md, "Docker"). Its local workers give held tiles
+# loud, -e TESSERA_OPEN_SUBMIT=true (docs/OPERATIONS.md, "Docker"). Its local workers give held tiles
 # back before `docker stop`'s kill, as the worker image's do (TESSERA_GRACE_SECS).
 ENV TESSERA_LISTEN=0.0.0.0:8080 \
     TESSERA_DATABASE=sqlite:///data/tessera.db \

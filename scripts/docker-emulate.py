@@ -12,7 +12,7 @@
    and USER; `ldd` of every binary copied in.
 4. Runs the images in a private network namespace (only loopback, like a container) with
    /proc, /sys and /dev mounted, as the stage's user (chroot --userspec), with the stage's
-   ENV and ENTRYPOINT plus the `docker run` arguments README.md shows:
+   ENV and ENTRYPOINT plus the `docker run` arguments docs/OPERATIONS.md shows:
    - the service with only the image's ENV must refuse to start (no submit token);
    - `-e TESSERA_OPEN_SUBMIT=true`: a farm with local workers renders examples/thesis.ray,
      and the PNG is valid and byte-identical to `tessera-render` run in the worker image;

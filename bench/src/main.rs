@@ -1,6 +1,6 @@
 //! `tessera-bench`: Tessera's benchmark programs. Each prints its figures and writes its
 //! results; none of them asserts a speed (that would make tests flaky); the numbers go into
-//! the README with the machine they came from.
+//! docs/PERFORMANCE.md with the command and the machine they came from.
 //!
 //! - `chart`: speed against accuracy. Every sampler at a range of settings on scenes that
 //!   stress sampling, against a high-rate reference of the exact image; a CSV and an SVG

@@ -637,8 +637,8 @@ fn thread_counts_are_bounded() {
 }
 
 /// The service's numeric flags out of range exit with status 2 and clap's message naming
-/// the flag and its range, as the README says of every flag (they exited 1 with a message
-/// of the service's own, one message for two flags).
+/// the flag and its range, as docs/OPERATIONS.md says of every flag: one refusal per flag,
+/// with the usage status, not a message of the service's own.
 #[test]
 fn service_flags_out_of_range_are_usage_errors() {
     let dir = TempDir::new("flags");
