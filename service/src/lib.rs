@@ -234,7 +234,7 @@ pub fn router(state: AppState) -> Router {
 
 /// Largest accepted tile blob.
 pub const fn protocol_limit() -> usize {
-    tessera_worker::protocol::TILE_HEADER_LEN + api::MAX_TILE as usize * api::MAX_TILE as usize * 3
+    tessera_protocol::TILE_HEADER_LEN + api::MAX_TILE as usize * api::MAX_TILE as usize * 3
 }
 
 /// Binds `cfg.listen` and serves until `shutdown` completes.

@@ -43,7 +43,7 @@ struct Args {
 }
 
 fn worker_name(name: &str) -> Result<String, String> {
-    crate::protocol::check_worker_name(name).map(|()| name.to_string())
+    tessera_protocol::check_worker_name(name).map(|()| name.to_string())
 }
 
 /// The program: parses flags, runs the worker until SIGINT/SIGTERM, reports errors.
@@ -62,7 +62,7 @@ pub fn main() -> ExitCode {
     if let Some(why) = args
         .token
         .as_deref()
-        .and_then(crate::protocol::token_problem)
+        .and_then(tessera_protocol::token_problem)
     {
         refuse(format!("--token (or TESSERA_WORKER_TOKEN): {why}"));
     }

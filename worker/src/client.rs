@@ -8,7 +8,7 @@ use std::time::Duration;
 use bytes::Bytes;
 use reqwest::{StatusCode, Url};
 
-use crate::protocol::{Accepted, Claim, ClaimRequest, FailRequest, JobSpec, Renewed};
+use tessera_protocol::{Accepted, Claim, ClaimRequest, FailRequest, JobSpec, Renewed};
 
 /// Why a request to the service did not give a usable answer.
 #[derive(Debug, thiserror::Error)]
@@ -313,7 +313,7 @@ impl Client {
         }
     }
 
-    /// Posts a tile blob (see [`crate::protocol::encode_tile`]). With `next` (this worker's
+    /// Posts a tile blob (see [`tessera_protocol::encode_tile`]). With `next` (this worker's
     /// name), the answer also carries the worker's next tile when there is one at once.
     pub async fn post_tile(&self, c: &Claim, blob: Bytes, next: Option<&str>) -> Result<Posted> {
         let what = "post tile";

@@ -12,7 +12,6 @@
 pub mod cli;
 pub mod client;
 mod pool;
-pub mod protocol;
 
 use pool::Rendered;
 pub use pool::{RenderPool, STRIP_PIXELS};
@@ -29,7 +28,7 @@ use tokio::task::JoinHandle;
 use tracing::{debug, info, warn};
 
 use client::{Client, ClientError, Posted};
-use protocol::{Claim, encode_tile};
+use tessera_protocol::{Claim, encode_tile};
 
 /// How a worker runs.
 #[derive(Debug, Clone)]
