@@ -620,4 +620,4 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
 }
 
 /// SIGINT or SIGTERM (the worker's own signal handling, shared).
-pub use tessera_worker::cli::shutdown_signal;
+pub use tessera_worker::shutdown_signal;

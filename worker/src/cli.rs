@@ -1,14 +1,18 @@
 //! The `tessera-worker` command line: flags (with environment fallbacks), logging, signals.
-//! Kept in the library so that end-to-end tests can build the same program.
-
-use std::time::Duration;
+//! Kept in the library so that end-to-end tests can build the same program, and the service
+//! can stop its local workers on the same signals.
+//!
+//! Not the worker itself: flags become a [`WorkerConfig`] handed to [`run`].
 
 use std::process::ExitCode;
+use std::time::Duration;
 
 use clap::{CommandFactory, Parser};
 use tessera_tracer::MAX_THREADS;
 
-use crate::{WorkerConfig, default_name, run};
+use crate::client::service_url;
+use crate::config::{WorkerConfig, default_name};
+use crate::worker::run;
 
 /// A stateless Tessera render worker: claims tiles from a service, traces them, posts them.
 #[derive(Debug, Parser)]
@@ -28,7 +32,7 @@ struct Args {
     #[arg(long, env = "TESSERA_WORKER_NAME", value_parser = worker_name)]
     name: Option<String>,
     /// Longest pause between claims when idle, in milliseconds: 25 (the first pause: below
-    /// it an idle worker polled in a tight loop) to 60,000.
+    /// it an idle worker would poll in a tight loop) to 60,000.
     #[arg(long, env = "TESSERA_IDLE_MAX_MS", default_value_t = 1000,
           value_parser = clap::value_parser!(u64).range(25..=60_000))]
     idle_max_ms: u64,
@@ -56,7 +60,7 @@ pub fn main() -> ExitCode {
             .error(clap::error::ErrorKind::ValueValidation, msg)
             .exit()
     };
-    if let Err(e) = crate::client::service_url(&args.server) {
+    if let Err(e) = service_url(&args.server) {
         refuse(format!("--server: {e}"));
     }
     if let Some(why) = args
