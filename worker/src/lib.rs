@@ -9,7 +9,7 @@
 //! It knows nothing of SQL or axum; the service runs the same loop in-process for its
 //! `--local-workers`, over the same HTTP protocol (`tessera-protocol`).
 //!
-//! The modules, from the top down (each uses only those below it):
+//! The modules, each using only those listed after it:
 //! - `cli`: the `tessera-worker` program ([`main`], [`shutdown_signal`]).
 //! - `worker`: one worker, its slots started and summed up ([`run`], [`run_with`]).
 //! - `slot`: a slot's claim-render-post loop.
