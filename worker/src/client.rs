@@ -102,7 +102,7 @@ impl ClientError {
 
 /// The service's base URL, checked: `http://` with a host (and a path, for a service behind
 /// a proxy that adds one). This build has no TLS, so `https://` is refused here, at start,
-/// rather than failing every request for ever. A user name or password is refused too: it
+/// rather than failing every request for ever. A user name or password is also refused: it
 /// would go to the service in clear on every request and show in the worker's log (the
 /// token is `--token`'s); so are a query and a fragment, which every request's own would
 /// have been appended to, and white space around the URL, which the parser would
