@@ -65,12 +65,12 @@ fn listen_addr(s: &str) -> Result<String, String> {
 
 /// Why a bearer token cannot be used: empty (which to a worker means none, and here locked
 /// out every worker, the local ones too, while the service looked healthy), or as
-/// [`tessera_worker::protocol::token_problem`] says.
+/// [`tessera_protocol::token_problem`] says.
 fn token_problem(s: &str) -> Option<&'static str> {
     if s.is_empty() {
         Some("a token may not be empty")
     } else {
-        tessera_worker::protocol::token_problem(s)
+        tessera_protocol::token_problem(s)
     }
 }
 

@@ -234,7 +234,7 @@ pub fn router(state: AppState) -> Router {
 
 /// Largest accepted tile blob.
 pub const fn protocol_limit() -> usize {
-    tessera_worker::protocol::TILE_HEADER_LEN + api::MAX_TILE as usize * api::MAX_TILE as usize * 3
+    tessera_protocol::TILE_HEADER_LEN + api::MAX_TILE as usize * api::MAX_TILE as usize * 3
 }
 
 /// Binds `cfg.listen` and serves until `shutdown` completes.
@@ -620,4 +620,4 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
 }
 
 /// SIGINT or SIGTERM (the worker's own signal handling, shared).
-pub use tessera_worker::cli::shutdown_signal;
+pub use tessera_worker::shutdown_signal;

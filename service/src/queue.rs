@@ -30,8 +30,8 @@ use sqlx::sqlite::{
     SqliteConnectOptions, SqliteConnection, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous,
 };
 use sqlx::{Connection, Row, Sqlite, SqlitePool};
+use tessera_protocol::{Claim, JobSpec};
 use tessera_tracer::Rect;
-use tessera_worker::protocol::{Claim, JobSpec};
 use tokio::sync::{Mutex, MutexGuard};
 
 use crate::spool::{Spool, SpoolError};

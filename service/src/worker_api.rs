@@ -12,7 +12,7 @@ use axum::extract::{Path, Query, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
-use tessera_worker::protocol::{
+use tessera_protocol::{
     Accepted, BlobError, Claim, ClaimRequest, FailRequest, Renewed, split_tile,
 };
 
@@ -36,7 +36,7 @@ pub struct LeaseParam {
 }
 
 fn worker_name(name: &str) -> Result<&str, ApiError> {
-    tessera_worker::protocol::check_worker_name(name).map_err(ApiError::bad_request)?;
+    tessera_protocol::check_worker_name(name).map_err(ApiError::bad_request)?;
     Ok(name)
 }
 

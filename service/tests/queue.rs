@@ -68,7 +68,7 @@ fn pixels(r: Rect) -> Vec<u8> {
 }
 
 /// Every tile the queue hands worker `w` now, in order (`max_attempts` as `claim` takes it).
-async fn claim_all(q: &Queue, max_attempts: u32) -> Vec<tessera_worker::protocol::Claim> {
+async fn claim_all(q: &Queue, max_attempts: u32) -> Vec<tessera_protocol::Claim> {
     let mut claims = Vec::new();
     while let Some(c) = q.claim("w", 0, 60_000, max_attempts).await.expect("claim") {
         claims.push(c);
@@ -918,7 +918,7 @@ fn tile_rgb(r: Rect) -> Vec<u8> {
 async fn store_following(
     q: &Queue,
     progress: &tessera_service::assemble::Progress,
-    c: &tessera_worker::protocol::Claim,
+    c: &tessera_protocol::Claim,
     rgb: &[u8],
 ) {
     let stored = q
@@ -1335,7 +1335,7 @@ async fn a_job_whose_pixels_are_lost_still_gives_the_whole_images_png() {
     progress.follow("j", w, h, &rects);
     job(&q, "j", w, h, 8).await;
     let corrupt = |r: Rect| spoil(&file, w, h, r);
-    let store = async |c: &tessera_worker::protocol::Claim| {
+    let store = async |c: &tessera_protocol::Claim| {
         q.complete("j", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
             .await
             .expect("complete")

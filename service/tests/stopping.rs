@@ -8,13 +8,13 @@ use std::time::Duration;
 use axum::extract::{Json, Path, Query, State};
 use axum::http::StatusCode;
 use axum::response::IntoResponse;
+use tessera_protocol::ClaimRequest;
 use tessera_service::api::{JobParams, get_job, submit};
 use tessera_service::queue::{NewJob, Queue};
 use tessera_service::receiving::Receiving;
 use tessera_service::worker_api::{ClaimParams, claim};
 use tessera_service::{AppState, Config};
 use tessera_tracer::tiles;
-use tessera_worker::protocol::ClaimRequest;
 use tokio::sync::watch;
 
 async fn state(stopping: watch::Receiver<bool>) -> AppState {

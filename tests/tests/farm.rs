@@ -483,7 +483,7 @@ fn a_killed_workers_tile_is_handed_out_again() {
         dead["w"].as_u64().expect("w") as u32,
         dead["h"].as_u64().expect("h") as u32,
     );
-    let blob = tessera_worker::protocol::encode_tile(rect, &vec![0; rect.pixel_count() * 3]);
+    let blob = tessera_protocol::encode_tile(rect, &vec![0; rect.pixel_count() * 3]);
     let r = http
         .put(format!(
             "{}/worker/jobs/{id}/tiles/{}?lease={}",

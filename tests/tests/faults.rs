@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 
 use common::{SERVICE, Service, TempDir, WORKER, Worker, client, examples, local_png, wait_until};
 use serde_json::{Value, json};
+use tessera_protocol::encode_tile;
 use tessera_tracer::Rect;
-use tessera_worker::protocol::encode_tile;
 
 const JOB_TIME: Duration = Duration::from_secs(180);
 

@@ -1,14 +1,18 @@
 //! The `tessera-worker` command line: flags (with environment fallbacks), logging, signals.
-//! Kept in the library so that end-to-end tests can build the same program.
-
-use std::time::Duration;
+//! Kept in the library so that end-to-end tests can build the same program, and the service
+//! can stop its local workers on the same signals.
+//!
+//! Not the worker itself: flags become a [`WorkerConfig`] handed to [`run`].
 
 use std::process::ExitCode;
+use std::time::Duration;
 
 use clap::{CommandFactory, Parser};
 use tessera_tracer::MAX_THREADS;
 
-use crate::{WorkerConfig, default_name, run};
+use crate::client::service_url;
+use crate::config::{WorkerConfig, default_name};
+use crate::worker::run;
 
 /// A stateless Tessera render worker: claims tiles from a service, traces them, posts them.
 #[derive(Debug, Parser)]
@@ -28,7 +32,7 @@ struct Args {
     #[arg(long, env = "TESSERA_WORKER_NAME", value_parser = worker_name)]
     name: Option<String>,
     /// Longest pause between claims when idle, in milliseconds: 25 (the first pause: below
-    /// it an idle worker polled in a tight loop) to 60,000.
+    /// it an idle worker would poll in a tight loop) to 60,000.
     #[arg(long, env = "TESSERA_IDLE_MAX_MS", default_value_t = 1000,
           value_parser = clap::value_parser!(u64).range(25..=60_000))]
     idle_max_ms: u64,
@@ -43,7 +47,7 @@ struct Args {
 }
 
 fn worker_name(name: &str) -> Result<String, String> {
-    crate::protocol::check_worker_name(name).map(|()| name.to_string())
+    tessera_protocol::check_worker_name(name).map(|()| name.to_string())
 }
 
 /// The program: parses flags, runs the worker until SIGINT/SIGTERM, reports errors.
@@ -56,13 +60,13 @@ pub fn main() -> ExitCode {
             .error(clap::error::ErrorKind::ValueValidation, msg)
             .exit()
     };
-    if let Err(e) = crate::client::service_url(&args.server) {
+    if let Err(e) = service_url(&args.server) {
         refuse(format!("--server: {e}"));
     }
     if let Some(why) = args
         .token
         .as_deref()
-        .and_then(crate::protocol::token_problem)
+        .and_then(tessera_protocol::token_problem)
     {
         refuse(format!("--token (or TESSERA_WORKER_TOKEN): {why}"));
     }

@@ -7,36 +7,53 @@ use std::time::Duration;
 
 use bytes::Bytes;
 use reqwest::{StatusCode, Url};
-
-use crate::protocol::{Accepted, Claim, ClaimRequest, FailRequest, JobSpec, Renewed};
+use tessera_protocol::{Accepted, Claim, ClaimRequest, FailRequest, JobSpec, Renewed};
 
 /// Why a request to the service did not give a usable answer.
 #[derive(Debug, thiserror::Error)]
 pub enum ClientError {
+    /// The service URL cannot be used (see `--server`).
     #[error("bad service URL `{url}`: {why}")]
-    BadUrl { url: String, why: &'static str },
+    BadUrl {
+        /// The URL as given, without its password.
+        url: String,
+        /// What is wrong with it.
+        why: &'static str,
+    },
+    /// The request did not get an answer: the service is down, the name does not resolve,
+    /// or the connection failed.
+    ///
     /// Shown with its causes: reqwest's own message is "error sending request for url"
-    /// whether the connection was refused, the name did not resolve or TLS failed.
+    /// whether the connection is refused, the name does not resolve or TLS fails.
     #[error("cannot reach the service: {}", with_causes(.0))]
     Unreachable(#[source] reqwest::Error),
+    /// The service refused the worker's token.
     #[error("the service refused this worker's token (401); check --token")]
     Unauthorized,
+    /// The service requires a token, and the worker has none.
     #[error(
         "the service requires a worker token (401); give it with --token or \
          TESSERA_WORKER_TOKEN"
     )]
     NoToken,
+    /// The service answered with a status the route does not expect.
     #[error("{what}: the service answered {status}: {body}")]
     Status {
+        /// The request, in words.
         what: &'static str,
+        /// The answer's HTTP status code.
         status: u16,
+        /// The answer's body, as text.
         body: String,
         /// The answer's `Retry-After`, in seconds (at most [`MAX_RETRY_AFTER`]).
         retry_after: Option<Duration>,
     },
+    /// The answer's body is not what the route answers.
     #[error("{what}: unreadable answer: {source}")]
     Decode {
+        /// The request, in words.
         what: &'static str,
+        /// Why it could not be read.
         #[source]
         source: reqwest::Error,
     },
@@ -85,12 +102,12 @@ impl ClientError {
 
 /// The service's base URL, checked: `http://` with a host (and a path, for a service behind
 /// a proxy that adds one). This build has no TLS, so `https://` is refused here, at start,
-/// rather than failing every request for ever. A user name or password is refused too: it
+/// rather than failing every request for ever. A user name or password is also refused: it
 /// would go to the service in clear on every request and show in the worker's log (the
 /// token is `--token`'s); so are a query and a fragment, which every request's own would
-/// have been appended to, and white space around the URL, which the parser dropped
-/// silently. A password is not repeated in the message.
-pub fn service_url(server: &str) -> Result<Url> {
+/// have been appended to, and white space around the URL, which the parser would
+/// drop silently. A password is not repeated in the message.
+pub(crate) fn service_url(server: &str) -> Result<Url> {
     const EXPECTED: &str = "expected http://HOST:PORT (this worker speaks plain HTTP, not TLS: \
                             reach a service behind https through a local tunnel or proxy)";
     let shown = without_password(server);
@@ -133,20 +150,27 @@ fn without_password(server: &str) -> String {
     }
 }
 
+/// `Ok` for an error that waiting may mend (the service is down or busy), which the caller
+/// passes over: a tile it could not give back or report on returns when its lease runs out.
+/// Other errors are returned.
+pub(crate) fn ignore_transient(e: ClientError) -> Result<()> {
+    if e.is_transient() { Ok(()) } else { Err(e) }
+}
+
 /// What became of a posted tile.
 #[derive(Debug, Clone, PartialEq)]
-pub enum Posted {
+pub(crate) enum Posted {
     /// Stored (or, `repeat`, already stored from this lease), with the next claim when one
-    /// was asked for and there was work.
+    /// is asked for and there is work.
     Accepted { repeat: bool, next: Option<Claim> },
-    /// Refused because the lease is no longer ours (expired and handed out again, or the job
-    /// was cancelled): the tile is someone else's business now.
+    /// Refused because the lease is not this worker's any more (it expired and went to another
+    /// worker, or the job is cancelled): the tile is someone else's business now.
     Stale(String),
 }
 
 /// A client for one service.
 #[derive(Debug, Clone)]
-pub struct Client {
+pub(crate) struct Client {
     http: reqwest::Client,
     base: Url,
     token: Option<String>,
@@ -155,7 +179,9 @@ pub struct Client {
 type Result<T> = std::result::Result<T, ClientError>;
 
 impl Client {
-    pub fn new(server: &str, token: Option<String>) -> Result<Client> {
+    /// A client for the service at `server` (checked by [`service_url`]), sending `token`
+    /// with every request when given.
+    pub(crate) fn new(server: &str, token: Option<String>) -> Result<Client> {
         let mut base = service_url(server)?;
         if !base.path().ends_with('/') {
             let p = format!("{}/", base.path());
@@ -177,8 +203,8 @@ impl Client {
     fn url(&self, segments: &[&str], lease: Option<&str>) -> Url {
         let mut url = self.base.clone();
         {
-            // The base was checked to be a hierarchical http(s) URL in `new`, so it has
-            // path segments.
+            // `new` checks that the base is a hierarchical http URL, so it has path
+            // segments.
             let mut path = url
                 .path_segments_mut()
                 .expect("checked in Client::new: base URL can be a base");
@@ -235,7 +261,7 @@ impl Client {
 
     /// Claims the next tile; `None` when there is no work. With no work at hand the
     /// service waits up to `wait` for some before answering.
-    pub async fn claim(&self, worker: &str, wait: Duration) -> Result<Option<Claim>> {
+    pub(crate) async fn claim(&self, worker: &str, wait: Duration) -> Result<Option<Claim>> {
         let what = "claim";
         let mut url = self.url(&["worker", "claim"], None);
         url.query_pairs_mut()
@@ -256,7 +282,7 @@ impl Client {
     }
 
     /// The job's scene and sampler settings.
-    pub async fn job(&self, job: &str) -> Result<JobSpec> {
+    pub(crate) async fn job(&self, job: &str) -> Result<JobSpec> {
         let what = "fetch job";
         let resp = self
             .send(self.http.get(self.url(&["worker", "jobs", job], None)))
@@ -270,7 +296,7 @@ impl Client {
     }
 
     /// One of the job's assets (a texture file).
-    pub async fn asset(&self, job: &str, name: &str) -> Result<Vec<u8>> {
+    pub(crate) async fn asset(&self, job: &str, name: &str) -> Result<Vec<u8>> {
         let what = "fetch asset";
         let url = self.url(&["worker", "jobs", job, "assets", name], None);
         let resp = self.send(self.http.get(url)).await?;
@@ -290,10 +316,10 @@ impl Client {
         self.url(&segs, Some(&c.lease))
     }
 
-    /// Extends the tile's lease; `false` when it is no longer this worker's. `rendering`
+    /// Extends the tile's lease; `false` when it is not this worker's any more. `rendering`
     /// says the tile is being rendered rather than held ahead: should the worker stall, the
-    /// service charges a failure to the tiles it was rendering only.
-    pub async fn renew(&self, c: &Claim, rendering: bool) -> Result<bool> {
+    /// service charges a failure to the tiles it is rendering only.
+    pub(crate) async fn renew(&self, c: &Claim, rendering: bool) -> Result<bool> {
         let what = "renew lease";
         let mut url = self.tile_url(c, Some("renew"));
         if rendering {
@@ -313,9 +339,14 @@ impl Client {
         }
     }
 
-    /// Posts a tile blob (see [`crate::protocol::encode_tile`]). With `next` (this worker's
+    /// Posts a tile blob (see [`tessera_protocol::encode_tile`]). With `next` (this worker's
     /// name), the answer also carries the worker's next tile when there is one at once.
-    pub async fn post_tile(&self, c: &Claim, blob: Bytes, next: Option<&str>) -> Result<Posted> {
+    pub(crate) async fn post_tile(
+        &self,
+        c: &Claim,
+        blob: Bytes,
+        next: Option<&str>,
+    ) -> Result<Posted> {
         let what = "post tile";
         let mut url = self.tile_url(c, None);
         if let Some(name) = next {
@@ -346,7 +377,7 @@ impl Client {
     }
 
     /// Reports that this worker could not render the tile.
-    pub async fn fail(&self, c: &Claim, worker: &str, reason: &str) -> Result<()> {
+    pub(crate) async fn fail(&self, c: &Claim, worker: &str, reason: &str) -> Result<()> {
         let what = "report failure";
         let req = self
             .http
@@ -363,8 +394,8 @@ impl Client {
     }
 
     /// Gives the tile back unrendered, without counting it as a failure (shutdown).
-    /// `Ok(false)`: the lease was no longer this worker's, so there was nothing to give.
-    pub async fn release(&self, c: &Claim) -> Result<bool> {
+    /// `Ok(false)`: the lease is not this worker's any more, so there is nothing to give.
+    pub(crate) async fn release(&self, c: &Claim) -> Result<bool> {
         let what = "release tile";
         let resp = self
             .send(self.http.post(self.tile_url(c, Some("release"))))

@@ -1,5 +1,5 @@
 //! `tessera-worker`: joins a Tessera farm. See the `tessera_worker` library.
 
 fn main() -> std::process::ExitCode {
-    tessera_worker::cli::main()
+    tessera_worker::main()
 }

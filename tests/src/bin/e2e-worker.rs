@@ -1,5 +1,5 @@
 //! `tessera-worker`, built inside the test crate (see Cargo.toml).
 
 fn main() -> std::process::ExitCode {
-    tessera_worker::cli::main()
+    tessera_worker::main()
 }
