@@ -19,9 +19,8 @@ pub struct ListParams {
 pub const MAX_JOBS_LISTED: u32 = 200;
 
 /// `GET /jobs/{id}?wait=S`: with `wait`, the answer waits until the job has ended (done,
-/// failed or cancelled) or `S` seconds (at most [`MAX_JOB_WAIT_SECS`], and less than the
-/// idle timeout) have passed, so a
-/// client learns of the end at once instead of polling.
+/// failed or cancelled) or `S` seconds (at most 60, and less than the idle timeout) have
+/// passed, so a client learns of the end at once instead of polling.
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct JobParams {

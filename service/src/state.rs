@@ -21,7 +21,7 @@ use crate::{assemble, now_ms};
 pub struct WorkerSeen {
     /// The name the worker gives itself.
     pub name: String,
-    /// When it was last heard from, in [`now_ms`] milliseconds.
+    /// When it was last heard from, in milliseconds since the Unix epoch.
     pub last_seen: i64,
     /// The tiles it claimed.
     pub claims: u64,

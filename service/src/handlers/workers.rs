@@ -43,7 +43,7 @@ pub async fn list_workers(State(state): State<AppState>) -> Json<Value> {
 /// for some before answering `204`. Workers need not poll fast to start promptly.
 #[derive(Debug, Default, Deserialize)]
 pub struct ClaimParams {
-    /// Milliseconds to wait for work (at most [`MAX_CLAIM_WAIT_MS`]); none: answer at once.
+    /// Milliseconds to wait for work (at most 10 s); none: answer at once.
     pub wait_ms: Option<u64>,
 }
 
