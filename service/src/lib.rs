@@ -3,7 +3,7 @@
 //!
 //! Handlers are thin: they check what was sent and call the [`queue::Queue`], which holds
 //! every guarantee about tiles and leases in SQL. Shared state is explicit ([`AppState`]);
-//! errors become responses in one place (`error::ApiError`). The service does not trace
+//! errors become responses in one place ([`ApiError`]). The service does not trace
 //! rays itself: local workers are ordinary `tessera_worker` loops speaking HTTP to it.
 //!
 //! # Where things are

@@ -64,7 +64,8 @@ impl AppState {
     }
 
     /// When a worker that keeps failing a job's tiles is kept away from it, and for how long
-    /// (`--keep-away-after`, `--keep-away-secs`; a lease unrenewed for half its term stalls).
+    /// (`--keep-away-after`, `--keep-away-secs`); leases of one worker on one job that run
+    /// out within half a lease of each other count as one failure.
     pub fn keep_away(&self) -> KeepAway {
         KeepAway {
             after: self.cfg.keep_away_after,
