@@ -77,7 +77,7 @@ fn main() -> anyhow::Result<()> {
     let argv: Vec<std::ffi::OsString> = std::env::args_os().collect();
     if argv.get(1).is_some_and(|a| a == "__service") {
         let rest = std::iter::once(argv[0].clone()).chain(argv[2..].iter().cloned());
-        return match tessera_service::cli::main_from(rest) {
+        return match tessera_service::main_from(rest) {
             code if code == std::process::ExitCode::SUCCESS => Ok(()),
             _ => anyhow::bail!("service failed"),
         };

@@ -2,7 +2,7 @@
 //! submission and deletion. Compared in constant time, so response timing reveals nothing
 //! about how much of a guess was right.
 //!
-//! This module only checks tokens; which routes need which token is decided in `lib.rs`.
+//! This module only checks tokens; which routes need which token is decided in `routes`.
 
 use axum::extract::{Request, State};
 use axum::http::{StatusCode, header};

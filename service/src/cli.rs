@@ -5,7 +5,10 @@ use std::process::ExitCode;
 
 use clap::{CommandFactory, Parser};
 
-use crate::{Config, run, shutdown_signal};
+use tessera_worker::shutdown_signal;
+
+use crate::config::Config;
+use crate::startup::run;
 
 /// The program: parses flags, serves until SIGINT/SIGTERM, reports errors.
 pub fn main() -> ExitCode {

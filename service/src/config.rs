@@ -4,46 +4,16 @@
 use clap::Parser;
 use tessera_tracer::{Limits, MAX_THREADS, TextureLimits};
 
-/// Primary rays a tile should carry when the service picks its size: some 70 ms of tracing
-/// (mirrors bench scene, one core of the bench machine), against about 2 ms of CPU that
-/// the service and the worker spend per tile on a loaded machine (claim, post, store; see
-/// docs/PERFORMANCE.md, "The farm's figures"): about 3 %.
-pub const TILE_RAYS: u64 = 262_144;
-
-/// Tiles a job should have at least when the service picks their size, so that a handful of
-/// workers can share even a small image and finish together. Twelve lets a 1080p frame at
-/// one ray per pixel have 512 px tiles (4 × 3), which took the farm's overhead there from
-/// about +6 % to about 0 % (docs/PERFORMANCE.md, "Larger tiles at one ray per pixel").
-pub const MIN_AUTO_TILES: u64 = 12;
-
-/// The tile edges the service picks from.
-pub const AUTO_TILE_RANGE: (u32, u32) = (32, 512);
+use crate::tiling::{MAX_TILE, MIN_TILE};
 
 /// Shortest lease a service hands out, in milliseconds: workers renew at a third of it,
 /// and below this a round trip could outlast the renewal interval.
 pub const MIN_LEASE_MS: u64 = 100;
 
-/// The tile edge for a `width × height` job whose pixels are counted as `rays_per_pixel`
-/// primary rays each, when neither the job nor `--tile` sets one: the smallest power of two whose
-/// tile carries [`TILE_RAYS`], then halved while the job would have fewer than
-/// [`MIN_AUTO_TILES`] tiles, always within [`AUTO_TILE_RANGE`]. A 1080p frame gets 512 px
-/// tiles at one ray per pixel (12 tiles) and 128 px tiles at 16 (135 tiles).
-pub fn auto_tile(width: u32, height: u32, rays_per_pixel: u32) -> u32 {
-    let (lo, hi) = AUTO_TILE_RANGE;
-    let rays = u64::from(rays_per_pixel.max(1));
-    let mut edge = lo;
-    while edge < hi && u64::from(edge) * u64::from(edge) * rays < TILE_RAYS {
-        edge *= 2;
-    }
-    while edge > lo && tessera_tracer::tile_count(width, height, edge) < MIN_AUTO_TILES {
-        edge /= 2;
-    }
-    edge
-}
-
 /// `HOST:PORT` with a numeric port: an IP address (`127.0.0.1:8080`, `[::]:8080`) or a host
-/// name of letters, digits, `-`, `_` and `.` (`localhost:8080`, a container's name). Anything else failed only once
-/// the service tried to listen, with exit status 1.
+/// name of letters, digits, `-`, `_` and `.` (`localhost:8080`, a container's name).
+/// Checked with the flags, so that a bad address is a usage error (status 2) rather than a
+/// failure to listen.
 fn listen_addr(s: &str) -> Result<String, String> {
     let named = |host: &str| {
         !host.is_empty()
@@ -63,7 +33,7 @@ fn listen_addr(s: &str) -> Result<String, String> {
     }
 }
 
-/// Why a bearer token cannot be used: empty (which to a worker means none, and here locked
+/// Why a bearer token cannot be used: empty (which to a worker means none, so it would lock
 /// out every worker, the local ones too, while the service looked healthy), or as
 /// [`tessera_protocol::token_problem`] says.
 fn token_problem(s: &str) -> Option<&'static str> {
@@ -75,9 +45,9 @@ fn token_problem(s: &str) -> Option<&'static str> {
 }
 
 /// The database: not blank, and a `sqlite:` URL names a file, as sqlx reads it (`sqlite:`
-/// or `//` dropped, then everything from `?`): `sqlite://` or `sqlite:?mode=rwc` named a
-/// private temporary database per connection, and reads failed with "no such table: jobs";
-/// `' '` made a file named by a space.
+/// or `//` dropped, then everything from `?`). `sqlite://` or `sqlite:?mode=rwc` would name
+/// a private temporary database per connection (reads then fail with "no such table:
+/// jobs"), and `' '` a file named by a space.
 fn database(s: &str) -> Result<String, String> {
     let path = match s.strip_prefix("sqlite:") {
         Some(url) => {
@@ -125,7 +95,7 @@ pub struct Config {
     /// the service picks one per job from its size and samples per pixel.
     #[arg(long, env = "TESSERA_TILE",
           value_parser = clap::value_parser!(u32)
-              .range(i64::from(crate::api::MIN_TILE)..=i64::from(crate::api::MAX_TILE)))]
+              .range(i64::from(MIN_TILE)..=i64::from(MAX_TILE)))]
     pub tile: Option<u32>,
     /// Seconds the local workers keep rendering the tiles they hold after SIGINT/SIGTERM
     /// before giving them back (as `tessera-worker --grace-secs`), 0 to 86,400 (a day).
@@ -163,8 +133,8 @@ pub struct Config {
     #[arg(long, env = "TESSERA_MAX_RECEIVING_BYTES")]
     pub max_receiving_bytes: Option<usize>,
     /// Largest image, width × height pixels. The limits below go up to the workers' own
-    /// (the tracer's defaults, which `tessera-worker` applies), not past them: a job the
-    /// service accepted and no worker would build failed a second later.
+    /// (the tracer's defaults, which `tessera-worker` applies), not past them, so that the
+    /// service accepts no job that no worker would build.
     #[arg(long, env = "TESSERA_MAX_PIXELS", default_value_t = 7680 * 4320 * 2,
           value_parser = clap::value_parser!(u64).range(1..=268_435_456))]
     pub max_pixels: u64,
@@ -173,9 +143,9 @@ pub struct Config {
           value_parser = clap::value_parser!(u32).range(1..=32_768))]
     pub max_dimension: u32,
     /// Most tiles in one job. A job's tiles are stored in the one transaction that holds the
-    /// queue's only writer, so no claim or result of another job is stored meanwhile (about
-    /// 0.5 s for 65,536 tiles); a job asking for more is refused with the smallest tile edge
-    /// that would do, and the service's own pick grows to that edge.
+    /// queue's only writer, so no claim or result of another job is stored meanwhile; a job
+    /// asking for more is refused with the smallest tile edge that would do, and the
+    /// service's own pick grows to that edge.
     #[arg(long, env = "TESSERA_MAX_TILES", default_value_t = 65_536,
           value_parser = clap::value_parser!(u64).range(1..))]
     pub max_tiles: u64,
@@ -196,8 +166,8 @@ pub struct Config {
     #[arg(long, env = "TESSERA_MAX_TEXTURE_PIXELS", default_value_t = 16 << 20,
           value_parser = clap::value_parser!(u64).range(1..=64 << 20))]
     pub max_texture_pixels: u64,
-    /// Seconds a connection may stay silent (no byte either way) before it is closed: a
-    /// stalled client held its connection, and the body it had sent, for ever. Keep it
+    /// Seconds a connection may stay silent (no byte either way) before it is closed, so
+    /// that a stalled client cannot hold its connection, and the body it sent, for ever. Keep it
     /// above 60, the longest wait a route offers (`GET /jobs/{id}?wait=`, which is cut to a
     /// second less than this). 1 to 86,400 (a day).
     #[arg(long, env = "TESSERA_IDLE_TIMEOUT_SECS", default_value_t = 120,
@@ -245,6 +215,7 @@ impl Config {
             .unwrap_or(self.max_body_bytes.saturating_mul(2))
     }
 
+    /// The limits a submitted scene is parsed and built under.
     pub fn scene_limits(&self) -> Limits {
         Limits {
             max_dimension: self.max_dimension,
@@ -256,80 +227,12 @@ impl Config {
         }
     }
 
+    /// The limits a submitted scene's textures are checked and decoded under.
     pub fn texture_limits(&self) -> TextureLimits {
         TextureLimits {
             max_pixels: self.max_texture_pixels,
             max_total_pixels: self.max_scene_texture_pixels,
             ..TextureLimits::default()
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn count(w: u32, h: u32, e: u32) -> u64 {
-        u64::from(w.div_ceil(e)) * u64::from(h.div_ceil(e))
-    }
-
-    /// The rule's two promises, checked over many sizes and costs: a tile carries
-    /// `TILE_RAYS` unless that would leave fewer than `MIN_AUTO_TILES` tiles (or the range
-    /// ends), and a job has `MIN_AUTO_TILES` tiles unless tiles are already the smallest.
-    #[test]
-    fn auto_tiles_carry_enough_rays_and_are_enough_in_number() {
-        let (lo, hi) = AUTO_TILE_RANGE;
-        for &(w, h) in &[
-            (1, 1),
-            (64, 64),
-            (320, 180),
-            (640, 480),
-            (1280, 720),
-            (1920, 1080),
-            (7680, 4320),
-        ] {
-            let mut last = u32::MAX;
-            for rays in [1, 4, 5, 9, 16, 64, 256, 4096] {
-                let e = auto_tile(w, h, rays);
-                assert!(
-                    (lo..=hi).contains(&e) && e.is_power_of_two(),
-                    "{w}×{h} {rays}: {e}"
-                );
-                assert!(e <= last, "more rays per pixel never gives larger tiles");
-                last = e;
-                let carried = u64::from(e) * u64::from(e) * u64::from(rays);
-                let doubled = 2 * e;
-                // Either the tile carries enough rays, or a larger one would be too few tiles.
-                assert!(
-                    carried >= TILE_RAYS || e == hi || count(w, h, doubled) < MIN_AUTO_TILES,
-                    "{w}×{h} {rays}: {e}"
-                );
-                assert!(
-                    count(w, h, e) >= MIN_AUTO_TILES || e == lo,
-                    "{w}×{h} {rays}: {e} gives {} tiles",
-                    count(w, h, e)
-                );
-                // And no smaller tile would already carry enough.
-                if e > lo && count(w, h, e) >= MIN_AUTO_TILES {
-                    let half = u64::from(e / 2);
-                    assert!(
-                        half * half * u64::from(rays) < TILE_RAYS,
-                        "{w}×{h} {rays}: {e}"
-                    );
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn a_1080p_frame_gets_large_tiles_at_one_ray_and_small_ones_at_sixteen() {
-        // 512² = 262,144 rays at one ray per pixel, in 4 × 3 = 12 tiles; 128² × 16 =
-        // 262,144 at 16.
-        assert_eq!(auto_tile(1920, 1080, 1), 512);
-        assert_eq!(auto_tile(1920, 1080, 16), 128);
-        // 1280×720 at one ray: 512 px would be 3 × 2 = 6 tiles, 256 px is 5 × 3 = 15.
-        assert_eq!(auto_tile(1280, 720, 1), 256);
-        // 640×480 at one ray: 512 px would be 2 tiles, 256 px 6, 128 px is 20.
-        assert_eq!(auto_tile(640, 480, 1), 128);
     }
 }

@@ -13,15 +13,19 @@ use serde_json::{Map, Value, json};
 
 use crate::queue::QueueError;
 
+/// An answer other than success: a status and a JSON body with at least `error`.
 #[derive(Debug)]
 pub struct ApiError {
+    /// The response's status.
     pub status: StatusCode,
+    /// The JSON body: `error` (the message) and any fields added with [`ApiError::with`].
     pub body: Map<String, Value>,
     /// Seconds for a `Retry-After` header (a `503` the client may simply repeat).
     pub retry_after: Option<u32>,
 }
 
 impl ApiError {
+    /// `status` with the message `message`.
     pub fn new(status: StatusCode, message: impl Into<String>) -> ApiError {
         let mut body = Map::new();
         body.insert("error".into(), Value::String(message.into()));
@@ -38,20 +42,23 @@ impl ApiError {
         self
     }
 
+    /// `400`: what was sent cannot be taken, and `message` says why.
     pub fn bad_request(message: impl Into<String>) -> ApiError {
         ApiError::new(StatusCode::BAD_REQUEST, message)
     }
 
+    /// `404`, saying "no" `what`.
     pub fn not_found(what: impl std::fmt::Display) -> ApiError {
         ApiError::new(StatusCode::NOT_FOUND, format!("no {what}"))
     }
 
     /// `404` for a job id that names no job, shown cut to its first 64 characters: any
-    /// path segment is taken as an id, and a 5,000-character one was repeated whole.
+    /// path segment is taken as an id, and a long one is not repeated whole.
     pub fn no_job(id: &str) -> ApiError {
         ApiError::not_found(format_args!("job `{}`", shown(id)))
     }
 
+    /// `409`: the request does not fit the state of what it names.
     pub fn conflict(message: impl Into<String>) -> ApiError {
         ApiError::new(StatusCode::CONFLICT, message)
     }
@@ -176,7 +183,7 @@ pub async fn json_errors(req: Request, next: Next) -> Response {
 
 /// Refuses a request whose `Content-Length` is over `limit` with `413` before reading any
 /// of its body. The body limit alone stops a body only once `limit` bytes of it have
-/// arrived: a request declaring 200 MB had 64 MB read (and held) before its `413`.
+/// arrived (and are held); a declared length over it needs none read.
 ///
 /// A body that declares no length (chunked) is stopped by the body limit once it passes
 /// it; that `413` comes from axum's extractor ("length limit exceeded"), and is answered

@@ -2,5 +2,5 @@
 //! workers. See the `tessera_service` library.
 
 fn main() -> std::process::ExitCode {
-    tessera_service::cli::main()
+    tessera_service::main()
 }

@@ -2,21 +2,21 @@
 //! by every `POST /jobs`.
 //!
 //! A submission is read whole, then parsed and checked (its textures decoded) before anything
-//! is stored. `--max-body-bytes` bounds one body; nothing bounded how many were taken in at
-//! once (sixteen 64 MiB uploads held 1.9 GB), nor what their textures decode to (a 55 KB PNG
-//! of one colour is 50 MB of texels: thirty-two small submissions held 3.6 GB). Each
-//! submission now holds a share of the budget ([`Held`]) that grows with what it holds:
+//! is stored. `--max-body-bytes` bounds one body; this budget bounds how many are held at
+//! once, and what their textures decode to (a small PNG of one colour can decode to many
+//! megabytes of texels). Each submission holds a share of the budget ([`Held`]) that grows
+//! with what it holds:
 //!
 //! - its body: its declared length (the body limit if it declares none) before any of it
 //!   is read, all or nothing, so that no share ever waits while it holds part of a body
-//!   (shares that held part of one and waited for the rest shut each other out until the
-//!   wait limit); a body that stops arriving for [`BODY_SILENCE`] is cut (`408`) and its
-//!   share given back (a client that declared 64 MiB and fell silent held it until the
-//!   idle timeout: two such shut every submission out);
+//!   (shares that held part of one and waited for the rest would shut each other out until
+//!   the wait limit); a body that stops arriving for [`BODY_SILENCE`] is cut (`408`) and its
+//!   share given back, so that a client that declares a large body and falls silent cannot
+//!   shut every submission out until the idle timeout;
 //! - its textures' texels, counted from their headers before they are decoded, against a
 //!   budget of their own: at most one job's worth (`--max-scene-texture-pixels`) is
-//!   decoded at a time. (Counted in the same budget as bodies, shares holding their bodies
-//!   while they waited for texels shut each other out.)
+//!   decoded at a time. (In the same budget as bodies, shares holding their bodies while
+//!   they waited for texels would shut each other out.)
 //!
 //! A share that cannot grow waits its turn (first come, first served), at most
 //! [`Receiving::wait_limit`]; the submission is then answered `503` with `Retry-After` and

@@ -1,11 +1,11 @@
 //! The open-file limit: raised at start from the soft limit to the hard one.
 //!
 //! Every connection is a file descriptor. At a typical soft limit of 1,024, a few hundred
-//! idle or slow clients (each held until `--idle-timeout-secs`) used up the rest, and then
-//! every new connection, `/healthz` and the local workers' own included, waited in the
-//! kernel's queue while the service logged "Too many open files" once a second. The hard
-//! limit, which a process may raise itself to, is usually far higher. Nothing here can fail
-//! the start: a limit that cannot be read or raised is left as it is.
+//! idle or slow clients (each held until `--idle-timeout-secs`) would use up the rest, and
+//! every new connection, `/healthz` and the local workers' own included, would wait in the
+//! kernel's queue. The hard limit, which a process may raise itself to, is usually far
+//! higher. Nothing here can fail the start: a limit that cannot be read or raised is left
+//! as it is.
 
 /// The soft limit raised to the hard one; returns `(before, after)` when it changed.
 #[cfg(unix)]

@@ -9,11 +9,10 @@ use axum::extract::{Json, Path, Query, State};
 use axum::http::StatusCode;
 use axum::response::IntoResponse;
 use tessera_protocol::ClaimRequest;
-use tessera_service::api::{JobParams, get_job, submit};
 use tessera_service::queue::{NewJob, Queue};
-use tessera_service::receiving::Receiving;
-use tessera_service::worker_api::{ClaimParams, claim};
-use tessera_service::{AppState, Config};
+use tessera_service::{
+    AppState, ClaimParams, Config, JobParams, Receiving, claim, get_job, submit,
+};
 use tessera_tracer::tiles;
 use tokio::sync::watch;
 
@@ -155,8 +154,8 @@ async fn a_submission_waiting_for_room_answers_when_the_service_stops() {
 
 /// A textured submission waits for room to decode its textures (counted from their headers
 /// before decoding, at most `--max-scene-texture-pixels` at a time across submissions),
-/// and is answered `503` when the service stops. (Thirty-two small PNGs of large images,
-/// decoded at once, held 3.6 GB.)
+/// and is answered `503` when the service stops. (Small PNGs of large images, decoded all
+/// at once, would hold gigabytes.)
 #[tokio::test]
 async fn a_submission_waiting_to_decode_its_textures_answers_when_the_service_stops() {
     let (stop, stopping) = watch::channel(false);
@@ -176,8 +175,8 @@ async fn a_submission_waiting_to_decode_its_textures_answers_when_the_service_st
 }
 
 /// Textures past a job's own limit (`--max-scene-texture-pixels`) are refused at once with
-/// the check's `400`, without waiting for room to decode them (they waited, ahead of every
-/// other submission, for every texel there is, to be refused after all).
+/// the check's `400`, without waiting for room to decode them (they would wait, ahead of
+/// every other submission, for every texel there is, to be refused after all).
 #[tokio::test]
 async fn textures_past_the_jobs_limit_are_refused_without_waiting() {
     let (_stop, stopping) = watch::channel(false);
@@ -202,7 +201,7 @@ async fn textures_past_the_jobs_limit_are_refused_without_waiting() {
 }
 
 /// A submission that needs no more room than there is goes on while the service stops:
-/// only one that must wait is answered `503` (a random pick between the two cut half the
+/// only one that must wait is answered `503` (a random pick between the two would cut half the
 /// uploads under way).
 #[tokio::test]
 async fn a_submission_with_room_is_served_while_the_service_stops() {

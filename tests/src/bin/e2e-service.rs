@@ -1,5 +1,5 @@
 //! `tessera-service`, built inside the test crate (see Cargo.toml).
 
 fn main() -> std::process::ExitCode {
-    tessera_service::cli::main()
+    tessera_service::main()
 }

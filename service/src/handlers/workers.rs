@@ -1,5 +1,6 @@
 //! The worker routes: claim a tile, fetch a job's scene and assets, renew a lease, post a
-//! result, report a failure, give a tile back. See `docs/PROTOCOL.md`.
+//! result, report a failure, give a tile back (see `docs/PROTOCOL.md`); and the list of
+//! workers heard from (`GET /workers`).
 //!
 //! Every tile route takes the lease token as `?lease=`; the queue applies it only while the
 //! token is the tile's current lease. Blobs are checked against the tile before storage.
@@ -12,24 +13,44 @@ use axum::extract::{Path, Query, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
+use serde_json::Value;
 use tessera_protocol::{
     Accepted, BlobError, Claim, ClaimRequest, FailRequest, Renewed, split_tile,
 };
 
 use crate::error::{ApiError, ok_json};
+use crate::now_ms;
+use crate::params::flag;
 use crate::queue::{Completion, STORAGE_PAUSE};
-use crate::{AppState, now_ms};
+use crate::state::AppState;
+
+/// Workers heard from in the last ten minutes.
+pub async fn list_workers(State(state): State<AppState>) -> Json<Value> {
+    let cutoff = now_ms() - 600_000;
+    let mut list: Vec<_> = state
+        .roster
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+        .values()
+        .filter(|w| w.last_seen >= cutoff)
+        .cloned()
+        .collect();
+    list.sort_by(|a, b| a.name.cmp(&b.name));
+    ok_json(list)
+}
 
 /// `POST /worker/claim?wait_ms=N`: with no work at hand, wait up to `N` ms (at most 10 s)
 /// for some before answering `204`. Workers need not poll fast to start promptly.
 #[derive(Debug, Default, Deserialize)]
 pub struct ClaimParams {
+    /// Milliseconds to wait for work (at most 10 s); none: answer at once.
     pub wait_ms: Option<u64>,
 }
 
 /// The longest a claim waits for work.
 pub const MAX_CLAIM_WAIT_MS: u64 = 10_000;
 
+/// `?lease=L`: the lease a tile route acts under.
 #[derive(Debug, Deserialize)]
 pub struct LeaseParam {
     pub lease: String,
@@ -40,6 +61,8 @@ fn worker_name(name: &str) -> Result<&str, ApiError> {
     Ok(name)
 }
 
+/// `POST /worker/claim`: the next tile for the worker named in the body (`200` with the
+/// claim), or `204` once `wait_ms` passed, or at once while the service stops, with none.
 pub async fn claim(
     State(state): State<AppState>,
     Query(params): Query<ClaimParams>,
@@ -104,6 +127,8 @@ async fn claim_now(
     Ok(claimed)
 }
 
+/// `GET /worker/jobs/{id}`: what a worker needs to render the job's tiles; `410` once the
+/// job has ended.
 pub async fn job(
     State(state): State<AppState>,
     Path(id): Path<String>,
@@ -122,6 +147,7 @@ pub async fn job(
     Ok(ok_json(spec))
 }
 
+/// `GET /worker/jobs/{id}/assets/{name}`: an asset's bytes as the job stored them.
 pub async fn asset(
     State(state): State<AppState>,
     Path((id, name)): Path<(String, String)>,
@@ -138,10 +164,11 @@ pub async fn asset(
 pub struct RenewParams {
     pub lease: String,
     /// The worker is rendering the tile, not holding it ahead (see `Queue::reap`).
-    #[serde(default, deserialize_with = "crate::api::flag")]
+    #[serde(default, deserialize_with = "flag")]
     pub rendering: bool,
 }
 
+/// Extends the lease by `--lease-ms`; `409` when it is no longer current.
 pub async fn renew(
     State(state): State<AppState>,
     Path((id, idx)): Path<(String, u32)>,
@@ -243,6 +270,8 @@ pub async fn result(
     Ok(ok_json(Accepted { repeat, next }))
 }
 
+/// `POST /worker/jobs/{id}/tiles/{idx}/fail?lease=L`: the worker could not render the tile;
+/// it is queued again, or, out of attempts, fails its job (the answer says which).
 pub async fn fail(
     State(state): State<AppState>,
     Path((id, idx)): Path<(String, u32)>,
@@ -267,7 +296,7 @@ pub async fn fail(
     if ok {
         state.work.notify_waiters();
         // The tile may have been out of attempts, failing its job: then it is not requeued,
-        // and the answer says so (it said `requeued` either way).
+        // and the answer says so.
         state.ended.notify_waiters();
         let job_failed = state
             .queue
@@ -282,6 +311,8 @@ pub async fn fail(
     }
 }
 
+/// `POST /worker/jobs/{id}/tiles/{idx}/release?lease=L`: the worker gives the tile back
+/// unrendered (it is stopping); it is queued again without counting an attempt.
 pub async fn release(
     State(state): State<AppState>,
     Path((id, idx)): Path<(String, u32)>,

@@ -1,0 +1,139 @@
+//! The periodic maintenance pass: requeues expired leases (extending them instead after a
+//! pause of the service or while its storage fails), sweeps the tile spool, stops following
+//! ended jobs, and fails jobs that every live worker is kept away from.
+//!
+//! It decides nothing the queue does not: it calls the queue with the time and the
+//! configuration's limits, and wakes waiting requests when something changed.
+
+use std::time::Duration;
+
+use tokio::sync::watch;
+use tracing::{info, warn};
+
+use crate::now_ms;
+use crate::state::AppState;
+
+/// The least time a refused request keeps its lease from being reaped while the storage
+/// fails: a worker retries a refused result at most 3 s apart, whatever the lease.
+const HEARD_AT_LEAST: Duration = Duration::from_secs(5);
+
+/// How often the reaper deletes the spool files of ended jobs.
+const SWEEP_EVERY: Duration = Duration::from_secs(10);
+
+/// Requeues expired leases a few times per lease period, and sweeps the tile spool.
+pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
+    let every = Duration::from_millis((state.cfg.lease_ms / 4).clamp(25, 1000));
+    let mut last = std::time::Instant::now();
+    let mut swept = std::time::Instant::now();
+    // Leases are being extended for the storage's failures (said once, not every pass).
+    let mut extending = false;
+    loop {
+        tokio::select! {
+            _ = tokio::time::sleep(every) => {}
+            _ = stop.wait_for(|s| *s) => return,
+        }
+        // A service that did not run for half a lease (suspended, frozen, its machine
+        // asleep) could not take the renewals its workers sent meanwhile: their leases ran
+        // out through no fault of theirs, and reaping them would count it against them (and,
+        // with short leases, fail jobs). Give every lease a fresh term instead, as a restart
+        // does.
+        let paused = last.elapsed();
+        last = std::time::Instant::now();
+        // So with storage that failed within half a lease (a full disk): the renewals and
+        // results of workers may have been refused meanwhile. Those refused are noted
+        // (`Queue::heard_refused`); a worker at work renews each lease every third of one,
+        // and retries a refused result at most 3 s apart (its back-off's cap, with jitter),
+        // so one heard from within a lease, and never less than 5 s, is alive.
+        let window = Duration::from_millis(state.cfg.lease_ms / 2) + every;
+        let heard_within = Duration::from_millis(state.cfg.lease_ms).max(HEARD_AT_LEAST) + every;
+        // The pause first: it heard no one, so every lease is extended, whatever failed.
+        if paused > window {
+            match state
+                .queue
+                .extend_leases(now_ms(), state.cfg.lease_ms)
+                .await
+            {
+                Ok(n) => warn!(
+                    "the service did not run for {:.1} s: {n} leases extended, none reaped",
+                    paused.as_secs_f64()
+                ),
+                Err(e) => warn!("extending leases after a pause: {}", state.queue.noted(e)),
+            }
+            continue;
+        }
+        let reaped = if state.queue.storage_failed_within(window) {
+            // The leases of workers heard from are extended, the others reaped (the rest
+            // of the pass goes on). Said once an episode.
+            let pass = state
+                .queue
+                .reap_unheard(
+                    now_ms(),
+                    state.cfg.lease_ms,
+                    heard_within,
+                    state.cfg.max_attempts,
+                    state.keep_away(),
+                )
+                .await;
+            if let Ok((extended, _)) = &pass
+                && !extending
+            {
+                extending = true;
+                warn!(
+                    "the service's storage failed lately: the leases of workers whose requests \
+                     it refused are extended, the others reaped as ever, until it has written \
+                     again for half a lease ({extended} now)"
+                );
+            }
+            pass.map(|(_, reaped)| reaped)
+        } else {
+            if extending {
+                extending = false;
+                info!("the service's storage writes again: expired leases are reaped again");
+            }
+            // `reap_unheard` forgets the leases refused too long ago; here, with nothing
+            // refused lately, the record is only kept small.
+            state.queue.forget_unheard(heard_within);
+            state
+                .queue
+                .reap(now_ms(), state.cfg.max_attempts, state.keep_away())
+                .await
+        };
+        match reaped {
+            Ok(0) => {}
+            Ok(n) => {
+                warn!("{n} expired leases: tiles handed out again");
+                state.work.notify_waiters();
+                // A tile out of attempts fails its job.
+                state.ended.notify_waiters();
+            }
+            Err(e) => warn!("reaping expired leases: {}", state.queue.noted(e)),
+        }
+        // The spool files of jobs that ended without an image (cancelled, failed, deleted).
+        if swept.elapsed() >= SWEEP_EVERY {
+            swept = std::time::Instant::now();
+            if let Err(e) = state.queue.sweep_spool().await {
+                warn!("sweeping the tile spool: {e}");
+            }
+        }
+        // Jobs that ended without an image (cancelled, failed) are no longer followed.
+        let followed = state.progress.followed();
+        if !followed.is_empty() {
+            match state.queue.active_jobs().await {
+                Ok(active) => followed
+                    .iter()
+                    .filter(|id| !active.contains(id))
+                    .for_each(|id| state.progress.forget(id)),
+                Err(e) => warn!("listing active jobs: {e}"),
+            }
+        }
+        let live = state.live_workers();
+        match state.queue.fail_unservable(&live, now_ms()).await {
+            Ok(0) => {}
+            Ok(n) => {
+                warn!("{n} jobs failed: every live worker is kept away from them");
+                state.ended.notify_waiters();
+            }
+            Err(e) => warn!("checking kept-away jobs: {e}"),
+        }
+    }
+}
