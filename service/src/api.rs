@@ -19,8 +19,8 @@ use tessera_tracer::{MemoryAssets, Sampler, Scene, SceneError, Texture, parse, t
 
 use crate::config::auto_tile;
 use crate::error::{ApiError, ok_json};
-use crate::queue::{Cancel, JobRow, NewJob, STORAGE_PAUSE};
 use crate::receiving::{BODY_SILENCE, Full, Held, Receiving};
+use crate::store::{Cancel, JobRow, JobState, NewJob, STORAGE_PAUSE};
 use crate::{AppState, now_ms};
 
 /// Smallest and largest tile edge a job may ask for.
@@ -62,14 +62,18 @@ impl From<JobRow> for JobView {
 impl JobView {
     /// The job as the API shows it, with the service's state: one with tiles still to
     /// render says so while the farm is paused for storage
-    /// ([`Queue::storage_trouble`](crate::queue::Queue::storage_trouble)), which otherwise
+    /// ([`Store::storage_trouble`](crate::store::Store::storage_trouble)), which otherwise
     /// only `/healthz` told. The reason is given in general terms: the failed write's own
     /// message names another job's spool file.
     fn of(state: &AppState, row: JobRow) -> JobView {
-        let waiting =
-            matches!(row.state.as_str(), "queued" | "running") && row.tiles_done < row.tiles_total;
+        let waiting = row.state.is_active() && row.tiles_done < row.tiles_total;
         let mut view = JobView::from(row);
-        if waiting && state.queue.storage_trouble(STORAGE_PAUSE).is_some() {
+        if waiting
+            && state
+                .store
+                .storage_trouble(now_ms(), STORAGE_PAUSE)
+                .is_some()
+        {
             view.paused = Some(
                 "the service has no room to store tile pixels now (a full disk, or no file \
                  descriptors to spare): tiles are handed out again once it has"
@@ -95,14 +99,14 @@ pub async fn page(State(state): State<AppState>) -> Html<String> {
 /// [`HEALTH_WRITE_WITHIN`]), `503` naming what failed otherwise: it was `200` while every
 /// submission and result failed on a full disk.
 pub async fn healthz(State(state): State<AppState>) -> Result<Json<Value>, ApiError> {
-    state.queue.ping().await?;
-    if let Some(why) = state.queue.storage_trouble(STORAGE_PAUSE) {
+    state.store.ping().await?;
+    if let Some(why) = state.store.storage_trouble(now_ms(), STORAGE_PAUSE) {
         return Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,
             format!("the tile spool failed to store a tile's pixels: {why}"),
         ));
     }
-    if let Err(e) = state.queue.probe_write(now_ms(), HEALTH_WRITE_WITHIN).await {
+    if let Err(e) = state.store.probe_write(now_ms(), HEALTH_WRITE_WITHIN).await {
         tracing::error!("health check: {e}");
         return Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,
@@ -116,18 +120,9 @@ pub async fn healthz(State(state): State<AppState>) -> Result<Json<Value>, ApiEr
 pub const HEALTH_WRITE_WITHIN: Duration = Duration::from_secs(2);
 
 /// Workers heard from in the last ten minutes.
-pub async fn workers(State(state): State<AppState>) -> Json<Value> {
+pub async fn workers(State(state): State<AppState>) -> Result<Json<Value>, ApiError> {
     let cutoff = now_ms() - 600_000;
-    let mut list: Vec<_> = state
-        .roster
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
-        .values()
-        .filter(|w| w.last_seen >= cutoff)
-        .cloned()
-        .collect();
-    list.sort_by(|a, b| a.name.cmp(&b.name));
-    ok_json(list)
+    Ok(ok_json(state.store.workers(cutoff).await?))
 }
 
 /// `GET /jobs` query parameters: a page of at most `limit` jobs (default and most
@@ -153,7 +148,7 @@ pub async fn list_jobs(
         )));
     }
     let before = params.before.as_deref();
-    let rows = state.queue.jobs(limit, before).await?.ok_or_else(|| {
+    let rows = state.store.jobs(limit, before).await?.ok_or_else(|| {
         ApiError::not_found(format_args!(
             "job `{}` to list before",
             before.unwrap_or("")
@@ -204,13 +199,13 @@ pub async fn get_job(
         tokio::pin!(ended);
         ended.as_mut().enable();
         let row = state
-            .queue
+            .store
             .job(&id)
             .await?
             .ok_or_else(|| ApiError::no_job(&id))?;
         let now = tokio::time::Instant::now();
         let stopping = *state.stopping.borrow();
-        if !matches!(row.state.as_str(), "queued" | "running") || now >= deadline || stopping {
+        if !row.state.is_active() || now >= deadline || stopping {
             return Ok(ok_json(JobView::of(&state, row)));
         }
         tokio::select! {
@@ -257,26 +252,26 @@ pub async fn delete_job(
 ) -> Result<Response, ApiError> {
     let view = |row: Option<JobRow>| row.map(JobView::from).ok_or_else(|| ApiError::no_job(&id));
     if params.purge {
-        let job = view(state.queue.job(&id).await?)?;
-        if matches!(job.row.state.as_str(), "queued" | "running") {
+        let job = view(state.store.job(&id).await?)?;
+        if job.row.state.is_active() {
             return Err(ApiError::conflict(format!(
                 "job `{id}` is {}: cancel it first (DELETE /jobs/{id}), then purge it",
                 job.row.state
             ))
             .with("state", job.row.state.clone()));
         }
-        state.queue.delete(&id).await?;
+        state.store.delete(&id).await?;
         state.ended.notify_waiters();
         return Ok(StatusCode::NO_CONTENT.into_response());
     }
-    let outcome = state.queue.cancel(&id, now_ms()).await?;
+    let outcome = state.store.cancel(&id, now_ms()).await?;
     // Waiting requests look again now.
     state.ended.notify_waiters();
     if outcome == Cancel::Unknown {
         return Err(ApiError::no_job(&id));
     }
-    let job = view(state.queue.job(&id).await?)?;
-    if outcome == Cancel::Complete && job.row.state == "running" {
+    let job = view(state.store.job(&id).await?)?;
+    if outcome == Cancel::Complete && job.row.state == JobState::Running {
         return Err(ApiError::conflict(format!(
             "every tile of job `{id}` is in and its image is being written: it is not cancelled"
         ))
@@ -298,14 +293,14 @@ pub async fn image(
     Query(NoParams {}): Query<NoParams>,
 ) -> Result<Response, ApiError> {
     let row = state
-        .queue
+        .store
         .job(&id)
         .await?
         .ok_or_else(|| ApiError::no_job(&id))?;
-    if row.state != "done" {
-        let why = match row.state.as_str() {
-            "failed" => format!("job failed: {}", row.error.clone().unwrap_or_default()),
-            "cancelled" => "job was cancelled; it has no image".to_string(),
+    if row.state != JobState::Done {
+        let why = match row.state {
+            JobState::Failed => format!("job failed: {}", row.error.clone().unwrap_or_default()),
+            JobState::Cancelled => "job was cancelled; it has no image".to_string(),
             _ => format!(
                 "job is {}: {} of {} tiles done",
                 row.state, row.tiles_done, row.tiles_total
@@ -316,8 +311,8 @@ pub async fn image(
             .with("tiles_done", row.tiles_done)
             .with("tiles_total", row.tiles_total));
     }
-    let chunks = state.queue.image_chunks(&id).await?;
-    let queue = state.queue.clone();
+    let chunks = state.store.image_chunks(&id).await?;
+    let queue = state.store.clone();
     let stream = futures_util::stream::unfold(0u32, move |seq| {
         let queue = queue.clone();
         let id = id.clone();
@@ -520,7 +515,7 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     state
         .progress
         .follow(&new_job.id, new_job.width, new_job.height, &rects);
-    let row = match state.queue.insert_job(&new_job, &rects, &assets).await {
+    let row = match state.store.insert_job(&new_job, &rects, &assets).await {
         Ok(row) => row,
         Err(e) => {
             state.progress.forget(&new_job.id);

@@ -1,7 +1,7 @@
-//! The Tessera render service: the HTTP API users and workers talk to, the SQLite job queue
-//! behind it, the web page, and optional in-process workers.
+//! The Tessera render service: the HTTP API users and workers talk to, the job store
+//! behind it (SQLite), the web page, and optional in-process workers.
 //!
-//! Handlers are thin: they check what was sent and call the [`queue::Queue`], which holds
+//! Handlers are thin: they check what was sent and call the [`store::Store`], which holds
 //! every guarantee about tiles and leases in SQL. Shared state is explicit ([`AppState`]);
 //! errors become responses in one place ([`error::ApiError`]). The service does not trace
 //! rays itself: local workers are ordinary `tessera_worker` loops speaking HTTP to it.
@@ -14,54 +14,38 @@ pub mod config;
 pub mod db_lock;
 pub mod error;
 pub mod idle;
-pub mod queue;
 pub mod receiving;
 pub mod rlimit;
-pub mod spool;
+pub mod store;
 pub mod worker_api;
 
-use std::collections::HashMap;
 use std::future::{Future, IntoFuture};
 use std::net::SocketAddr;
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::Arc;
 use std::time::Duration;
 
 use axum::Router;
 use axum::extract::DefaultBodyLimit;
 use axum::routing::{get, post, put};
-use serde::Serialize;
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 use tracing::{error, info, warn};
 
 pub use config::Config;
-use queue::{KeepAway, Queue, QueueError};
+use store::{KeepAway, Store, StoreError};
 
-/// Milliseconds since the Unix epoch: the queue's clock.
+/// Milliseconds since the Unix epoch: the service's clock, which it passes to the store.
 pub fn now_ms() -> i64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_millis() as i64)
 }
 
-/// What the service knows about a worker it has heard from.
-#[derive(Debug, Clone, Default, Serialize)]
-pub struct WorkerSeen {
-    pub name: String,
-    pub last_seen: i64,
-    pub claims: u64,
-    /// Of those claims, the ones that came back with a posted result (`?next=`).
-    pub claims_with_results: u64,
-    pub tiles_done: u64,
-}
-
 /// The state every handler shares.
 #[derive(Clone)]
 pub struct AppState {
     pub cfg: Arc<Config>,
-    pub queue: Queue,
-    /// Workers seen since start (in memory only: informational).
-    pub roster: Arc<Mutex<HashMap<String, WorkerSeen>>>,
+    pub store: Store,
     /// Woken whenever tiles become claimable, so that waiting claims answer at once.
     pub work: Arc<tokio::sync::Notify>,
     /// Woken whenever a job may have ended (done, failed, cancelled), so that
@@ -93,39 +77,15 @@ impl AppState {
         }
     }
 
-    pub fn seen(&self, worker: &str, f: impl FnOnce(&mut WorkerSeen)) {
-        let mut roster = self.roster.lock().unwrap_or_else(PoisonError::into_inner);
-        let entry = roster
-            .entry(worker.to_string())
-            .or_insert_with(|| WorkerSeen {
-                name: worker.to_string(),
-                ..WorkerSeen::default()
-            });
-        entry.last_seen = now_ms();
-        f(entry);
-    }
-
-    /// Workers heard from within a lease period (plus slack for idle polling).
-    pub fn live_workers(&self) -> Vec<String> {
-        let cutoff = now_ms() - self.cfg.lease_ms as i64 - 5_000;
-        self.roster
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .values()
-            .filter(|w| w.last_seen >= cutoff)
-            .map(|w| w.name.clone())
-            .collect()
-    }
-
     /// A tile of `job` other than its last is stored: encodes, in the background, the bands
     /// of the image that this completed.
     pub fn tile_stored(&self, job: String, tile: tessera_tracer::Rect) {
         if self.progress.stored(&job, tile) {
-            let queue = self.queue.clone();
+            let store = self.store.clone();
             let progress = self.progress.clone();
             let (work, ended) = (self.work.clone(), self.ended.clone());
             tokio::spawn(async move {
-                if progress.advance(&queue, &job).await {
+                if progress.advance(&store, &job).await {
                     // Tiles to render again; or, lost too often, the job failed.
                     work.notify_waiters();
                     ended.notify_waiters();
@@ -136,12 +96,12 @@ impl AppState {
 
     /// Assembles a job's PNG in the background once its last tile is in.
     pub fn spawn_assembly(&self, job: String) {
-        let queue = self.queue.clone();
+        let store = self.store.clone();
         let ended = self.ended.clone();
         let progress = self.progress.clone();
         let work = self.work.clone();
         tokio::spawn(async move {
-            if let Err(e) = progress.complete(&queue, &job).await {
+            if let Err(e) = progress.complete(&store, &job).await {
                 if e.requeued() {
                     // Not a failure of the assembly: the lost tiles are queued again, and
                     // their last result assembles the image anew (unless, lost too often,
@@ -152,7 +112,7 @@ impl AppState {
                     return;
                 }
                 error!(job = %job, "assembling the image failed: {e}");
-                let _ = queue
+                let _ = store
                     .fail_job(&job, &format!("assembling the image failed: {e}"), now_ms())
                     .await;
             }
@@ -165,7 +125,7 @@ impl AppState {
 #[derive(Debug, thiserror::Error)]
 pub enum ServiceError {
     #[error(transparent)]
-    Queue(#[from] QueueError),
+    Store(#[from] StoreError),
     #[error("cannot listen on {addr}: {source}")]
     Bind {
         addr: String,
@@ -307,7 +267,7 @@ pub async fn serve(
             "--max-attempts must be at least 1".into(),
         ));
     }
-    // Before anything touches the queue: a second service's start requeued the first's
+    // Before anything touches the store: a second service's start requeued the first's
     // local workers' tiles (see `db_lock`).
     let lock = db_lock::DbLock::take(&cfg.database)?;
     if let Some(names) = lock.as_ref().and_then(|l| l.other_names) {
@@ -316,14 +276,14 @@ pub async fn serve(
              enforced by name, so no service may use the file under another of them"
         );
     }
-    let queue = Queue::open(&cfg.database)
+    let store = Store::open(&cfg.database)
         .await?
         .max_attempts(cfg.max_attempts);
     let local_count = local_worker_count(&cfg);
     // Unique to this run (host, pid, a random salt): no other worker's name starts with it
     // unless copied from this service's `/workers`.
     let local_prefix = format!("{}-local", tessera_worker::default_name());
-    let requeued = queue
+    let requeued = store
         .forget_local_workers((local_count > 0).then_some(local_prefix.as_str()))
         .await?;
     if requeued > 0 {
@@ -332,7 +292,7 @@ pub async fn serve(
              requeued (they ended with it)"
         );
     }
-    let extended = queue.extend_leases(now_ms(), cfg.lease_ms).await?;
+    let extended = store.extend_leases(now_ms(), cfg.lease_ms).await?;
     if extended > 0 {
         info!(
             "{extended} leases from before the restart extended by {} ms",
@@ -343,20 +303,19 @@ pub async fn serve(
     let receiving = receiving::Receiving::new(cfg.receiving_bytes(), cfg.max_scene_texture_pixels);
     let state = AppState {
         cfg: Arc::new(cfg),
-        queue: queue.clone(),
-        roster: Arc::default(),
+        store: store.clone(),
         work: Arc::default(),
         ended: Arc::default(),
         progress: Arc::default(),
         receiving,
         stopping: stop_rx.clone(),
     };
-    match queue.sweep_spool().await {
+    match store.sweep_spool().await {
         Ok(0) => {}
         Ok(n) => info!("{n} spool files of ended jobs removed"),
         Err(e) => warn!("sweeping the tile spool: {e}"),
     }
-    for job in queue.unassembled().await? {
+    for job in store.unassembled().await? {
         info!(job = %job, "all tiles were in before the restart: assembling");
         state.spawn_assembly(job);
     }
@@ -522,7 +481,7 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
         last = std::time::Instant::now();
         // So with storage that failed within half a lease (a full disk): the renewals and
         // results of workers may have been refused meanwhile. Those refused are noted
-        // (`Queue::heard_refused`); a worker at work renews each lease every third of one,
+        // (`Store::heard_refused`); a worker at work renews each lease every third of one,
         // and retries a refused result at most 3 s apart (its back-off's cap, with jitter),
         // so one heard from within a lease, and never less than 5 s, is alive.
         let window = Duration::from_millis(state.cfg.lease_ms / 2) + every;
@@ -530,7 +489,7 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
         // The pause first: it heard no one, so every lease is extended, whatever failed.
         if paused > window {
             match state
-                .queue
+                .store
                 .extend_leases(now_ms(), state.cfg.lease_ms)
                 .await
             {
@@ -538,15 +497,18 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                     "the service did not run for {:.1} s: {n} leases extended, none reaped",
                     paused.as_secs_f64()
                 ),
-                Err(e) => warn!("extending leases after a pause: {}", state.queue.noted(e)),
+                Err(e) => warn!(
+                    "extending leases after a pause: {}",
+                    state.store.noted(e, now_ms())
+                ),
             }
             continue;
         }
-        let reaped = if state.queue.storage_failed_within(window) {
+        let reaped = if state.store.storage_failed_within(now_ms(), window) {
             // The leases of workers heard from are extended, the others reaped (the rest
             // of the pass goes on). Said once an episode.
             let pass = state
-                .queue
+                .store
                 .reap_unheard(
                     now_ms(),
                     state.cfg.lease_ms,
@@ -573,9 +535,9 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
             }
             // `reap_unheard` forgets the leases refused too long ago; here, with nothing
             // refused lately, the record is only kept small.
-            state.queue.forget_unheard(heard_within);
+            state.store.forget_unheard(now_ms(), heard_within);
             state
-                .queue
+                .store
                 .reap(now_ms(), state.cfg.max_attempts, state.keep_away())
                 .await
         };
@@ -587,19 +549,19 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                 // A tile out of attempts fails its job.
                 state.ended.notify_waiters();
             }
-            Err(e) => warn!("reaping expired leases: {}", state.queue.noted(e)),
+            Err(e) => warn!("reaping expired leases: {}", state.store.noted(e, now_ms())),
         }
         // The spool files of jobs that ended without an image (cancelled, failed, deleted).
         if swept.elapsed() >= SWEEP_EVERY {
             swept = std::time::Instant::now();
-            if let Err(e) = state.queue.sweep_spool().await {
+            if let Err(e) = state.store.sweep_spool().await {
                 warn!("sweeping the tile spool: {e}");
             }
         }
         // Jobs that ended without an image (cancelled, failed) are no longer followed.
         let followed = state.progress.followed();
         if !followed.is_empty() {
-            match state.queue.active_jobs().await {
+            match state.store.active_jobs().await {
                 Ok(active) => followed
                     .iter()
                     .filter(|id| !active.contains(id))
@@ -607,8 +569,16 @@ async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                 Err(e) => warn!("listing active jobs: {e}"),
             }
         }
-        let live = state.live_workers();
-        match state.queue.fail_unservable(&live, now_ms()).await {
+        // Workers heard from within a lease period (plus slack for idle polling).
+        let live_since = now_ms() - state.cfg.lease_ms as i64 - 5_000;
+        let live = match state.store.live_workers(live_since).await {
+            Ok(live) => live,
+            Err(e) => {
+                warn!("listing live workers: {e}");
+                continue;
+            }
+        };
+        match state.store.fail_unservable(&live, now_ms()).await {
             Ok(0) => {}
             Ok(n) => {
                 warn!("{n} jobs failed: every live worker is kept away from them");

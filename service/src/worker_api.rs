@@ -17,7 +17,7 @@ use tessera_worker::protocol::{
 };
 
 use crate::error::{ApiError, ok_json};
-use crate::queue::{Completion, STORAGE_PAUSE};
+use crate::store::{Completion, JobState, STORAGE_PAUSE};
 use crate::{AppState, now_ms};
 
 /// `POST /worker/claim?wait_ms=N`: with no work at hand, wait up to `N` ms (at most 10 s)
@@ -79,7 +79,7 @@ async fn claim_now(
 ) -> Result<Option<Claim>, ApiError> {
     // No work while results cannot be stored: it would be rendered for nothing. A claim
     // riding on a result just brings none (the result itself was stored).
-    if let Some(why) = state.queue.storage_trouble(STORAGE_PAUSE) {
+    if let Some(why) = state.store.storage_trouble(now_ms(), STORAGE_PAUSE) {
         if with_result {
             return Ok(None);
         }
@@ -90,12 +90,12 @@ async fn claim_now(
         .retry_after(STORAGE_PAUSE.as_secs() as u32));
     }
     let claimed = state
-        .queue
+        .store
         .claim(worker, now_ms(), state.cfg.lease_ms, state.cfg.max_attempts)
         .await
-        .map_err(|e| state.queue.noted(e))?;
+        .map_err(|e| state.store.noted(e, now_ms()))?;
     let n = u64::from(claimed.is_some());
-    state.seen(worker, |w| {
+    state.store.seen(worker, now_ms(), |w| {
         w.claims += n;
         if with_result {
             w.claims_with_results += n;
@@ -109,11 +109,11 @@ pub async fn job(
     Path(id): Path<String>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let (job_state, spec) = state
-        .queue
+        .store
         .job_scene(&id)
         .await?
         .ok_or_else(|| ApiError::no_job(&id))?;
-    if !matches!(job_state.as_str(), "queued" | "running") {
+    if !job_state.is_active() {
         return Err(ApiError::new(
             StatusCode::GONE,
             format!("job `{id}` is {job_state}"),
@@ -127,7 +127,7 @@ pub async fn asset(
     Path((id, name)): Path<(String, String)>,
 ) -> Result<Vec<u8>, ApiError> {
     state
-        .queue
+        .store
         .asset(&id, &name)
         .await?
         .ok_or_else(|| ApiError::not_found(format_args!("asset `{name}` in job `{id}`")))
@@ -137,7 +137,7 @@ pub async fn asset(
 #[derive(Debug, Deserialize)]
 pub struct RenewParams {
     pub lease: String,
-    /// The worker is rendering the tile, not holding it ahead (see `Queue::reap`).
+    /// The worker is rendering the tile, not holding it ahead (see `Store::reap`).
     #[serde(default, deserialize_with = "crate::api::flag")]
     pub rendering: bool,
 }
@@ -148,7 +148,7 @@ pub async fn renew(
     Query(q): Query<RenewParams>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     match state
-        .queue
+        .store
         .renew(
             &id,
             idx,
@@ -158,10 +158,10 @@ pub async fn renew(
             q.rendering,
         )
         .await
-        .map_err(|e| state.queue.heard_refused(&q.lease, e))?
+        .map_err(|e| state.store.heard_refused(&q.lease, e, now_ms()))?
     {
         Some(worker) => {
-            state.seen(&worker, |_| {});
+            state.store.seen(&worker, now_ms(), |_| {});
             Ok(ok_json(Renewed {
                 lease_ms: state.cfg.lease_ms,
             }))
@@ -192,11 +192,14 @@ pub async fn result(
     let next_for = q.next.as_deref().map(worker_name).transpose()?;
     let (rect, rgb) = split_tile(&body)
         .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
-    let completed = state.queue.complete(&id, idx, &q.lease, rect, rgb).await;
-    let repeat = match completed.map_err(|e| state.queue.heard_refused(&q.lease, e))? {
+    let completed = state
+        .store
+        .complete(&id, idx, &q.lease, rect, rgb, now_ms())
+        .await;
+    let repeat = match completed.map_err(|e| state.store.heard_refused(&q.lease, e, now_ms()))? {
         Completion::Stored { last, worker } => {
             if let Some(worker) = &worker {
-                state.seen(worker, |w| w.tiles_done += 1);
+                state.store.seen(worker, now_ms(), |w| w.tiles_done += 1);
             }
             if last {
                 state.spawn_assembly(id);
@@ -252,7 +255,7 @@ pub async fn fail(
     let worker = worker_name(&req.worker)?;
     let reason: String = req.reason.chars().take(1000).collect();
     let ok = state
-        .queue
+        .store
         .fail_tile(
             &id,
             idx,
@@ -270,10 +273,10 @@ pub async fn fail(
         // and the answer says so (it said `requeued` either way).
         state.ended.notify_waiters();
         let job_failed = state
-            .queue
+            .store
             .job(&id)
             .await?
-            .is_some_and(|j| j.state == "failed");
+            .is_some_and(|j| j.state == JobState::Failed);
         Ok(ok_json(
             serde_json::json!({ "requeued": !job_failed, "job_failed": job_failed }),
         ))
@@ -287,7 +290,7 @@ pub async fn release(
     Path((id, idx)): Path<(String, u32)>,
     Query(q): Query<LeaseParam>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
-    if state.queue.release(&id, idx, &q.lease).await? {
+    if state.store.release(&id, idx, &q.lease).await? {
         state.work.notify_waiters();
         Ok(ok_json(serde_json::json!({ "requeued": true })))
     } else {

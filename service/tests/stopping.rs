@@ -9,8 +9,8 @@ use axum::extract::{Json, Path, Query, State};
 use axum::http::StatusCode;
 use axum::response::IntoResponse;
 use tessera_service::api::{JobParams, get_job, submit};
-use tessera_service::queue::{NewJob, Queue};
 use tessera_service::receiving::Receiving;
+use tessera_service::store::{NewJob, Store};
 use tessera_service::worker_api::{ClaimParams, claim};
 use tessera_service::{AppState, Config};
 use tessera_tracer::tiles;
@@ -25,10 +25,9 @@ async fn state_with(cfg: Config, stopping: watch::Receiver<bool>) -> AppState {
     AppState {
         receiving: Receiving::new(cfg.receiving_bytes(), cfg.max_scene_texture_pixels),
         cfg: Arc::new(cfg),
-        queue: Queue::open("sqlite::memory:")
+        store: Store::open("sqlite::memory:")
             .await
             .expect("in-memory queue"),
-        roster: Arc::default(),
         work: Arc::default(),
         ended: Arc::default(),
         progress: Arc::default(),
@@ -100,7 +99,7 @@ async fn a_waiting_job_request_answers_when_the_service_stops() {
         priority: 0,
     };
     state
-        .queue
+        .store
         .insert_job(&job, &rects, &[])
         .await
         .expect("job");
