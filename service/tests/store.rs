@@ -1,4 +1,4 @@
-//! The queue's guarantees, against real SQLite files: atomic claims under contention, lease
+//! The store's guarantees, against real SQLite files: atomic claims under contention, lease
 //! fencing, harmless repeats, bounded failures, keep-away, expiry.
 
 use std::collections::HashSet;
@@ -284,8 +284,8 @@ async fn failing_tiles_move_to_other_workers_then_fail_the_job() {
 
 /// A worker's two leases (the tile it renders, the one it holds ahead) run out a renewal
 /// period apart and are reaped in two passes: still one stall, one strike, and only the
-/// first tile charged. Counted twice, a lone worker was kept away and its job failed, and
-/// the held tile, never begun, ran out of attempts with the next worker's loss.
+/// first tile charged. Counted twice, a lone worker would be kept away and its job failed,
+/// and the held tile, never begun, would run out of attempts with the next worker's loss.
 #[tokio::test]
 async fn a_stall_reaped_in_two_passes_is_one_strike_and_one_failure() {
     let db = Db::new("stall-passes");
@@ -367,9 +367,9 @@ async fn failures(db: &Db, job: &str) -> Vec<i64> {
 }
 
 /// A worker of two threads stalls holding four tiles: the two it said it was rendering
-/// are charged a failure each, the two it held ahead none, and the worker one strike. (Only
-/// the first to run out was charged: a tile that crashes workers of many threads went
-/// uncharged most of the time.)
+/// are charged a failure each, the two it held ahead none, and the worker one strike.
+/// (Charging only the first to run out would leave a tile that crashes workers of many
+/// threads uncharged most of the time.)
 #[tokio::test]
 async fn a_stall_charges_the_tiles_being_rendered() {
     let db = Db::new("stall-threads");
@@ -487,8 +487,8 @@ async fn a_job_no_live_worker_may_take_fails() {
 }
 
 /// A job whose every tile is stored is not cancelled: its image is being written, and the
-/// worker that posted the last tile was told it was stored. (A cancel racing the last
-/// result ended such a job "cancelled" with all its tiles done and no image.)
+/// worker that posted the last tile was told it was stored. (Else a cancel racing the last
+/// result would end such a job "cancelled" with all its tiles done and no image.)
 #[tokio::test]
 async fn a_job_with_every_tile_in_is_not_cancelled() {
     let db = Db::new("complete");
@@ -630,8 +630,8 @@ async fn a_band_reads_back_its_stored_tiles_left_to_right() {
 }
 
 /// Image chunks past the threshold start a checkpoint off the writer, which copies the
-/// pages committed before it from the WAL into the database file. (Tile pixels no longer
-/// pass through SQLite: see the spool tests below.)
+/// pages committed before it from the WAL into the database file. (Tile pixels of a
+/// database file do not pass through SQLite: see the spool tests below.)
 #[tokio::test]
 async fn stored_bytes_past_the_threshold_are_checkpointed_in_the_background() {
     let db = Db::new("checkpoint");
@@ -872,8 +872,8 @@ async fn ended_jobs_spool_files_are_swept() {
     assert!(!dir.join("b.rgb").exists() && !dir.join("gone.rgb").exists());
 }
 
-/// A submission's scene and textures count towards the next checkpoint as tile pixels do:
-/// a few 64 MiB submissions left the WAL at 200 MB.
+/// A submission's scene and textures count towards the next checkpoint as tile pixels do,
+/// so that large submissions cannot grow the WAL unchecked.
 #[tokio::test]
 async fn a_large_submission_is_checkpointed_in_the_background() {
     let db = Db::new("checkpoint-scene");
@@ -1110,8 +1110,8 @@ async fn the_write_probe_fails_while_writes_cannot_happen() {
 
 /// A database from before migration 0008, whose jobs hold their scenes in the `jobs` row,
 /// opens with its scenes moved to `job_scenes`: a worker still gets each job's scene, and the
-/// listing reads rows without one (a 10 MB scene made each listed job walk its overflow
-/// pages to reach the columns after it).
+/// listing reads rows without one (a large scene in the row makes each listed job walk its
+/// overflow pages to reach the columns after it).
 #[tokio::test]
 async fn scenes_move_out_of_the_jobs_rows_when_an_older_database_opens() {
     use sqlx::sqlite::{SqliteConnectOptions, SqlitePoolOptions};
@@ -1196,10 +1196,10 @@ async fn claims_serve_the_highest_priority_first_then_the_oldest() {
 
 /// A job's first claim marks it running in the claim's own statement: a claim whose job
 /// could not be marked (here a trigger refuses the write, as a full disk would) stores no
-/// lease at all, and the tile is the next claim's, as if the failed one never happened. (The
-/// job was marked in a second statement after the claim had committed: the failed claim's
-/// lease stayed stored, its tile sat leased to a worker that never got it, and the job stayed
-/// `queued` with no start time while its tiles were rendered.)
+/// lease at all, and the tile is the next claim's, as if the failed one never happened. (A
+/// second statement marking the job after the claim had committed would leave the failed
+/// claim's lease stored, its tile leased to a worker that never got it, and the job `queued`
+/// with no start time while its tiles were rendered.)
 #[tokio::test]
 async fn a_claim_and_its_jobs_start_are_one_write() {
     let db = Db::new("first-claim");
@@ -1761,8 +1761,8 @@ async fn a_tile_whose_pixels_keep_failing_to_be_written_fails_its_job() {
 
 /// While the storage fails, the reaper gives a fresh lease to the tiles whose workers were
 /// heard from (a renewal or a result under the lease was refused) and reaps the others as
-/// ever: a worker that died meanwhile says nothing. Extending every lease, as it
-/// did, kept a dead worker's tile for as long as failures kept coming.
+/// ever: a worker that died meanwhile says nothing. Extending every lease would keep a dead
+/// worker's tile for as long as failures kept coming.
 #[tokio::test]
 async fn while_the_storage_fails_the_leases_of_silent_workers_are_reaped() {
     let db = Db::new("unheard");

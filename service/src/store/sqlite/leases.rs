@@ -14,9 +14,9 @@ use crate::store::types::{Completion, KeepAway, TileInfo};
 /// The claim: the first queued tile (by index) of the first active job (by priority, then
 /// submission) that has one the worker may take. Its job is found through `jobs_to_claim`
 /// (migration 0009), which holds only the active jobs, in that order, so the walk stops at
-/// the first job that qualifies. Named, because SQLite's planner preferred `jobs_by_state`
-/// and then sorted every active job, checking each for a tile, on every claim. The claim
-/// stamps `claimed_at` with the queue's clock, which the `job_started` trigger (migration
+/// the first job that qualifies. Named, because SQLite's planner would prefer
+/// `jobs_by_state` and then sort every active job, checking each for a tile, on every
+/// claim. The claim stamps `claimed_at` with the caller's `now`, which the `job_started` trigger (migration
 /// 0010) copies into a queued job's `started_at` as it marks the job running, inside this
 /// statement.
 pub(super) const CLAIM_SQL: &str = concat!(

@@ -13,7 +13,7 @@ use crate::store::types::NewJob;
 /// A transaction that fails on a full database (here the writer's `max_page_count`)
 /// leaves the store working once there is room again: later transactions on the writer
 /// succeed. SQLite rolls such a transaction back itself, and sqlx, still counting it,
-/// refused every later `BEGIN` on that connection, which [`Writer::lock`] replaces.
+/// would refuse every later `BEGIN` on that connection, which `Writer::lock` replaces.
 #[tokio::test]
 async fn a_transaction_that_failed_on_a_full_database_leaves_the_writer_usable() {
     let dir = std::env::temp_dir().join(format!("tessera-full-{}", std::process::id()));
@@ -92,7 +92,7 @@ async fn a_transaction_that_failed_on_a_full_database_leaves_the_writer_usable()
 }
 
 /// The claim finds its job through `jobs_to_claim` and sorts no jobs: without it, the
-/// planner found the active jobs through `jobs_by_state` and sorted them all, each
+/// planner would find the active jobs through `jobs_by_state` and sort them all, each
 /// checked for a tile the worker may take, on every claim.
 #[tokio::test]
 async fn the_claim_walks_the_active_jobs_in_order() {
@@ -131,8 +131,8 @@ async fn the_band_query_sorts_nothing() {
     assert!(!plan.iter().any(|d| d.contains("B-TREE")), "{plan:?}");
 }
 
-/// A database the queue cannot use says which and why: another scheme is refused as
-/// not SQLite (sqlx took it for a file name), and so is a SQLite URI file name; a file
+/// A database the store cannot use says which and why: another scheme is refused as
+/// not SQLite (sqlx would take it for a file name), and so is a SQLite URI file name; a file
 /// in a missing folder names the URL;
 /// a bare path is still a SQLite file.
 #[tokio::test]
