@@ -258,7 +258,7 @@ pub async fn delete_job(
                 "job `{id}` is {}: cancel it first (DELETE /jobs/{id}), then purge it",
                 job.row.state
             ))
-            .with("state", job.row.state.clone()));
+            .with("state", job.row.state));
         }
         state.store.delete(&id).await?;
         state.ended.notify_waiters();
@@ -275,7 +275,7 @@ pub async fn delete_job(
         return Err(ApiError::conflict(format!(
             "every tile of job `{id}` is in and its image is being written: it is not cancelled"
         ))
-        .with("state", job.row.state.clone()));
+        .with("state", job.row.state));
     }
     Ok(ok_json(job).into_response())
 }
@@ -307,7 +307,7 @@ pub async fn image(
             ),
         };
         return Err(ApiError::conflict(why)
-            .with("state", row.state.clone())
+            .with("state", row.state)
             .with("tiles_done", row.tiles_done)
             .with("tiles_total", row.tiles_total));
     }

@@ -22,8 +22,8 @@
 //! The only timing inside is how long to wait for the database (the writer's queue, the
 //! health probe's deadline), which tokio's timers measure.
 //!
-//! The shared values are in [`types`], the states and their text in [`state`], the error in
-//! [`error`]; none of them depends on a backend. This module knows nothing of HTTP.
+//! The shared values are in `types`, the states and their text in `state`, the error in
+//! `error`; none of them depends on a backend. This module knows nothing of HTTP.
 
 mod error;
 mod sqlite;
