@@ -1814,3 +1814,35 @@ async fn while_the_storage_fails_the_leases_of_silent_workers_are_reaped() {
         .expect("complete");
     assert!(matches!(stored, Completion::Stored { .. }), "{stored:?}");
 }
+
+/// The roster of workers seen is the database's: what one store heard is listed by
+/// another store on the same database, counts added up, by name, and only those heard
+/// from since the time asked.
+#[tokio::test]
+async fn the_roster_of_workers_is_kept_in_the_database() {
+    let db = Db::new("roster");
+    let q = open_store(&db.url()).await.expect("open");
+    q.seen("b", 1_000, |w| w.claims += 2);
+    q.seen("a", 2_000, |w| w.tiles_done += 1);
+    q.seen("b", 3_000, |w| w.claims_with_results += 1);
+    let listed = q.workers(0).await.expect("workers");
+    let names: Vec<&str> = listed.iter().map(|w| w.name.as_str()).collect();
+    assert_eq!(names, ["a", "b"]);
+    let b = &listed[1];
+    assert_eq!(
+        (b.last_seen, b.claims, b.claims_with_results),
+        (3_000, 2, 1)
+    );
+    let other = open_store(&db.url()).await.expect("open again");
+    other.seen("a", 4_000, |w| w.tiles_done += 1);
+    let listed = other.workers(0).await.expect("workers");
+    assert_eq!((listed[0].last_seen, listed[0].tiles_done), (4_000, 2));
+    assert_eq!(
+        other.live_workers(2_500).await.expect("live"),
+        ["a".to_string(), "b".to_string()]
+    );
+    assert_eq!(
+        q.live_workers(3_500).await.expect("live"),
+        ["a".to_string()]
+    );
+}
