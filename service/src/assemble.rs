@@ -18,7 +18,7 @@
 //! encoder is the tracer's, fed the same rows in the same order, so the PNG is
 //! byte-identical to `tessera-render`'s however the rows were grouped.
 //!
-//! This module does not decide when a job is complete: the queue does, and says so with the
+//! This module does not decide when a job is complete: the store does, and says so with the
 //! result that completes it.
 
 use std::collections::HashMap;
@@ -28,18 +28,17 @@ use std::sync::{Arc, Mutex, PoisonError};
 use tessera_tracer::{PngWriter, Rect, SharedBuffer};
 
 use crate::now_ms;
-use crate::queue::{Queue, QueueError};
+use crate::store::{Store, StoreError};
 
 /// The size of the PNG's chunks in the database (all but the last): what a download holds
-/// per client while the client reads. At 1 MiB (and up to a band's output past it) a client
-/// that stopped reading held the service to about 1.5 chunks of memory, 3 MB with the
-/// allocator's share: forty stalled downloads of a 22 MB PNG held 134 MB (now 22 MB).
+/// per client while the client reads, so that clients that stop reading hold the service
+/// to a small, fixed amount of memory each (about 1.5 chunks, with the allocator's share).
 pub const CHUNK: usize = 64 << 10;
 
 #[derive(Debug, thiserror::Error)]
 pub enum AssembleError {
     #[error(transparent)]
-    Queue(#[from] QueueError),
+    Store(#[from] StoreError),
     #[error("PNG encoding: {0}")]
     Png(#[from] tessera_tracer::PngError),
     #[error("tiles of rows {y}.. do not cover the image width ({covered} of {width} pixels)")]
@@ -58,7 +57,7 @@ impl AssembleError {
     pub fn requeued(&self) -> bool {
         matches!(
             self,
-            AssembleError::Queue(QueueError::Lost { .. }) | AssembleError::Unfinished
+            AssembleError::Store(StoreError::Lost { .. }) | AssembleError::Unfinished
         )
     }
 }
@@ -83,12 +82,12 @@ struct Encoder {
 impl Encoder {
     /// Starts the job's PNG, dropping any chunks of an earlier, unfinished attempt.
     async fn start(
-        queue: &Queue,
+        store: &Store,
         id: &str,
         width: u32,
         height: u32,
     ) -> Result<Self, AssembleError> {
-        queue.clear_image(id).await?;
+        store.clear_image(id).await?;
         let sink = SharedBuffer::new();
         let png = PngWriter::new(sink.clone(), width, height)?;
         Ok(Encoder {
@@ -109,9 +108,9 @@ impl Encoder {
     }
 
     /// Encodes the band of tiles whose top row is `self.y`; every tile of it must be stored.
-    async fn band(&mut self, queue: &Queue, id: &str) -> Result<(), AssembleError> {
+    async fn band(&mut self, store: &Store, id: &str) -> Result<(), AssembleError> {
         let (y, width) = (self.y, self.width);
-        let tiles = queue.band(id, y, now_ms(), &mut self.band).await?;
+        let tiles = store.band(id, y, now_ms(), &mut self.band).await?;
         // The band's height is its first tile's; the tiles must share it and lie side by
         // side from the left edge to the right one.
         let bh = tiles.first().map_or(0, |t| t.h);
@@ -132,7 +131,7 @@ impl Encoder {
         let started = std::time::Instant::now();
         self.png.write_band(bh, &pieces)?;
         self.pending.extend_from_slice(&self.sink.take());
-        self.flush(queue, id, false).await?;
+        self.flush(store, id, false).await?;
         self.y += bh;
         tracing::debug!(
             job = %id, rows = bh, y, us = started.elapsed().as_micros() as u64,
@@ -142,15 +141,15 @@ impl Encoder {
     }
 
     /// Stores the pending output's whole chunks (with `all`, the rest too).
-    async fn flush(&mut self, queue: &Queue, id: &str, all: bool) -> Result<(), AssembleError> {
-        self.total += store_chunks(queue, id, &mut self.pending, &mut self.seq, all).await?;
+    async fn flush(&mut self, store: &Store, id: &str, all: bool) -> Result<(), AssembleError> {
+        self.total += store_chunks(store, id, &mut self.pending, &mut self.seq, all).await?;
         Ok(())
     }
 
     /// Encodes every band left, completes the file and marks the job done.
-    async fn finish(mut self, queue: &Queue, id: &str) -> Result<(), AssembleError> {
+    async fn finish(mut self, store: &Store, id: &str) -> Result<(), AssembleError> {
         while !self.done() {
-            self.band(queue, id).await?;
+            self.band(store, id).await?;
         }
         let Encoder {
             png,
@@ -162,8 +161,8 @@ impl Encoder {
         } = self;
         png.finish()?;
         pending.extend_from_slice(&sink.take());
-        total += store_chunks(queue, id, &mut pending, &mut seq, true).await?;
-        if queue.finish_image(id, total, now_ms()).await? {
+        total += store_chunks(store, id, &mut pending, &mut seq, true).await?;
+        if store.finish_image(id, total, now_ms()).await? {
             tracing::info!(job = %id, bytes = total, "image assembled");
         }
         Ok(())
@@ -173,7 +172,7 @@ impl Encoder {
 /// Stores the whole [`CHUNK`]s at the front of `pending` (with `all`, the rest too) as the
 /// job's chunks from `*seq` on, in one statement, and returns how many bytes it stored.
 async fn store_chunks(
-    queue: &Queue,
+    store: &Store,
     id: &str,
     pending: &mut Vec<u8>,
     seq: &mut u32,
@@ -188,7 +187,7 @@ async fn store_chunks(
         return Ok(0);
     }
     let pieces: Vec<&[u8]> = pending[..whole].chunks(CHUNK).collect();
-    queue.put_image_chunks(id, *seq, &pieces).await?;
+    store.put_image_chunks(id, *seq, &pieces).await?;
     *seq += pieces.len() as u32;
     pending.drain(..whole);
     Ok(whole as u64)
@@ -196,13 +195,13 @@ async fn store_chunks(
 
 /// Encodes the job's whole PNG from its stored tiles, stores it, and marks the job done.
 /// Idempotent: run again after a crash, it starts over.
-pub async fn assemble(queue: &Queue, id: &str) -> Result<(), AssembleError> {
-    let job = queue.job(id).await?.ok_or(AssembleError::Vanished)?;
+pub async fn assemble(store: &Store, id: &str) -> Result<(), AssembleError> {
+    let job = store.job(id).await?.ok_or(AssembleError::Vanished)?;
     if job.tiles_done < job.tiles_total {
         return Err(AssembleError::Unfinished);
     }
-    let enc = Encoder::start(queue, id, job.width as u32, job.height as u32).await?;
-    enc.finish(queue, id).await
+    let enc = Encoder::start(store, id, job.width as u32, job.height as u32).await?;
+    enc.finish(store, id).await
 }
 
 /// One followed job: how many tiles each band still waits for, and its encoder.
@@ -302,7 +301,7 @@ impl Progress {
 
     /// Encodes the complete bands that come next in the image, if any. True when a band
     /// found tiles whose pixels were lost and queued them again (workers should be told).
-    pub async fn advance(&self, queue: &Queue, id: &str) -> bool {
+    pub async fn advance(&self, store: &Store, id: &str) -> bool {
         let Some(f) = self.get(id) else { return false };
         let mut encoder = f.encoder.lock().await;
         if f.stopped.load(Ordering::Relaxed) {
@@ -315,10 +314,10 @@ impl Progress {
                     return Ok(());
                 }
                 if encoder.is_none() {
-                    *encoder = Some(Encoder::start(queue, id, f.width, f.height).await?);
+                    *encoder = Some(Encoder::start(store, id, f.width, f.height).await?);
                 }
                 if let Some(enc) = encoder.as_mut() {
-                    enc.band(queue, id).await?;
+                    enc.band(store, id).await?;
                 }
             }
         }
@@ -337,10 +336,10 @@ impl Progress {
 
     /// The job's last tile is in: encodes what is left and marks the job done (the whole
     /// image if the job was not followed or encoding ahead failed).
-    pub async fn complete(&self, queue: &Queue, id: &str) -> Result<(), AssembleError> {
+    pub async fn complete(&self, store: &Store, id: &str) -> Result<(), AssembleError> {
         tracing::debug!(job = %id, "last tile in: finishing the image");
         let Some(f) = self.get(id) else {
-            return assemble(queue, id).await;
+            return assemble(store, id).await;
         };
         let enc = {
             let mut encoder = f.encoder.lock().await;
@@ -352,8 +351,8 @@ impl Progress {
         match enc {
             // Every tile is stored now, whatever the counts say (a tile's count may still be
             // on its way): the remaining bands are read regardless of them.
-            Some(enc) => enc.finish(queue, id).await,
-            None => assemble(queue, id).await,
+            Some(enc) => enc.finish(store, id).await,
+            None => assemble(store, id).await,
         }
     }
 }

@@ -1,9 +1,9 @@
 //! One service per database: an advisory lock on a file beside the database, taken before the
-//! service touches the queue and held for its life.
+//! service touches the store and held for its life.
 //!
-//! A second service on the same file took the first's local workers for dead (it requeued
-//! their tiles at start, and renewed nothing of theirs), and its waits and progress never
-//! heard of the first's results. Now it refuses to start, naming the lock file.
+//! A second service on the same file would take the first's local workers for dead (it
+//! requeues their tiles at start, and renews nothing of theirs), and its waits and progress
+//! would never hear of the first's results. So it refuses to start, naming the lock file.
 //!
 //! The lock is `flock` on `<database>-service.lock`, which the kernel releases when the
 //! process ends however it ends (SIGKILL, out of memory): a service that was killed never
@@ -100,8 +100,8 @@ impl DbLock {
 }
 
 /// The path of the file itself, through symbolic links and `..`, so that every name of one
-/// database takes one lock (a link to the file took a lock of its own, and a second service
-/// started beside the first); for a database not created yet, its folder's real path and
+/// database takes one lock (else a link to the file would take a lock of its own, and a
+/// second service would start beside the first); for a database not created yet, its folder's real path and
 /// its name. As written where even the folder cannot be resolved (opening the lock then
 /// says why). Hard links are other paths to the same file and are not recognised (the
 /// service warns when the file has more than one).
@@ -121,7 +121,7 @@ fn real_path(database: PathBuf) -> PathBuf {
 
 /// The file a `--database` value names, as sqlx will open it; `None` in memory or unparsable.
 fn database_file(url: &str) -> Option<PathBuf> {
-    if !crate::queue::is_sqlite(url) || url.contains(":memory:") || url.contains("mode=memory") {
+    if !crate::store::is_sqlite(url) || url.contains(":memory:") || url.contains("mode=memory") {
         return None;
     }
     let opts = SqliteConnectOptions::from_str(url).ok()?;

@@ -11,7 +11,7 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use serde_json::{Map, Value, json};
 
-use crate::queue::QueueError;
+use crate::store::StoreError;
 
 /// An answer other than success: a status and a JSON body with at least `error`.
 #[derive(Debug)]
@@ -70,9 +70,9 @@ impl ApiError {
     }
 }
 
-impl From<QueueError> for ApiError {
-    fn from(e: QueueError) -> ApiError {
-        let busy = matches!(&e, QueueError::Db(sqlx::Error::PoolTimedOut))
+impl From<StoreError> for ApiError {
+    fn from(e: StoreError) -> ApiError {
+        let busy = matches!(&e, StoreError::Db(sqlx::Error::PoolTimedOut))
             || e.to_string().contains("database is locked");
         tracing::error!("storage error: {e}");
         if e.is_storage() {

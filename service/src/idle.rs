@@ -3,8 +3,8 @@
 //! Without it a client that sends half a request's headers, or a large body's first
 //! megabytes, and then nothing, holds its connection (and the body read so far) for ever:
 //! hyper's own header timeout needs a timer that `axum::serve` does not give it, and nothing
-//! bounds a body that stops arriving. Four such uploads held 230 MB until their clients gave
-//! up.
+//! bounds a body that stops arriving, so a few such uploads could hold hundreds of MB until
+//! their clients give up.
 //!
 //! **What it is.** A [`Listener`] whose sockets fail a pending read with `TimedOut` once no
 //! byte has moved either way for `idle`. Any byte read or written restarts the clock, so a
@@ -49,8 +49,8 @@ impl Listener for IdleListener {
         let (stream, addr) = Listener::accept(&mut self.inner).await;
         // Without TCP_NODELAY a response written in more than one piece (a PNG streamed
         // chunk by chunk, headers before a body) waits for the client's delayed ACK before
-        // its last small segment (Nagle's algorithm): 40 ms on Linux, on a third to a half
-        // of downloads. Every write here is a whole piece of a response, so nothing is
+        // its last small segment (Nagle's algorithm), a delay of tens of ms on many
+        // downloads. Every write here is a whole piece of a response, so nothing is
         // gained by holding it back. A socket that refuses the option still works, slower.
         if let Err(e) = stream.set_nodelay(true) {
             tracing::debug!("TCP_NODELAY on a connection from {addr}: {e}");
@@ -163,8 +163,7 @@ mod tests {
     use super::*;
 
     /// An accepted socket sends each write at once: with Nagle's algorithm on, the last
-    /// small piece of a PNG streamed chunk by chunk waited for the client's delayed ACK
-    /// (40 ms on a third to a half of downloads, seen with Python's `http.client`).
+    /// small piece of a PNG streamed chunk by chunk would wait for the client's delayed ACK.
     #[tokio::test]
     async fn accepted_connections_send_without_delay() {
         // A loopback listener on a free port: binding cannot fail on a working host.

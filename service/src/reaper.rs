@@ -41,7 +41,7 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
         last = std::time::Instant::now();
         // So with storage that failed within half a lease (a full disk): the renewals and
         // results of workers may have been refused meanwhile. Those refused are noted
-        // (`Queue::heard_refused`); a worker at work renews each lease every third of one,
+        // (`Store::heard_refused`); a worker at work renews each lease every third of one,
         // and retries a refused result at most 3 s apart (its back-off's cap, with jitter),
         // so one heard from within a lease, and never less than 5 s, is alive.
         let window = Duration::from_millis(state.cfg.lease_ms / 2) + every;
@@ -49,7 +49,7 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
         // The pause first: it heard no one, so every lease is extended, whatever failed.
         if paused > window {
             match state
-                .queue
+                .store
                 .extend_leases(now_ms(), state.cfg.lease_ms)
                 .await
             {
@@ -57,15 +57,18 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                     "the service did not run for {:.1} s: {n} leases extended, none reaped",
                     paused.as_secs_f64()
                 ),
-                Err(e) => warn!("extending leases after a pause: {}", state.queue.noted(e)),
+                Err(e) => warn!(
+                    "extending leases after a pause: {}",
+                    state.store.noted(e, now_ms())
+                ),
             }
             continue;
         }
-        let reaped = if state.queue.storage_failed_within(window) {
+        let reaped = if state.store.storage_failed_within(now_ms(), window) {
             // The leases of workers heard from are extended, the others reaped (the rest
             // of the pass goes on). Said once an episode.
             let pass = state
-                .queue
+                .store
                 .reap_unheard(
                     now_ms(),
                     state.cfg.lease_ms,
@@ -92,9 +95,9 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
             }
             // `reap_unheard` forgets the leases refused too long ago; here, with nothing
             // refused lately, the record is only kept small.
-            state.queue.forget_unheard(heard_within);
+            state.store.forget_unheard(now_ms(), heard_within);
             state
-                .queue
+                .store
                 .reap(now_ms(), state.cfg.max_attempts, state.keep_away())
                 .await
         };
@@ -106,19 +109,19 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                 // A tile out of attempts fails its job.
                 state.ended.notify_waiters();
             }
-            Err(e) => warn!("reaping expired leases: {}", state.queue.noted(e)),
+            Err(e) => warn!("reaping expired leases: {}", state.store.noted(e, now_ms())),
         }
         // The spool files of jobs that ended without an image (cancelled, failed, deleted).
         if swept.elapsed() >= SWEEP_EVERY {
             swept = std::time::Instant::now();
-            if let Err(e) = state.queue.sweep_spool().await {
+            if let Err(e) = state.store.sweep_spool().await {
                 warn!("sweeping the tile spool: {e}");
             }
         }
         // Jobs that ended without an image (cancelled, failed) are no longer followed.
         let followed = state.progress.followed();
         if !followed.is_empty() {
-            match state.queue.active_jobs().await {
+            match state.store.active_jobs().await {
                 Ok(active) => followed
                     .iter()
                     .filter(|id| !active.contains(id))
@@ -126,8 +129,16 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                 Err(e) => warn!("listing active jobs: {e}"),
             }
         }
-        let live = state.live_workers();
-        match state.queue.fail_unservable(&live, now_ms()).await {
+        // Workers heard from within a lease period (plus slack for idle polling).
+        let live_since = now_ms() - state.cfg.lease_ms as i64 - 5_000;
+        let live = match state.store.live_workers(live_since).await {
+            Ok(live) => live,
+            Err(e) => {
+                warn!("listing live workers: {e}");
+                continue;
+            }
+        };
+        match state.store.fail_unservable(&live, now_ms()).await {
             Ok(0) => {}
             Ok(n) => {
                 warn!("{n} jobs failed: every live worker is kept away from them");

@@ -1,5 +1,5 @@
 //! Starting and stopping the service: the configuration's cross-checks, the database lock,
-//! opening the queue and putting it right after a restart, listening, and the graceful stop
+//! opening the store and putting it right after a restart, listening, and the graceful stop
 //! (local workers finish, open requests get [`DRAIN`] to complete).
 //!
 //! The periodic maintenance is `reaper`'s, the in-process workers `local_workers`'; this
@@ -16,19 +16,19 @@ use tracing::{info, warn};
 
 use crate::config::{self, Config};
 use crate::local_workers::{local_prefix, local_worker_count, spawn_local_workers};
-use crate::queue::{Queue, QueueError};
 use crate::reaper::reaper;
 use crate::routes::router;
 use crate::state::AppState;
+use crate::store::{Store, StoreError};
 use crate::tiling::{MAX_TILE, MIN_TILE};
 use crate::{db_lock, idle, now_ms, receiving};
 
 /// Why the service could not start or run.
 #[derive(Debug, thiserror::Error)]
 pub enum ServiceError {
-    /// The queue could not be opened or put right after a restart.
+    /// The store could not be opened or put right after a restart.
     #[error(transparent)]
-    Queue(#[from] QueueError),
+    Store(#[from] StoreError),
     /// The listening address could not be bound.
     #[error("cannot listen on {addr}: {source}")]
     Bind {
@@ -72,7 +72,7 @@ pub async fn serve(
 ) -> Result<(), ServiceError> {
     let addr = listener.local_addr()?;
     check(&cfg, addr)?;
-    // Before anything touches the queue: a second service's start would requeue the first's
+    // Before anything touches the store: a second service's start would requeue the first's
     // local workers' tiles (see `db_lock`).
     let lock = db_lock::DbLock::take(&cfg.database)?;
     if let Some(names) = lock.as_ref().and_then(|l| l.other_names) {
@@ -81,12 +81,12 @@ pub async fn serve(
              enforced by name, so no service may use the file under another of them"
         );
     }
-    let queue = Queue::open(&cfg.database)
+    let store = Store::open(&cfg.database)
         .await?
         .max_attempts(cfg.max_attempts);
     let local_count = local_worker_count(&cfg);
     let local_prefix = local_prefix();
-    let requeued = queue
+    let requeued = store
         .forget_local_workers((local_count > 0).then_some(local_prefix.as_str()))
         .await?;
     if requeued > 0 {
@@ -95,7 +95,7 @@ pub async fn serve(
              requeued (they ended with it)"
         );
     }
-    let extended = queue.extend_leases(now_ms(), cfg.lease_ms).await?;
+    let extended = store.extend_leases(now_ms(), cfg.lease_ms).await?;
     if extended > 0 {
         info!(
             "{extended} leases from before the restart extended by {} ms",
@@ -106,20 +106,19 @@ pub async fn serve(
     let receiving = receiving::Receiving::new(cfg.receiving_bytes(), cfg.max_scene_texture_pixels);
     let state = AppState {
         cfg: Arc::new(cfg),
-        queue: queue.clone(),
-        roster: Arc::default(),
+        store: store.clone(),
         work: Arc::default(),
         ended: Arc::default(),
         progress: Arc::default(),
         receiving,
         stopping: stop_rx.clone(),
     };
-    match queue.sweep_spool().await {
+    match store.sweep_spool().await {
         Ok(0) => {}
         Ok(n) => info!("{n} spool files of ended jobs removed"),
         Err(e) => warn!("sweeping the tile spool: {e}"),
     }
-    for job in queue.unassembled().await? {
+    for job in store.unassembled().await? {
         info!(job = %job, "all tiles were in before the restart: assembling");
         state.spawn_assembly(job);
     }

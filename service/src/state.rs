@@ -1,45 +1,26 @@
 //! The one handle every handler shares ([`AppState`]), and the background work that a
 //! handler starts through it (encoding an image's bands, assembling its PNG).
 //!
-//! It holds no policy of its own: the queue decides, the state carries the queue, the
+//! It holds no policy of its own: the store decides, the state carries the store, the
 //! configuration and the wake-ups (`work`, `ended`, `stopping`) between requests.
 
-use std::collections::HashMap;
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::Arc;
 
-use serde::Serialize;
 use tokio::sync::watch;
 use tracing::{error, warn};
 
 use crate::config::Config;
-use crate::queue::{KeepAway, Queue};
 use crate::receiving::Receiving;
+use crate::store::{KeepAway, Store};
 use crate::{assemble, now_ms};
-
-/// What the service knows about a worker it has heard from.
-#[derive(Debug, Clone, Default, Serialize)]
-pub struct WorkerSeen {
-    /// The name the worker gives itself.
-    pub name: String,
-    /// When it was last heard from, in milliseconds since the Unix epoch.
-    pub last_seen: i64,
-    /// The tiles it claimed.
-    pub claims: u64,
-    /// Of those claims, the ones that came back with a posted result (`?next=`).
-    pub claims_with_results: u64,
-    /// The tiles it rendered whose results were stored.
-    pub tiles_done: u64,
-}
 
 /// The state every handler shares.
 #[derive(Clone)]
 pub struct AppState {
     /// The service's configuration.
     pub cfg: Arc<Config>,
-    /// The job queue: every job, tile, lease, result and image.
-    pub queue: Queue,
-    /// Workers seen since start (in memory only: informational).
-    pub roster: Arc<Mutex<HashMap<String, WorkerSeen>>>,
+    /// The job store: every job, tile, lease, result, image and worker.
+    pub store: Store,
     /// Woken whenever tiles become claimable, so that waiting claims answer at once.
     pub work: Arc<tokio::sync::Notify>,
     /// Woken whenever a job may have ended (done, failed, cancelled), so that
@@ -74,40 +55,15 @@ impl AppState {
         }
     }
 
-    /// Notes that `worker` was heard from now, and lets `f` update what is known of it.
-    pub fn seen(&self, worker: &str, f: impl FnOnce(&mut WorkerSeen)) {
-        let mut roster = self.roster.lock().unwrap_or_else(PoisonError::into_inner);
-        let entry = roster
-            .entry(worker.to_string())
-            .or_insert_with(|| WorkerSeen {
-                name: worker.to_string(),
-                ..WorkerSeen::default()
-            });
-        entry.last_seen = now_ms();
-        f(entry);
-    }
-
-    /// Workers heard from within a lease period (plus slack for idle polling).
-    pub fn live_workers(&self) -> Vec<String> {
-        let cutoff = now_ms() - self.cfg.lease_ms as i64 - 5_000;
-        self.roster
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .values()
-            .filter(|w| w.last_seen >= cutoff)
-            .map(|w| w.name.clone())
-            .collect()
-    }
-
     /// A tile of `job` other than its last is stored: encodes, in the background, the bands
     /// of the image that this completed.
     pub fn tile_stored(&self, job: String, tile: tessera_tracer::Rect) {
         if self.progress.stored(&job, tile) {
-            let queue = self.queue.clone();
+            let store = self.store.clone();
             let progress = self.progress.clone();
             let (work, ended) = (self.work.clone(), self.ended.clone());
             tokio::spawn(async move {
-                if progress.advance(&queue, &job).await {
+                if progress.advance(&store, &job).await {
                     // Tiles to render again; or, lost too often, the job failed.
                     work.notify_waiters();
                     ended.notify_waiters();
@@ -118,12 +74,12 @@ impl AppState {
 
     /// Assembles a job's PNG in the background once its last tile is in.
     pub fn spawn_assembly(&self, job: String) {
-        let queue = self.queue.clone();
+        let store = self.store.clone();
         let ended = self.ended.clone();
         let progress = self.progress.clone();
         let work = self.work.clone();
         tokio::spawn(async move {
-            if let Err(e) = progress.complete(&queue, &job).await {
+            if let Err(e) = progress.complete(&store, &job).await {
                 if e.requeued() {
                     // Not a failure of the assembly: the lost tiles are queued again, and
                     // their last result assembles the image anew (unless, lost too often,
@@ -134,7 +90,7 @@ impl AppState {
                     return;
                 }
                 error!(job = %job, "assembling the image failed: {e}");
-                let _ = queue
+                let _ = store
                     .fail_job(&job, &format!("assembling the image failed: {e}"), now_ms())
                     .await;
             }

@@ -11,9 +11,9 @@ use tessera_tracer::{MemoryAssets, Scene, SceneError, Texture, parse, tiles};
 use crate::error::ApiError;
 use crate::now_ms;
 use crate::params::SubmitParams;
-use crate::queue::NewJob;
 use crate::receiving::{Full, Held, Receiving};
 use crate::state::AppState;
+use crate::store::NewJob;
 use crate::tiling::{job_tile, tile_rays_per_pixel};
 use crate::upload::{Uploads, try_again_shortly};
 

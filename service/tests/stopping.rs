@@ -9,7 +9,7 @@ use axum::extract::{Json, Path, Query, State};
 use axum::http::StatusCode;
 use axum::response::IntoResponse;
 use tessera_protocol::ClaimRequest;
-use tessera_service::queue::{NewJob, Queue};
+use tessera_service::store::{NewJob, Store};
 use tessera_service::{
     AppState, ClaimParams, Config, JobParams, Receiving, claim, get_job, submit,
 };
@@ -24,10 +24,9 @@ async fn state_with(cfg: Config, stopping: watch::Receiver<bool>) -> AppState {
     AppState {
         receiving: Receiving::new(cfg.receiving_bytes(), cfg.max_scene_texture_pixels),
         cfg: Arc::new(cfg),
-        queue: Queue::open("sqlite::memory:")
+        store: Store::open("sqlite::memory:")
             .await
             .expect("in-memory queue"),
-        roster: Arc::default(),
         work: Arc::default(),
         ended: Arc::default(),
         progress: Arc::default(),
@@ -99,7 +98,7 @@ async fn a_waiting_job_request_answers_when_the_service_stops() {
         priority: 0,
     };
     state
-        .queue
+        .store
         .insert_job(&job, &rects, &[])
         .await
         .expect("job");

@@ -9,6 +9,7 @@ use axum::response::{IntoResponse, Response};
 use crate::error::ApiError;
 use crate::params::NoParams;
 use crate::state::AppState;
+use crate::store::JobState;
 
 /// The finished PNG, streamed from the database chunk by chunk.
 pub async fn image(
@@ -17,34 +18,34 @@ pub async fn image(
     Query(NoParams {}): Query<NoParams>,
 ) -> Result<Response, ApiError> {
     let row = state
-        .queue
+        .store
         .job(&id)
         .await?
         .ok_or_else(|| ApiError::no_job(&id))?;
-    if row.state != "done" {
-        let why = match row.state.as_str() {
-            "failed" => format!("job failed: {}", row.error.clone().unwrap_or_default()),
-            "cancelled" => "job was cancelled; it has no image".to_string(),
+    if row.state != JobState::Done {
+        let why = match row.state {
+            JobState::Failed => format!("job failed: {}", row.error.clone().unwrap_or_default()),
+            JobState::Cancelled => "job was cancelled; it has no image".to_string(),
             _ => format!(
                 "job is {}: {} of {} tiles done",
                 row.state, row.tiles_done, row.tiles_total
             ),
         };
         return Err(ApiError::conflict(why)
-            .with("state", row.state.clone())
+            .with("state", row.state)
             .with("tiles_done", row.tiles_done)
             .with("tiles_total", row.tiles_total));
     }
-    let chunks = state.queue.image_chunks(&id).await?;
-    let queue = state.queue.clone();
+    let chunks = state.store.image_chunks(&id).await?;
+    let store = state.store.clone();
     let stream = futures_util::stream::unfold(0u32, move |seq| {
-        let queue = queue.clone();
+        let store = store.clone();
         let id = id.clone();
         async move {
             if seq >= chunks {
                 return None;
             }
-            let item = match queue.image_chunk(&id, seq).await {
+            let item = match store.image_chunk(&id, seq).await {
                 Ok(Some(bytes)) => Ok(Bytes::from(bytes)),
                 Ok(None) => Err(std::io::Error::other("image chunk missing")),
                 Err(e) => Err(std::io::Error::other(e.to_string())),

@@ -19,8 +19,8 @@ use crate::params::{
     DeleteParams, JobParams, ListParams, MAX_JOB_WAIT_SECS, MAX_JOBS_LISTED, MAX_PRIORITY,
     MIN_PRIORITY, SubmitParams, bad_query,
 };
-use crate::queue::{Cancel, JobRow, STORAGE_PAUSE};
 use crate::state::AppState;
+use crate::store::{Cancel, JobRow, JobState, STORAGE_PAUSE};
 use crate::tiling::{MAX_TILE, MIN_TILE};
 use crate::upload::{non_utf8_param, read_submission};
 use crate::validate::{scene_source, validate};
@@ -60,14 +60,18 @@ impl From<JobRow> for JobView {
 impl JobView {
     /// The job as the API shows it, with the service's state: one with tiles still to
     /// render says so while the farm is paused for storage
-    /// ([`Queue::storage_trouble`](crate::queue::Queue::storage_trouble)), which otherwise
+    /// ([`Store::storage_trouble`](crate::store::Store::storage_trouble)), which otherwise
     /// only `/healthz` told. The reason is given in general terms: the failed write's own
     /// message names another job's spool file.
     fn of(state: &AppState, row: JobRow) -> JobView {
-        let waiting =
-            matches!(row.state.as_str(), "queued" | "running") && row.tiles_done < row.tiles_total;
+        let waiting = row.state.is_active() && row.tiles_done < row.tiles_total;
         let mut view = JobView::from(row);
-        if waiting && state.queue.storage_trouble(STORAGE_PAUSE).is_some() {
+        if waiting
+            && state
+                .store
+                .storage_trouble(now_ms(), STORAGE_PAUSE)
+                .is_some()
+        {
             view.paused = Some(
                 "the service has no room to store tile pixels now (a full disk, or no file \
                  descriptors to spare): tiles are handed out again once it has"
@@ -90,7 +94,7 @@ pub async fn list_jobs(
         )));
     }
     let before = params.before.as_deref();
-    let rows = state.queue.jobs(limit, before).await?.ok_or_else(|| {
+    let rows = state.store.jobs(limit, before).await?.ok_or_else(|| {
         ApiError::not_found(format_args!(
             "job `{}` to list before",
             before.unwrap_or("")
@@ -130,13 +134,13 @@ pub async fn get_job(
         tokio::pin!(ended);
         ended.as_mut().enable();
         let row = state
-            .queue
+            .store
             .job(&id)
             .await?
             .ok_or_else(|| ApiError::no_job(&id))?;
         let now = tokio::time::Instant::now();
         let stopping = *state.stopping.borrow();
-        if !matches!(row.state.as_str(), "queued" | "running") || now >= deadline || stopping {
+        if !row.state.is_active() || now >= deadline || stopping {
             return Ok(ok_json(JobView::of(&state, row)));
         }
         tokio::select! {
@@ -162,30 +166,30 @@ pub async fn delete_job(
 ) -> Result<Response, ApiError> {
     let view = |row: Option<JobRow>| row.map(JobView::from).ok_or_else(|| ApiError::no_job(&id));
     if params.purge {
-        let job = view(state.queue.job(&id).await?)?;
-        if matches!(job.row.state.as_str(), "queued" | "running") {
+        let job = view(state.store.job(&id).await?)?;
+        if job.row.state.is_active() {
             return Err(ApiError::conflict(format!(
                 "job `{id}` is {}: cancel it first (DELETE /jobs/{id}), then purge it",
                 job.row.state
             ))
-            .with("state", job.row.state.clone()));
+            .with("state", job.row.state));
         }
-        state.queue.delete(&id).await?;
+        state.store.delete(&id).await?;
         state.ended.notify_waiters();
         return Ok(StatusCode::NO_CONTENT.into_response());
     }
-    let outcome = state.queue.cancel(&id, now_ms()).await?;
+    let outcome = state.store.cancel(&id, now_ms()).await?;
     // Waiting requests look again now.
     state.ended.notify_waiters();
     if outcome == Cancel::Unknown {
         return Err(ApiError::no_job(&id));
     }
-    let job = view(state.queue.job(&id).await?)?;
-    if outcome == Cancel::Complete && job.row.state == "running" {
+    let job = view(state.store.job(&id).await?)?;
+    if outcome == Cancel::Complete && job.row.state == JobState::Running {
         return Err(ApiError::conflict(format!(
             "every tile of job `{id}` is in and its image is being written: it is not cancelled"
         ))
-        .with("state", job.row.state.clone()));
+        .with("state", job.row.state));
     }
     Ok(ok_json(job).into_response())
 }
@@ -236,7 +240,7 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     state
         .progress
         .follow(&new_job.id, new_job.width, new_job.height, &rects);
-    let row = match state.queue.insert_job(&new_job, &rects, &assets).await {
+    let row = match state.store.insert_job(&new_job, &rects, &assets).await {
         Ok(row) => row,
         Err(e) => {
             state.progress.forget(&new_job.id);

@@ -10,8 +10,8 @@ use serde_json::{Value, json};
 
 use crate::error::ApiError;
 use crate::now_ms;
-use crate::queue::STORAGE_PAUSE;
 use crate::state::AppState;
+use crate::store::STORAGE_PAUSE;
 
 /// The web page, told this service's body limit (`--max-body-bytes`) so that it can refuse a
 /// scene and textures too large to send before sending them: the service answers `413` from
@@ -28,14 +28,14 @@ pub async fn page(State(state): State<AppState>) -> Html<String> {
 /// [`HEALTH_WRITE_WITHIN`]), `503` naming what failed otherwise, so that a full disk, which
 /// fails every submission and result, shows here.
 pub async fn healthz(State(state): State<AppState>) -> Result<Json<Value>, ApiError> {
-    state.queue.ping().await?;
-    if let Some(why) = state.queue.storage_trouble(STORAGE_PAUSE) {
+    state.store.ping().await?;
+    if let Some(why) = state.store.storage_trouble(now_ms(), STORAGE_PAUSE) {
         return Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,
             format!("the tile spool failed to store a tile's pixels: {why}"),
         ));
     }
-    if let Err(e) = state.queue.probe_write(now_ms(), HEALTH_WRITE_WITHIN).await {
+    if let Err(e) = state.store.probe_write(now_ms(), HEALTH_WRITE_WITHIN).await {
         tracing::error!("health check: {e}");
         return Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,

@@ -21,22 +21,13 @@ use tessera_protocol::{
 use crate::error::{ApiError, ok_json};
 use crate::now_ms;
 use crate::params::flag;
-use crate::queue::{Completion, STORAGE_PAUSE};
 use crate::state::AppState;
+use crate::store::{Completion, JobState, STORAGE_PAUSE};
 
 /// Workers heard from in the last ten minutes.
-pub async fn list_workers(State(state): State<AppState>) -> Json<Value> {
+pub async fn list_workers(State(state): State<AppState>) -> Result<Json<Value>, ApiError> {
     let cutoff = now_ms() - 600_000;
-    let mut list: Vec<_> = state
-        .roster
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
-        .values()
-        .filter(|w| w.last_seen >= cutoff)
-        .cloned()
-        .collect();
-    list.sort_by(|a, b| a.name.cmp(&b.name));
-    ok_json(list)
+    Ok(ok_json(state.store.workers(cutoff).await?))
 }
 
 /// `POST /worker/claim?wait_ms=N`: with no work at hand, wait up to `N` ms (at most 10 s)
@@ -102,7 +93,7 @@ async fn claim_now(
 ) -> Result<Option<Claim>, ApiError> {
     // No work while results cannot be stored: it would be rendered for nothing. A claim
     // riding on a result just brings none (the result itself was stored).
-    if let Some(why) = state.queue.storage_trouble(STORAGE_PAUSE) {
+    if let Some(why) = state.store.storage_trouble(now_ms(), STORAGE_PAUSE) {
         if with_result {
             return Ok(None);
         }
@@ -113,12 +104,12 @@ async fn claim_now(
         .retry_after(STORAGE_PAUSE.as_secs() as u32));
     }
     let claimed = state
-        .queue
+        .store
         .claim(worker, now_ms(), state.cfg.lease_ms, state.cfg.max_attempts)
         .await
-        .map_err(|e| state.queue.noted(e))?;
+        .map_err(|e| state.store.noted(e, now_ms()))?;
     let n = u64::from(claimed.is_some());
-    state.seen(worker, |w| {
+    state.store.seen(worker, now_ms(), |w| {
         w.claims += n;
         if with_result {
             w.claims_with_results += n;
@@ -134,11 +125,11 @@ pub async fn job(
     Path(id): Path<String>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let (job_state, spec) = state
-        .queue
+        .store
         .job_scene(&id)
         .await?
         .ok_or_else(|| ApiError::no_job(&id))?;
-    if !matches!(job_state.as_str(), "queued" | "running") {
+    if !job_state.is_active() {
         return Err(ApiError::new(
             StatusCode::GONE,
             format!("job `{id}` is {job_state}"),
@@ -153,7 +144,7 @@ pub async fn asset(
     Path((id, name)): Path<(String, String)>,
 ) -> Result<Vec<u8>, ApiError> {
     state
-        .queue
+        .store
         .asset(&id, &name)
         .await?
         .ok_or_else(|| ApiError::not_found(format_args!("asset `{name}` in job `{id}`")))
@@ -163,7 +154,7 @@ pub async fn asset(
 #[derive(Debug, Deserialize)]
 pub struct RenewParams {
     pub lease: String,
-    /// The worker is rendering the tile, not holding it ahead (see `Queue::reap`).
+    /// The worker is rendering the tile, not holding it ahead (see `Store::reap`).
     #[serde(default, deserialize_with = "flag")]
     pub rendering: bool,
 }
@@ -175,7 +166,7 @@ pub async fn renew(
     Query(q): Query<RenewParams>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     match state
-        .queue
+        .store
         .renew(
             &id,
             idx,
@@ -185,10 +176,10 @@ pub async fn renew(
             q.rendering,
         )
         .await
-        .map_err(|e| state.queue.heard_refused(&q.lease, e))?
+        .map_err(|e| state.store.heard_refused(&q.lease, e, now_ms()))?
     {
         Some(worker) => {
-            state.seen(&worker, |_| {});
+            state.store.seen(&worker, now_ms(), |_| {});
             Ok(ok_json(Renewed {
                 lease_ms: state.cfg.lease_ms,
             }))
@@ -219,11 +210,14 @@ pub async fn result(
     let next_for = q.next.as_deref().map(worker_name).transpose()?;
     let (rect, rgb) = split_tile(&body)
         .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
-    let completed = state.queue.complete(&id, idx, &q.lease, rect, rgb).await;
-    let repeat = match completed.map_err(|e| state.queue.heard_refused(&q.lease, e))? {
+    let completed = state
+        .store
+        .complete(&id, idx, &q.lease, rect, rgb, now_ms())
+        .await;
+    let repeat = match completed.map_err(|e| state.store.heard_refused(&q.lease, e, now_ms()))? {
         Completion::Stored { last, worker } => {
             if let Some(worker) = &worker {
-                state.seen(worker, |w| w.tiles_done += 1);
+                state.store.seen(worker, now_ms(), |w| w.tiles_done += 1);
             }
             if last {
                 state.spawn_assembly(id);
@@ -281,7 +275,7 @@ pub async fn fail(
     let worker = worker_name(&req.worker)?;
     let reason: String = req.reason.chars().take(1000).collect();
     let ok = state
-        .queue
+        .store
         .fail_tile(
             &id,
             idx,
@@ -299,10 +293,10 @@ pub async fn fail(
         // and the answer says so.
         state.ended.notify_waiters();
         let job_failed = state
-            .queue
+            .store
             .job(&id)
             .await?
-            .is_some_and(|j| j.state == "failed");
+            .is_some_and(|j| j.state == JobState::Failed);
         Ok(ok_json(
             serde_json::json!({ "requeued": !job_failed, "job_failed": job_failed }),
         ))
@@ -318,7 +312,7 @@ pub async fn release(
     Path((id, idx)): Path<(String, u32)>,
     Query(q): Query<LeaseParam>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
-    if state.queue.release(&id, idx, &q.lease).await? {
+    if state.store.release(&id, idx, &q.lease).await? {
         state.work.notify_waiters();
         Ok(ok_json(serde_json::json!({ "requeued": true })))
     } else {

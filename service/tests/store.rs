@@ -1,12 +1,19 @@
-//! The queue's guarantees, against real SQLite files: atomic claims under contention, lease
+//! The store's guarantees, against real SQLite files: atomic claims under contention, lease
 //! fencing, harmless repeats, bounded failures, keep-away, expiry.
 
 use std::collections::HashSet;
 use std::sync::Arc;
 
-use tessera_service::queue::{Cancel, Completion, KeepAway, NewJob, Queue};
+use tessera_service::store::{Cancel, Completion, JobState, KeepAway, NewJob, Store, StoreError};
 use tessera_tracer::{Rect, tiles};
 
+/// Opens the store at `url`: every test opens its store through here, so that the same
+/// tests can run against each backend, given its URL.
+async fn open_store(url: &str) -> Result<Store, StoreError> {
+    Store::open(url).await
+}
+
+/// A folder for a test's database, removed when the test ends.
 struct Db(std::path::PathBuf);
 
 impl Db {
@@ -34,12 +41,12 @@ const KEEP: KeepAway = KeepAway {
     stall_ms: 500,
 };
 
-async fn job(q: &Queue, id: &str, w: u32, h: u32, tile: u32) -> Vec<Rect> {
+async fn job(q: &Store, id: &str, w: u32, h: u32, tile: u32) -> Vec<Rect> {
     job_at(q, id, 0, w, h, tile).await
 }
 
 /// [`job`] of a given priority.
-async fn job_at(q: &Queue, id: &str, priority: i64, w: u32, h: u32, tile: u32) -> Vec<Rect> {
+async fn job_at(q: &Store, id: &str, priority: i64, w: u32, h: u32, tile: u32) -> Vec<Rect> {
     let rects = tiles(w, h, tile);
     q.insert_job(
         &NewJob {
@@ -68,7 +75,7 @@ fn pixels(r: Rect) -> Vec<u8> {
 }
 
 /// Every tile the queue hands worker `w` now, in order (`max_attempts` as `claim` takes it).
-async fn claim_all(q: &Queue, max_attempts: u32) -> Vec<tessera_protocol::Claim> {
+async fn claim_all(q: &Store, max_attempts: u32) -> Vec<tessera_protocol::Claim> {
     let mut claims = Vec::new();
     while let Some(c) = q.claim("w", 0, 60_000, max_attempts).await.expect("claim") {
         claims.push(c);
@@ -76,8 +83,8 @@ async fn claim_all(q: &Queue, max_attempts: u32) -> Vec<tessera_protocol::Claim>
     claims
 }
 
-/// The stored tiles of the band at row `y`, as `Queue::band` hands them over.
-async fn band(q: &Queue, id: &str, y: u32) -> Vec<(u32, u32, u32, Vec<u8>)> {
+/// The stored tiles of the band at row `y`, as `Store::band` hands them over.
+async fn band(q: &Store, id: &str, y: u32) -> Vec<(u32, u32, u32, Vec<u8>)> {
     let mut buf = Vec::new();
     let tiles = q.band(id, y, 0, &mut buf).await.expect("band");
     tiles
@@ -89,7 +96,7 @@ async fn band(q: &Queue, id: &str, y: u32) -> Vec<(u32, u32, u32, Vec<u8>)> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn concurrent_claimers_never_share_a_tile() {
     let db = Db::new("claims");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     let rects = job(&q, "j", 160, 160, 8).await; // 400 tiles
     let claimed = Arc::new(std::sync::Mutex::new(Vec::new()));
     let mut tasks = Vec::new();
@@ -98,11 +105,11 @@ async fn concurrent_claimers_never_share_a_tile() {
         let url = db.url();
         let claimed = claimed.clone();
         tasks.push(tokio::spawn(async move {
-            let q = Queue::open(&url).await.expect("open");
+            let q = open_store(&url).await.expect("open");
             let name = format!("w{w}");
             while let Some(c) = q.claim(&name, 1_000, 60_000, 4).await.expect("claim") {
                 let stored = q
-                    .complete(&c.job, c.idx, &c.lease, c.rect(), &pixels(c.rect()))
+                    .complete(&c.job, c.idx, &c.lease, c.rect(), &pixels(c.rect()), 0)
                     .await
                     .expect("complete");
                 let Completion::Stored { last, worker } = stored else {
@@ -133,7 +140,7 @@ async fn concurrent_claimers_never_share_a_tile() {
 #[tokio::test]
 async fn stale_and_repeated_results_change_nothing() {
     let db = Db::new("stale");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 16, 8, 8).await;
     let first = q
         .claim("a", 0, 100, 4)
@@ -155,7 +162,7 @@ async fn stale_and_repeated_results_change_nothing() {
 
     let rgb = pixels(first.rect());
     let late = q
-        .complete("j", first.idx, &first.lease, first.rect(), &rgb)
+        .complete("j", first.idx, &first.lease, first.rect(), &rgb, 0)
         .await
         .expect("complete");
     assert!(matches!(late, Completion::Stale(_)), "{late:?}");
@@ -168,7 +175,7 @@ async fn stale_and_repeated_results_change_nothing() {
     assert_eq!(q.job("j").await.expect("read").expect("job").tiles_done, 0);
 
     let ok = q
-        .complete("j", second.idx, &second.lease, second.rect(), &rgb)
+        .complete("j", second.idx, &second.lease, second.rect(), &rgb, 0)
         .await
         .expect("complete");
     assert_eq!(
@@ -179,7 +186,7 @@ async fn stale_and_repeated_results_change_nothing() {
         }
     );
     let again = q
-        .complete("j", second.idx, &second.lease, second.rect(), &rgb)
+        .complete("j", second.idx, &second.lease, second.rect(), &rgb, 0)
         .await
         .expect("complete");
     assert_eq!(again, Completion::Repeat);
@@ -200,7 +207,7 @@ async fn stale_and_repeated_results_change_nothing() {
         .expect("the second tile");
     assert_ne!(other.idx, second.idx);
     let wrong = q
-        .complete("j", other.idx, &other.lease, second.rect(), &rgb)
+        .complete("j", other.idx, &other.lease, second.rect(), &rgb, 0)
         .await
         .expect("complete");
     assert_eq!(wrong, Completion::WrongTile(other.rect()));
@@ -212,6 +219,7 @@ async fn stale_and_repeated_results_change_nothing() {
             &other.lease,
             other.rect(),
             &pixels(other.rect()),
+            0,
         )
         .await
         .expect("complete");
@@ -224,7 +232,7 @@ async fn stale_and_repeated_results_change_nothing() {
     );
     assert_eq!(q.job("j").await.expect("read").expect("job").tiles_done, 2);
     let missing = q
-        .complete("j", 99, &other.lease, other.rect(), &rgb)
+        .complete("j", 99, &other.lease, other.rect(), &rgb, 0)
         .await
         .expect("complete");
     assert_eq!(missing, Completion::Missing);
@@ -233,7 +241,7 @@ async fn stale_and_repeated_results_change_nothing() {
 #[tokio::test]
 async fn failing_tiles_move_to_other_workers_then_fail_the_job() {
     let db = Db::new("fail");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 8, 8, 8).await; // one tile
     let max = 3;
     // Worker a fails it twice: kept away from the job.
@@ -265,7 +273,7 @@ async fn failing_tiles_move_to_other_workers_then_fail_the_job() {
             .expect("fail")
     );
     let j = q.job("j").await.expect("read").expect("job");
-    assert_eq!(j.state, "failed");
+    assert_eq!(j.state, JobState::Failed);
     let why = j.error.expect("a reason");
     assert!(
         why.contains("failed 3 times") && why.contains("disk full"),
@@ -276,12 +284,12 @@ async fn failing_tiles_move_to_other_workers_then_fail_the_job() {
 
 /// A worker's two leases (the tile it renders, the one it holds ahead) run out a renewal
 /// period apart and are reaped in two passes: still one stall, one strike, and only the
-/// first tile charged. Counted twice, a lone worker was kept away and its job failed, and
-/// the held tile, never begun, ran out of attempts with the next worker's loss.
+/// first tile charged. Counted twice, a lone worker would be kept away and its job failed,
+/// and the held tile, never begun, would run out of attempts with the next worker's loss.
 #[tokio::test]
 async fn a_stall_reaped_in_two_passes_is_one_strike_and_one_failure() {
     let db = Db::new("stall-passes");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 16, 8, 8).await; // tiles 0 and 1
     let max = 2;
     let a = q
@@ -307,7 +315,7 @@ async fn a_stall_reaped_in_two_passes_is_one_strike_and_one_failure() {
         .expect("claim")
         .expect("0");
     assert_eq!(c.idx, 0);
-    q.complete("j", c.idx, &c.lease, c.rect(), &pixels(c.rect()))
+    q.complete("j", c.idx, &c.lease, c.rect(), &pixels(c.rect()), 0)
         .await
         .expect("complete");
     let d = q
@@ -319,7 +327,7 @@ async fn a_stall_reaped_in_two_passes_is_one_strike_and_one_failure() {
     assert_eq!(q.reap(2_700, max, KEEP).await.expect("reap"), 1);
     assert_eq!(
         q.job("j").await.expect("read").expect("job").state,
-        "running"
+        JobState::Running
     );
     // And `w`, with one strike of two, may take it.
     let e = q.claim("w", 2_800, 1_000, max).await.expect("claim");
@@ -329,7 +337,7 @@ async fn a_stall_reaped_in_two_passes_is_one_strike_and_one_failure() {
     assert_eq!(q.reap(3_900, max + 1, KEEP).await.expect("reap"), 1);
     assert_eq!(
         q.job("j").await.expect("read").expect("job").state,
-        "running"
+        JobState::Running
     );
     assert!(
         q.claim("w", 4_000, 1_000, max + 1)
@@ -359,13 +367,13 @@ async fn failures(db: &Db, job: &str) -> Vec<i64> {
 }
 
 /// A worker of two threads stalls holding four tiles: the two it said it was rendering
-/// are charged a failure each, the two it held ahead none, and the worker one strike. (Only
-/// the first to run out was charged: a tile that crashes workers of many threads went
-/// uncharged most of the time.)
+/// are charged a failure each, the two it held ahead none, and the worker one strike.
+/// (Charging only the first to run out would leave a tile that crashes workers of many
+/// threads uncharged most of the time.)
 #[tokio::test]
 async fn a_stall_charges_the_tiles_being_rendered() {
     let db = Db::new("stall-threads");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 48, 8, 8).await; // tiles 0 to 5
     let max = 3;
     let mut held = Vec::new();
@@ -410,7 +418,7 @@ async fn a_stall_charges_the_tiles_being_rendered() {
 #[tokio::test]
 async fn the_rendering_flag_does_not_pass_to_the_next_holder() {
     let db = Db::new("flag-reset");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 32, 8, 8).await; // tiles 0 to 3
     let max = 4;
     let a0 = q
@@ -441,7 +449,7 @@ async fn the_rendering_flag_does_not_pass_to_the_next_holder() {
 #[tokio::test]
 async fn lost_leases_count_as_failures() {
     let db = Db::new("lost");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 8, 8, 8).await;
     let max = 2;
     for (i, w) in ["a", "b"].iter().enumerate() {
@@ -450,14 +458,14 @@ async fn lost_leases_count_as_failures() {
         assert_eq!(q.reap(now + 500, max, KEEP).await.expect("reap"), 1);
     }
     let j = q.job("j").await.expect("read").expect("job");
-    assert_eq!(j.state, "failed");
+    assert_eq!(j.state, JobState::Failed);
     assert!(j.error.unwrap_or_default().contains("stopped answering"));
 }
 
 #[tokio::test]
 async fn a_job_no_live_worker_may_take_fails() {
     let db = Db::new("unservable");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 8, 8, 8).await;
     for _ in 0..2 {
         let c = q
@@ -474,17 +482,17 @@ async fn a_job_no_live_worker_may_take_fails() {
     assert_eq!(q.fail_unservable(&live, 1).await.expect("check"), 0);
     assert_eq!(q.fail_unservable(&live[..1], 1).await.expect("check"), 1);
     let j = q.job("j").await.expect("read").expect("job");
-    assert_eq!(j.state, "failed");
+    assert_eq!(j.state, JobState::Failed);
     assert!(j.error.unwrap_or_default().contains("bad texture"));
 }
 
 /// A job whose every tile is stored is not cancelled: its image is being written, and the
-/// worker that posted the last tile was told it was stored. (A cancel racing the last
-/// result ended such a job "cancelled" with all its tiles done and no image.)
+/// worker that posted the last tile was told it was stored. (Else a cancel racing the last
+/// result would end such a job "cancelled" with all its tiles done and no image.)
 #[tokio::test]
 async fn a_job_with_every_tile_in_is_not_cancelled() {
     let db = Db::new("complete");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 16, 8, 8).await;
     for last in [false, true] {
         let c = q
@@ -493,21 +501,21 @@ async fn a_job_with_every_tile_in_is_not_cancelled() {
             .expect("claim")
             .expect("tile");
         let stored = q
-            .complete("j", c.idx, &c.lease, c.rect(), &pixels(c.rect()))
+            .complete("j", c.idx, &c.lease, c.rect(), &pixels(c.rect()), 0)
             .await
             .expect("complete");
         assert!(matches!(stored, Completion::Stored { last: l, .. } if l == last));
     }
     assert_eq!(q.cancel("j", 5).await.expect("cancel"), Cancel::Complete);
     let j = q.job("j").await.expect("read").expect("job");
-    assert_eq!(j.state, "running");
+    assert_eq!(j.state, JobState::Running);
     assert_eq!(band(&q, "j", 0).await.len(), 2, "its pixels are kept");
 }
 
 #[tokio::test]
 async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
     let db = Db::new("ended");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     // A job of two tiles stores one of them, and the first chunk of its PNG.
     let store_one = async |id: &str| {
         job(&q, id, 16, 8, 8).await;
@@ -518,7 +526,7 @@ async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
             .expect("tile");
         assert_eq!(c.job, id);
         let stored = q
-            .complete(id, c.idx, &c.lease, c.rect(), &pixels(c.rect()))
+            .complete(id, c.idx, &c.lease, c.rect(), &pixels(c.rect()), 0)
             .await
             .expect("complete");
         assert!(matches!(stored, Completion::Stored { last: false, .. }));
@@ -533,7 +541,7 @@ async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
     assert_eq!(
         q.cancel("cancelled", 5).await.expect("cancel"),
         Cancel::Cancelled {
-            from: "running".into()
+            from: JobState::Running
         }
     );
     assert!(band(&q, "cancelled", 0).await.is_empty());
@@ -558,7 +566,7 @@ async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
     );
     assert_eq!(
         q.job("failed").await.expect("read").expect("job").state,
-        "failed"
+        JobState::Failed
     );
     assert!(band(&q, "failed", 0).await.is_empty());
     assert_eq!(q.image_chunks("failed").await.expect("count"), 0);
@@ -569,7 +577,7 @@ async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
 #[tokio::test]
 async fn a_job_of_many_tiles_is_stored_as_the_tiler_cut_it() {
     let db = Db::new("many");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     // 51 × 50 = 2,550 tiles, so two full statements and part of a third; the last column
     // and the last row of tiles are 4 pixels.
     let rects = job(&q, "m", 404, 396, 8).await;
@@ -591,7 +599,7 @@ async fn a_job_of_many_tiles_is_stored_as_the_tiler_cut_it() {
 #[tokio::test]
 async fn a_band_reads_back_its_stored_tiles_left_to_right() {
     let db = Db::new("band");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     // 3 tiles across (the last 4 pixels wide), 2 bands (the last 3 rows high).
     let rects = job(&q, "b", 20, 11, 8).await;
     let claims = claim_all(&q, 1).await;
@@ -603,7 +611,7 @@ async fn a_band_reads_back_its_stored_tiles_left_to_right() {
         .filter(|c| c.rect().y == 8 || c.rect().x == 0)
     {
         let stored = q
-            .complete("b", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .complete("b", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
             .await
             .expect("complete");
         assert!(matches!(stored, Completion::Stored { .. }));
@@ -622,13 +630,13 @@ async fn a_band_reads_back_its_stored_tiles_left_to_right() {
 }
 
 /// Image chunks past the threshold start a checkpoint off the writer, which copies the
-/// pages committed before it from the WAL into the database file. (Tile pixels no longer
-/// pass through SQLite: see the spool tests below.)
+/// pages committed before it from the WAL into the database file. (Tile pixels of a
+/// database file do not pass through SQLite: see the spool tests below.)
 #[tokio::test]
 async fn stored_bytes_past_the_threshold_are_checkpointed_in_the_background() {
     let db = Db::new("checkpoint");
     const EVERY: usize = 100_000;
-    let q = Queue::open(&db.url())
+    let q = open_store(&db.url())
         .await
         .expect("open")
         .checkpoint_every(EVERY as u64);
@@ -673,7 +681,7 @@ async fn stored_bytes_past_the_threshold_are_checkpointed_in_the_background() {
         "the chunks read back"
     );
 
-    let memory = Queue::open("sqlite::memory:").await.expect("open");
+    let memory = open_store("sqlite::memory:").await.expect("open");
     assert!(memory.checkpoints().is_none());
     assert_eq!(memory.checkpoint().await.expect("no error"), None);
 }
@@ -683,7 +691,7 @@ async fn stored_bytes_past_the_threshold_are_checkpointed_in_the_background() {
 #[tokio::test]
 async fn tile_pixels_wait_in_the_spool_not_in_sqlite() {
     let db = Db::new("spool");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     let dir = q
         .spool_dir()
         .expect("a database file has a spool")
@@ -695,7 +703,7 @@ async fn tile_pixels_wait_in_the_spool_not_in_sqlite() {
     let mut last = 0;
     for c in &claims {
         match q
-            .complete("s", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .complete("s", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
             .await
             .expect("complete")
         {
@@ -744,19 +752,19 @@ async fn tile_pixels_wait_in_the_spool_not_in_sqlite() {
 #[tokio::test]
 async fn lost_pixels_send_their_tiles_back_to_the_queue() {
     let db = Db::new("spool-lost");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     let dir = q.spool_dir().expect("spool").to_path_buf();
     let rects = job(&q, "l", 40, 16, 8).await; // 5 × 2 tiles
     let claims = claim_all(&q, 1).await;
     for c in &claims {
         let stored = q
-            .complete("l", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .complete("l", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
             .await
             .expect("complete");
         assert!(matches!(stored, Completion::Stored { .. }));
     }
     // One byte of the second tile changed in the file.
-    let (at, _) = tessera_service::spool::slot(40, 16, rects[1]).expect("slot");
+    let (at, _) = tessera_service::store::spool_slot(40, 16, rects[1]).expect("slot");
     let mut bytes = std::fs::read(dir.join("l.rgb")).expect("file");
     bytes[at as usize + 5] ^= 1;
     std::fs::write(dir.join("l.rgb"), &bytes).expect("write");
@@ -779,7 +787,14 @@ async fn lost_pixels_send_their_tiles_back_to_the_queue() {
     expected[1] = 1;
     assert_eq!(failures(&db, "l").await, expected);
     let stored = q
-        .complete("l", 1, &again.lease, again.rect(), &tile_rgb(again.rect()))
+        .complete(
+            "l",
+            1,
+            &again.lease,
+            again.rect(),
+            &tile_rgb(again.rect()),
+            0,
+        )
         .await
         .expect("complete");
     assert!(matches!(stored, Completion::Stored { last: true, .. }));
@@ -787,7 +802,7 @@ async fn lost_pixels_send_their_tiles_back_to_the_queue() {
     // A deleted file (seen by a service started afresh: this one still has it open) loses
     // every tile of the band.
     std::fs::remove_file(dir.join("l.rgb")).expect("delete");
-    let q = Queue::open(&db.url()).await.expect("open again");
+    let q = open_store(&db.url()).await.expect("open again");
     assert!(q.band("l", 8, 0, &mut Vec::new()).await.is_err());
     let job = q.job("l").await.expect("job").expect("exists");
     assert_eq!(job.tiles_done, 5);
@@ -798,7 +813,7 @@ async fn lost_pixels_send_their_tiles_back_to_the_queue() {
 #[tokio::test]
 async fn a_tile_lost_again_and_again_fails_its_job() {
     let db = Db::new("spool-lost-again");
-    let q = Queue::open(&db.url()).await.expect("open").max_attempts(2);
+    let q = open_store(&db.url()).await.expect("open").max_attempts(2);
     let file = q.spool_dir().expect("spool").join("r.rgb");
     job(&q, "r", 8, 8, 8).await; // one tile
     for round in 1..=2 {
@@ -808,7 +823,7 @@ async fn a_tile_lost_again_and_again_fails_its_job() {
             .expect("claim")
             .expect("tile");
         let stored = q
-            .complete("r", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .complete("r", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
             .await
             .expect("complete");
         assert!(matches!(stored, Completion::Stored { last: true, .. }));
@@ -816,9 +831,9 @@ async fn a_tile_lost_again_and_again_fails_its_job() {
         assert!(q.band("r", 0, 0, &mut Vec::new()).await.is_err());
         let job = q.job("r").await.expect("job").expect("exists");
         if round == 1 {
-            assert_eq!(job.state, "running", "one loss is rendered again");
+            assert_eq!(job.state, JobState::Running, "one loss is rendered again");
         } else {
-            assert_eq!(job.state, "failed", "the second loss fails the job");
+            assert_eq!(job.state, JobState::Failed, "the second loss fails the job");
             let error = job.error.unwrap_or_default();
             assert!(error.contains("lost from the tile spool"), "{error}");
         }
@@ -831,7 +846,7 @@ async fn a_tile_lost_again_and_again_fails_its_job() {
 #[tokio::test]
 async fn ended_jobs_spool_files_are_swept() {
     let db = Db::new("spool-sweep");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     let dir = q.spool_dir().expect("spool").to_path_buf();
     for id in ["a", "b"] {
         job(&q, id, 16, 16, 16).await;
@@ -843,7 +858,7 @@ async fn ended_jobs_spool_files_are_swept() {
         // One 16×16 tile per job: storing it would be the job's last; a second tile is not
         // needed, the file exists once written.
         let _ = q
-            .complete(id, c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .complete(id, c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
             .await
             .expect("complete");
     }
@@ -857,12 +872,12 @@ async fn ended_jobs_spool_files_are_swept() {
     assert!(!dir.join("b.rgb").exists() && !dir.join("gone.rgb").exists());
 }
 
-/// A submission's scene and textures count towards the next checkpoint as tile pixels do:
-/// a few 64 MiB submissions left the WAL at 200 MB.
+/// A submission's scene and textures count towards the next checkpoint as tile pixels do,
+/// so that large submissions cannot grow the WAL unchecked.
 #[tokio::test]
 async fn a_large_submission_is_checkpointed_in_the_background() {
     let db = Db::new("checkpoint-scene");
-    let q = Queue::open(&db.url())
+    let q = open_store(&db.url())
         .await
         .expect("open")
         .checkpoint_every(100_000);
@@ -916,13 +931,13 @@ fn tile_rgb(r: Rect) -> Vec<u8> {
 /// Stores claim `c`'s pixels as the service does: the bands it completes are encoded while
 /// the job renders (`progress` follows the job), and the last tile finishes the PNG.
 async fn store_following(
-    q: &Queue,
+    q: &Store,
     progress: &tessera_service::assemble::Progress,
     c: &tessera_protocol::Claim,
     rgb: &[u8],
 ) {
     let stored = q
-        .complete(&c.job, c.idx, &c.lease, c.rect(), rgb)
+        .complete(&c.job, c.idx, &c.lease, c.rect(), rgb, 0)
         .await
         .expect("complete");
     let Completion::Stored { last, .. } = stored else {
@@ -935,7 +950,7 @@ async fn store_following(
     }
 }
 
-async fn png_of(q: &Queue, id: &str) -> Vec<u8> {
+async fn png_of(q: &Store, id: &str) -> Vec<u8> {
     let mut png = Vec::new();
     for seq in 0..q.image_chunks(id).await.expect("count") {
         png.extend(q.image_chunk(id, seq).await.expect("read").expect("chunk"));
@@ -950,7 +965,7 @@ async fn bands_are_encoded_in_order_as_they_complete_and_give_the_whole_images_p
     let whole = tessera_tracer::encode_png(w, h, &tile_rgb(Rect::new(0, 0, w, h))).expect("png");
 
     let db = Db::new("bands");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     let progress = Progress::default();
     let rects = tiles(w, h, 8);
     progress.follow("j", w, h, &rects);
@@ -977,7 +992,10 @@ async fn bands_are_encoded_in_order_as_they_complete_and_give_the_whole_images_p
         None,
         "finished, no longer followed"
     );
-    assert_eq!(q.job("j").await.expect("read").expect("job").state, "done");
+    assert_eq!(
+        q.job("j").await.expect("read").expect("job").state,
+        JobState::Done
+    );
     assert_eq!(
         png_of(&q, "j").await,
         whole,
@@ -988,14 +1006,17 @@ async fn bands_are_encoded_in_order_as_they_complete_and_give_the_whole_images_p
     job(&q, "k", w, h, 8).await;
     while let Some(c) = q.claim("w", 0, 60_000, 4).await.expect("claim") {
         let stored = q
-            .complete("k", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .complete("k", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
             .await
             .expect("complete");
         if let Completion::Stored { last: true, .. } = stored {
             progress.complete(&q, "k").await.expect("assembled");
         }
     }
-    assert_eq!(q.job("k").await.expect("read").expect("job").state, "done");
+    assert_eq!(
+        q.job("k").await.expect("read").expect("job").state,
+        JobState::Done
+    );
     assert_eq!(png_of(&q, "k").await, whole);
 }
 
@@ -1004,21 +1025,21 @@ async fn bands_are_encoded_in_order_as_they_complete_and_give_the_whole_images_p
 #[tokio::test]
 async fn a_cancelled_jobs_leases_are_stale() {
     let db = Db::new("cancelled-leases");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 16, 8, 8).await;
     let a = q.claim("w", 0, 60_000, 3).await.expect("claim").expect("a");
     let b = q.claim("w", 0, 60_000, 3).await.expect("claim").expect("b");
     assert_eq!(
         q.cancel("j", 5).await.expect("cancel"),
         Cancel::Cancelled {
-            from: "running".into()
+            from: JobState::Running
         }
     );
     // Again: it has ended, and nothing changes.
     assert_eq!(
         q.cancel("j", 6).await.expect("cancel"),
         Cancel::Ended {
-            state: "cancelled".into()
+            state: JobState::Cancelled
         }
     );
     assert_eq!(q.cancel("nope", 6).await.expect("cancel"), Cancel::Unknown);
@@ -1030,7 +1051,7 @@ async fn a_cancelled_jobs_leases_are_stale() {
     assert!(!q.release("j", b.idx, &b.lease).await.expect("release"));
     assert_eq!(
         q.job("j").await.expect("read").expect("job").state,
-        "cancelled"
+        JobState::Cancelled
     );
     // Nothing requeued: no tile of it is handed out again, nor counted as lost when its
     // leases run out.
@@ -1044,7 +1065,7 @@ async fn a_cancelled_jobs_leases_are_stale() {
 #[tokio::test]
 async fn one_stall_is_one_strike() {
     let db = Db::new("one-strike");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 32, 8, 8).await;
     for _ in 0..2 {
         q.claim("w", 0, 1_000, 4)
@@ -1066,7 +1087,7 @@ async fn one_stall_is_one_strike() {
 async fn the_write_probe_fails_while_writes_cannot_happen() {
     use sqlx::Connection;
     let db = Db::new("probe");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     let quick = std::time::Duration::from_millis(300);
     q.probe_write(1, quick).await.expect("writable");
     let mut other = sqlx::SqliteConnection::connect(&db.url())
@@ -1089,8 +1110,8 @@ async fn the_write_probe_fails_while_writes_cannot_happen() {
 
 /// A database from before migration 0008, whose jobs hold their scenes in the `jobs` row,
 /// opens with its scenes moved to `job_scenes`: a worker still gets each job's scene, and the
-/// listing reads rows without one (a 10 MB scene made each listed job walk its overflow
-/// pages to reach the columns after it).
+/// listing reads rows without one (a large scene in the row makes each listed job walk its
+/// overflow pages to reach the columns after it).
 #[tokio::test]
 async fn scenes_move_out_of_the_jobs_rows_when_an_older_database_opens() {
     use sqlx::sqlite::{SqliteConnectOptions, SqlitePoolOptions};
@@ -1120,7 +1141,7 @@ async fn scenes_move_out_of_the_jobs_rows_when_an_older_database_opens() {
     .expect("an old job");
     pool.close().await;
 
-    let q = Queue::open(&db.url()).await.expect("opens, migrating");
+    let q = open_store(&db.url()).await.expect("opens, migrating");
     let (state, spec) = q.job_scene("old").await.expect("reads").expect("the job");
     assert_eq!((state.as_str(), spec.scene), ("queued", scene));
     let listed = q.jobs(10, None).await.expect("lists").expect("a page");
@@ -1149,7 +1170,7 @@ async fn scenes_move_out_of_the_jobs_rows_when_an_older_database_opens() {
 #[tokio::test]
 async fn claims_serve_the_highest_priority_first_then_the_oldest() {
     let db = Db::new("priority");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job_at(&q, "long", 0, 64, 64, 32).await; // 4 tiles
     job_at(&q, "later", 0, 32, 32, 32).await; // 1 tile
     job_at(&q, "low", -5, 32, 32, 32).await;
@@ -1175,14 +1196,14 @@ async fn claims_serve_the_highest_priority_first_then_the_oldest() {
 
 /// A job's first claim marks it running in the claim's own statement: a claim whose job
 /// could not be marked (here a trigger refuses the write, as a full disk would) stores no
-/// lease at all, and the tile is the next claim's, as if the failed one never happened. (The
-/// job was marked in a second statement after the claim had committed: the failed claim's
-/// lease stayed stored, its tile sat leased to a worker that never got it, and the job stayed
-/// `queued` with no start time while its tiles were rendered.)
+/// lease at all, and the tile is the next claim's, as if the failed one never happened. (A
+/// second statement marking the job after the claim had committed would leave the failed
+/// claim's lease stored, its tile leased to a worker that never got it, and the job `queued`
+/// with no start time while its tiles were rendered.)
 #[tokio::test]
 async fn a_claim_and_its_jobs_start_are_one_write() {
     let db = Db::new("first-claim");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 64, 32, 32).await; // 2 tiles
     let pool = sqlx::SqlitePool::connect(&db.url()).await.expect("open");
     sqlx::query(
@@ -1205,7 +1226,10 @@ async fn a_claim_and_its_jobs_start_are_one_write() {
         .expect("drop");
     pool.close().await;
 
-    assert_eq!(q.job("j").await.expect("job").expect("row").state, "queued");
+    assert_eq!(
+        q.job("j").await.expect("job").expect("row").state,
+        JobState::Queued
+    );
     let c = q
         .claim("w", 7, 60_000, 4)
         .await
@@ -1252,7 +1276,7 @@ async fn the_png_is_stored_in_chunks_of_one_size() {
     };
 
     let db = Db::new("chunks");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     let progress = Progress::default();
     let rects = tiles(w, h, 32);
     progress.follow("j", w, h, &rects);
@@ -1284,7 +1308,7 @@ async fn the_png_is_stored_in_chunks_of_one_size() {
 
 /// Flips a bit of tile `r`'s bytes in the spool file `file` of a `w`-wide, `h`-high image.
 fn spoil(file: &std::path::Path, w: u32, h: u32, r: Rect) {
-    let (at, _) = tessera_service::spool::slot(w, h, r).expect("slot");
+    let (at, _) = tessera_service::store::spool_slot(w, h, r).expect("slot");
     let mut bytes = std::fs::read(file).expect("file");
     bytes[at as usize] ^= 0x80;
     std::fs::write(file, &bytes).expect("write");
@@ -1294,7 +1318,7 @@ fn spoil(file: &std::path::Path, w: u32, h: u32, r: Rect) {
 /// (the error says tiles are rendered again, and the job has not failed); the tile comes
 /// back to the next claim, and stored again it completes the job, whose PNG is `whole`.
 async fn finish_after_loss(
-    q: &Queue,
+    q: &Store,
     progress: &tessera_service::assemble::Progress,
     id: &str,
     lost: Rect,
@@ -1303,7 +1327,7 @@ async fn finish_after_loss(
     let err = progress.complete(q, id).await.expect_err("a tile was lost");
     assert!(err.requeued(), "{err}");
     let state = q.job(id).await.expect("read").expect("job").state;
-    assert_ne!(state, "failed");
+    assert_ne!(state, JobState::Failed);
     let again = q
         .claim("w", 0, 60_000, 4)
         .await
@@ -1311,12 +1335,15 @@ async fn finish_after_loss(
         .expect("tile");
     assert_eq!(again.rect(), lost, "the lost tile is handed out again");
     let stored = q
-        .complete(id, again.idx, &again.lease, lost, &tile_rgb(lost))
+        .complete(id, again.idx, &again.lease, lost, &tile_rgb(lost), 0)
         .await
         .expect("complete");
     assert!(matches!(stored, Completion::Stored { last: true, .. }));
     progress.complete(q, id).await.expect("assembled");
-    assert_eq!(q.job(id).await.expect("read").expect("job").state, "done");
+    assert_eq!(
+        q.job(id).await.expect("read").expect("job").state,
+        JobState::Done
+    );
     assert_eq!(png_of(q, id).await, whole);
 }
 
@@ -1328,7 +1355,7 @@ async fn a_job_whose_pixels_are_lost_still_gives_the_whole_images_png() {
     let (w, h) = (32, 16); // two bands of four 8-pixel tiles
     let whole = tessera_tracer::encode_png(w, h, &tile_rgb(Rect::new(0, 0, w, h))).expect("png");
     let db = Db::new("spool-assemble");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     let file = q.spool_dir().expect("spool").join("j.rgb");
     let progress = Progress::default();
     let rects = tiles(w, h, 8);
@@ -1336,7 +1363,7 @@ async fn a_job_whose_pixels_are_lost_still_gives_the_whole_images_png() {
     job(&q, "j", w, h, 8).await;
     let corrupt = |r: Rect| spoil(&file, w, h, r);
     let store = async |c: &tessera_protocol::Claim| {
-        q.complete("j", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+        q.complete("j", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
             .await
             .expect("complete")
     };
@@ -1399,23 +1426,23 @@ async fn a_job_whose_pixels_are_lost_still_gives_the_whole_images_png() {
 #[tokio::test]
 async fn refused_posts_leave_the_stored_pixels_alone() {
     let db = Db::new("spool-refused");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     let rects = job(&q, "f", 32, 16, 8).await; // 4 × 2 tiles
     let claims = claim_all(&q, 4).await;
     // The first band stored, the second still leased.
     for c in claims.iter().filter(|c| c.y == 0) {
         let stored = q
-            .complete("f", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .complete("f", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
             .await
             .expect("complete");
         assert!(matches!(stored, Completion::Stored { .. }));
     }
     let noise = |r: Rect| vec![0xA5; r.pixel_count() * 3];
-    for q in [q.clone(), Queue::open(&db.url()).await.expect("open again")] {
+    for q in [q.clone(), open_store(&db.url()).await.expect("open again")] {
         // A lease that is no one's, over the whole first band.
         let band_rect = Rect::new(0, 0, 32, 8);
         let r = q
-            .complete("f", 0, "not-a-lease", band_rect, &noise(band_rect))
+            .complete("f", 0, "not-a-lease", band_rect, &noise(band_rect), 0)
             .await
             .expect("answer");
         assert!(
@@ -1425,14 +1452,14 @@ async fn refused_posts_leave_the_stored_pixels_alone() {
         // A current lease (tile 4, second band) posting tile 1's rectangle.
         let c = &claims[4];
         let r = q
-            .complete("f", c.idx, &c.lease, rects[1], &noise(rects[1]))
+            .complete("f", c.idx, &c.lease, rects[1], &noise(rects[1]), 0)
             .await
             .expect("answer");
         assert!(matches!(r, Completion::WrongTile(_)), "{r:?}");
         // A repeat of a stored tile's own lease with other bytes.
         let c = &claims[2];
         let r = q
-            .complete("f", c.idx, &c.lease, c.rect(), &noise(c.rect()))
+            .complete("f", c.idx, &c.lease, c.rect(), &noise(c.rect()), 0)
             .await
             .expect("answer");
         assert!(matches!(r, Completion::Repeat), "{r:?}");
@@ -1457,7 +1484,7 @@ async fn a_loss_found_ahead_after_the_last_tile_waits_for_the_tile() {
     let (w, h) = (32, 16);
     let whole = tessera_tracer::encode_png(w, h, &tile_rgb(Rect::new(0, 0, w, h))).expect("png");
     let db = Db::new("spool-late-loss");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     let file = q.spool_dir().expect("spool").join("g.rgb");
     let progress = Progress::default();
     let rects = tiles(w, h, 8);
@@ -1469,7 +1496,7 @@ async fn a_loss_found_ahead_after_the_last_tile_waits_for_the_tile() {
     let mut band_done = false;
     for c in &claims {
         let stored = q
-            .complete("g", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .complete("g", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
             .await
             .expect("complete");
         let Completion::Stored { last, .. } = stored else {
@@ -1489,7 +1516,7 @@ async fn a_loss_found_ahead_after_the_last_tile_waits_for_the_tile() {
 #[tokio::test]
 async fn cancel_and_delete_remove_the_spool_file() {
     let db = Db::new("spool-cancel");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     let dir = q.spool_dir().expect("spool").to_path_buf();
     for id in ["c", "d"] {
         job(&q, id, 16, 8, 8).await; // two tiles each
@@ -1497,7 +1524,7 @@ async fn cancel_and_delete_remove_the_spool_file() {
     let claims = claim_all(&q, 4).await;
     for c in claims.iter().filter(|c| c.idx == 0) {
         let stored = q
-            .complete(&c.job, c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .complete(&c.job, c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
             .await
             .expect("complete");
         assert!(matches!(stored, Completion::Stored { last: false, .. }));
@@ -1521,7 +1548,7 @@ async fn an_unusable_spool_is_refused_at_start_and_by_the_health_probe() {
     let db = Db::new("spool-unusable");
     let tiles = db.0.join("q.db-tiles");
     std::fs::write(&tiles, b"not a folder").expect("file");
-    let err = Queue::open(&db.url())
+    let err = open_store(&db.url())
         .await
         .expect_err("a file is not a folder");
     assert!(err.to_string().contains("is not a folder"), "{err}");
@@ -1529,13 +1556,13 @@ async fn an_unusable_spool_is_refused_at_start_and_by_the_health_probe() {
     std::fs::remove_file(&tiles).expect("remove");
 
     std::fs::create_dir_all(tiles.join("probe.tmp")).expect("a folder in the way");
-    let err = Queue::open(&db.url())
+    let err = open_store(&db.url())
         .await
         .expect_err("the probe cannot write");
     assert!(err.to_string().contains("does not take a file"), "{err}");
     std::fs::remove_dir(tiles.join("probe.tmp")).expect("remove");
 
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     q.probe_write(0, std::time::Duration::from_secs(2))
         .await
         .expect("healthy");
@@ -1555,14 +1582,14 @@ async fn an_unusable_spool_is_refused_at_start_and_by_the_health_probe() {
 async fn bands_are_encoded_from_tiles_side_by_side_only() {
     use tessera_service::assemble::{AssembleError, assemble};
     let db = Db::new("gap");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     let (w, h) = (40, 20); // 5 × 3 tiles of 8 px, the last band 4 rows high
     for id in ["g", "h"] {
         job(&q, id, w, h, 8).await;
     }
     for c in claim_all(&q, 4).await {
         let stored = q
-            .complete(&c.job, c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .complete(&c.job, c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
             .await
             .expect("complete");
         assert!(matches!(stored, Completion::Stored { .. }));
@@ -1613,20 +1640,20 @@ async fn bands_are_encoded_from_tiles_side_by_side_only() {
 #[cfg(target_os = "linux")]
 #[tokio::test]
 async fn a_tile_whose_pixels_cannot_be_written_is_queued_again_uncharged() {
-    use tessera_service::queue::STORAGE_PAUSE;
+    use tessera_service::store::STORAGE_PAUSE;
     let db = Db::new("full");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job(&q, "f", 16, 8, 8).await;
     let file = db.0.join("q.db-tiles").join("f.rgb");
     std::os::unix::fs::symlink("/dev/full", &file).expect("a full file");
-    assert_eq!(q.storage_trouble(STORAGE_PAUSE), None);
+    assert_eq!(q.storage_trouble(0, STORAGE_PAUSE), None);
     let c = q
         .claim("w", 0, 60_000, 4)
         .await
         .expect("claim")
         .expect("a tile");
     let done = q
-        .complete("f", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+        .complete("f", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
         .await
         .expect("complete");
     let Completion::Unstored(why) = done else {
@@ -1634,7 +1661,7 @@ async fn a_tile_whose_pixels_cannot_be_written_is_queued_again_uncharged() {
     };
     assert!(why.contains("No space left"), "{why}");
     let trouble = q
-        .storage_trouble(STORAGE_PAUSE)
+        .storage_trouble(0, STORAGE_PAUSE)
         .expect("the spool's trouble");
     assert!(trouble.contains("No space left"), "{trouble}");
     assert_eq!(failures(&db, "f").await, vec![0, 0], "nobody is charged");
@@ -1643,7 +1670,7 @@ async fn a_tile_whose_pixels_cannot_be_written_is_queued_again_uncharged() {
     // The old lease stores nothing, even with the disk free again.
     std::fs::remove_file(&file).expect("free");
     let stale = q
-        .complete("f", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+        .complete("f", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
         .await
         .expect("complete");
     assert!(matches!(stale, Completion::Stale(_)), "{stale:?}");
@@ -1665,6 +1692,7 @@ async fn a_tile_whose_pixels_cannot_be_written_is_queued_again_uncharged() {
             &again.lease,
             again.rect(),
             &tile_rgb(again.rect()),
+            0,
         )
         .await
         .expect("complete");
@@ -1673,7 +1701,7 @@ async fn a_tile_whose_pixels_cannot_be_written_is_queued_again_uncharged() {
         "{stored:?}"
     );
     assert_eq!(
-        q.storage_trouble(STORAGE_PAUSE),
+        q.storage_trouble(0, STORAGE_PAUSE),
         None,
         "a write succeeded since"
     );
@@ -1688,7 +1716,7 @@ async fn a_tile_whose_pixels_cannot_be_written_is_queued_again_uncharged() {
 #[tokio::test]
 async fn a_tile_whose_pixels_keep_failing_to_be_written_fails_its_job() {
     let db = Db::new("fifo");
-    let q = Queue::open(&db.url()).await.expect("open").max_attempts(2);
+    let q = open_store(&db.url()).await.expect("open").max_attempts(2);
     job(&q, "p", 16, 8, 8).await;
     let file = db.0.join("q.db-tiles").join("p.rgb");
     let made = std::process::Command::new("mkfifo")
@@ -1704,7 +1732,7 @@ async fn a_tile_whose_pixels_keep_failing_to_be_written_fails_its_job() {
             .expect("a tile");
         assert_eq!(c.idx, 0, "the same tile, handed out again");
         let done = q
-            .complete("p", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()))
+            .complete("p", c.idx, &c.lease, c.rect(), &tile_rgb(c.rect()), 0)
             .await
             .expect("complete");
         let Completion::Unstored(why) = done else {
@@ -1715,11 +1743,11 @@ async fn a_tile_whose_pixels_keep_failing_to_be_written_fails_its_job() {
     assert_eq!(failures(&db, "p").await, vec![2, 0]);
     // This job file's trouble, not a lack of room: the farm is not paused for it.
     assert_eq!(
-        q.storage_trouble(tessera_service::queue::STORAGE_PAUSE),
+        q.storage_trouble(0, tessera_service::store::STORAGE_PAUSE),
         None
     );
     let job = q.job("p").await.expect("job").expect("exists");
-    assert_eq!(job.state, "failed");
+    assert_eq!(job.state, JobState::Failed);
     let error = job.error.expect("a reason");
     assert!(error.contains("could not be stored"), "{error}");
     let pool = sqlx::SqlitePool::connect(&db.url()).await.expect("open");
@@ -1733,12 +1761,12 @@ async fn a_tile_whose_pixels_keep_failing_to_be_written_fails_its_job() {
 
 /// While the storage fails, the reaper gives a fresh lease to the tiles whose workers were
 /// heard from (a renewal or a result under the lease was refused) and reaps the others as
-/// ever: a worker that died meanwhile says nothing. Extending every lease, as it
-/// did, kept a dead worker's tile for as long as failures kept coming.
+/// ever: a worker that died meanwhile says nothing. Extending every lease would keep a dead
+/// worker's tile for as long as failures kept coming.
 #[tokio::test]
 async fn while_the_storage_fails_the_leases_of_silent_workers_are_reaped() {
     let db = Db::new("unheard");
-    let q = Queue::open(&db.url()).await.expect("open");
+    let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 24, 8, 8).await;
     let claim = |w: &'static str, now: i64| {
         let q = &q;
@@ -1751,7 +1779,7 @@ async fn while_the_storage_fails_the_leases_of_silent_workers_are_reaped() {
     };
     let alive = claim("alive", 0).await;
     let dead = claim("dead", 0).await;
-    q.heard(&alive.lease);
+    q.heard(&alive.lease, 0);
     let within = std::time::Duration::from_secs(60);
     let pass = |now: i64| q.reap_unheard(now, 1_000, within, 4, KEEP);
     assert_eq!(pass(5_000).await.expect("pass"), (1, 1));
@@ -1766,12 +1794,12 @@ async fn while_the_storage_fails_the_leases_of_silent_workers_are_reaped() {
         "{charged:?}"
     );
     // A worker no longer heard from is forgotten, and its lease, once past, reaped too.
-    q.heard(&again.lease);
-    q.forget_unheard(std::time::Duration::ZERO);
+    q.heard(&again.lease, 5_000);
+    q.forget_unheard(5_000, std::time::Duration::ZERO);
     assert_eq!(pass(7_000).await.expect("pass"), (0, 2));
     // A lease extended so takes its worker's result as any other.
     let third = claim("alive", 7_000).await;
-    q.heard(&third.lease);
+    q.heard(&third.lease, 7_000);
     assert_eq!(pass(7_500).await.expect("pass"), (1, 0));
     let stored = q
         .complete(
@@ -1780,8 +1808,41 @@ async fn while_the_storage_fails_the_leases_of_silent_workers_are_reaped() {
             &third.lease,
             third.rect(),
             &pixels(third.rect()),
+            0,
         )
         .await
         .expect("complete");
     assert!(matches!(stored, Completion::Stored { .. }), "{stored:?}");
+}
+
+/// The roster of workers seen is the database's: what one store heard is listed by
+/// another store on the same database, counts added up, by name, and only those heard
+/// from since the time asked.
+#[tokio::test]
+async fn the_roster_of_workers_is_kept_in_the_database() {
+    let db = Db::new("roster");
+    let q = open_store(&db.url()).await.expect("open");
+    q.seen("b", 1_000, |w| w.claims += 2);
+    q.seen("a", 2_000, |w| w.tiles_done += 1);
+    q.seen("b", 3_000, |w| w.claims_with_results += 1);
+    let listed = q.workers(0).await.expect("workers");
+    let names: Vec<&str> = listed.iter().map(|w| w.name.as_str()).collect();
+    assert_eq!(names, ["a", "b"]);
+    let b = &listed[1];
+    assert_eq!(
+        (b.last_seen, b.claims, b.claims_with_results),
+        (3_000, 2, 1)
+    );
+    let other = open_store(&db.url()).await.expect("open again");
+    other.seen("a", 4_000, |w| w.tiles_done += 1);
+    let listed = other.workers(0).await.expect("workers");
+    assert_eq!((listed[0].last_seen, listed[0].tiles_done), (4_000, 2));
+    assert_eq!(
+        other.live_workers(2_500).await.expect("live"),
+        ["a".to_string(), "b".to_string()]
+    );
+    assert_eq!(
+        q.live_workers(3_500).await.expect("live"),
+        ["a".to_string()]
+    );
 }

@@ -2,16 +2,16 @@
 //! job beside the database (`<database>-tiles/<job>.rgb`), instead of SQLite pages.
 //!
 //! Why: a tile's pixels are written once and read once, by the band that encodes them. In
-//! SQLite they were copied into a record, written to the WAL a page at a time, checkpointed
-//! into the database file, read back, and their pages freed and reused: about half of the
-//! service's own CPU on a 1920×1080 job at one ray per pixel (`perf`, PERFORMANCE.md). Here
-//! they are one `pwrite` and one `pread` of the page cache.
+//! SQLite they would be copied into a record, written to the WAL a page at a time,
+//! checkpointed into the database file, read back, and their pages freed and reused: a
+//! large share of the service's own CPU (see docs/PERFORMANCE.md). Here they are one
+//! `pwrite` and one `pread` of the page cache.
 //!
 //! What it is not: the record of which tiles are done. The queue's `tile_pixels` rows are
-//! (see `queue.rs`); a row of a spooled tile holds no pixels but the CRC-32 of its bytes.
+//! (see the SQLite backend's `leases` and `images`); a row of a spooled tile holds no pixels but the CRC-32 of its bytes.
 //! Bytes that do not match their row when read, or cannot be read at all, are a lost tile:
 //! the queue hands it out again rather than encode them (and fails the job once a tile was
-//! lost `--max-attempts` times, see `Queue::requeue_lost`). That happens when
+//! lost `--max-attempts` times, see `SqliteStore::requeue_lost`). That happens when
 //! - the machine stopped after SQLite's commit reached the disk but before the file's page
 //!   did (neither is `fsync`ed per tile; SQLite's WAL with `synchronous = NORMAL` makes
 //!   the same trade for its own pages);
@@ -46,9 +46,11 @@ use std::fs::{File, OpenOptions};
 use std::io;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, PoisonError};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use tessera_tracer::Rect;
+
+use crate::store::error::SpoolError;
 
 /// The spool folder of a database file: `<file>-tiles`, beside SQLite's `-wal` and `-shm`.
 pub fn folder_for(database: &Path) -> PathBuf {
@@ -118,53 +120,9 @@ pub struct Spool {
     open: Mutex<HashMap<String, Arc<JobFile>>>,
     /// Files the sweep could not remove and has said so once (it tries every sweep).
     stuck: Mutex<HashSet<PathBuf>>,
-    /// The last write that failed, when none has succeeded since: when, and why.
-    failing: Mutex<Option<(Instant, String)>>,
-}
-
-/// Why a spooled tile could not be used.
-#[derive(Debug, thiserror::Error)]
-pub enum SpoolError {
-    #[error("tile {tile:?} is not inside the {width}×{height} image")]
-    Outside { tile: Rect, width: u32, height: u32 },
-    #[error("tile spool {path}: {source}")]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: io::Error,
-    },
-    #[error("{0} is not a folder: the tile spool goes there, beside the database (move that away)")]
-    NotAFolder(PathBuf),
-    #[error(
-        "the tile spool folder {dir} does not take a file: {source} (tile pixels wait there, \
-         beside the database: the service must be able to write in it)"
-    )]
-    Unwritable {
-        dir: PathBuf,
-        #[source]
-        source: io::Error,
-    },
-}
-
-impl SpoolError {
-    /// Whether the machine is out of room: the disk or the user's quota full, or no file
-    /// descriptor or memory to spare (`EMFILE`, `ENFILE`, `ENOMEM`), or the write was
-    /// interrupted. A trouble that passes, and no fault of the tile or of the worker that
-    /// rendered it.
-    pub fn is_capacity(&self) -> bool {
-        match self {
-            SpoolError::Io { source, .. } | SpoolError::Unwritable { source, .. } => {
-                matches!(
-                    source.kind(),
-                    io::ErrorKind::StorageFull
-                        | io::ErrorKind::QuotaExceeded
-                        | io::ErrorKind::OutOfMemory
-                        | io::ErrorKind::Interrupted
-                ) || matches!(source.raw_os_error(), Some(23 | 24))
-            }
-            _ => false,
-        }
-    }
+    /// The last write that failed, when none has succeeded since: when (ms since the
+    /// epoch), and why. Per process by design: the spool is this process's files.
+    failing: Mutex<Option<(i64, String)>>,
 }
 
 /// Fails when `dir` exists but is not a folder (checked before the database is opened, so
@@ -292,7 +250,8 @@ impl Spool {
     }
 
     /// Writes a tile's bytes into its slot of job `id`'s file (a `width × height` image) and
-    /// returns their CRC-32.
+    /// returns their CRC-32. A failure for want of room is dated `now` (see
+    /// [`Spool::trouble`]).
     pub fn write(
         &self,
         id: &str,
@@ -300,6 +259,7 @@ impl Spool {
         height: u32,
         tile: Rect,
         rgb: &[u8],
+        now: i64,
     ) -> Result<u32, SpoolError> {
         let outside = SpoolError::Outside {
             tile,
@@ -327,7 +287,7 @@ impl Spool {
                 // this job file's, and its tile is charged instead.
                 if e.is_capacity() {
                     *self.failing.lock().unwrap_or_else(PoisonError::into_inner) =
-                        Some((Instant::now(), e.to_string()));
+                        Some((now, e.to_string()));
                 }
                 // The next write opens the file afresh: the one open may be what failed.
                 self.open
@@ -340,13 +300,15 @@ impl Spool {
     }
 
     /// Why tile pixels could not be written, if a write failed for want of room
-    /// ([`SpoolError::is_capacity`]) less than `within` ago and none has succeeded since:
-    /// the queue hands out no work meanwhile, since no result could be stored.
-    pub fn trouble(&self, within: Duration) -> Option<String> {
+    /// ([`SpoolError::is_capacity`]) less than `within` before `now` and none has
+    /// succeeded since: the service hands out no work meanwhile, since no result could be
+    /// stored.
+    pub fn trouble(&self, now: i64, within: Duration) -> Option<String> {
+        let within = i64::try_from(within.as_millis()).unwrap_or(i64::MAX);
         let failing = self.failing.lock().unwrap_or_else(PoisonError::into_inner);
         failing
             .as_ref()
-            .filter(|(at, _)| at.elapsed() < within)
+            .filter(|(at, _)| now.saturating_sub(*at) < within)
             .map(|(_, why)| why.clone())
     }
 
@@ -500,7 +462,7 @@ mod tests {
         let spool = Spool::open(dir.clone()).expect("folder");
         let tile = Rect::new(2, 0, 2, 3);
         let rgb: Vec<u8> = (0..18).collect();
-        let crc = spool.write("j", 4, 3, tile, &rgb).expect("written");
+        let crc = spool.write("j", 4, 3, tile, &rgb, 0).expect("written");
         let mut buf = vec![7];
         assert!(spool.read("j", 4, 3, tile, crc, &mut buf));
         assert_eq!(buf[0], 7, "read appends");
@@ -523,10 +485,14 @@ mod tests {
         assert!(!spool.read("j", 4, 3, tile, crc, &mut buf));
         assert!(buf.is_empty(), "a lost tile leaves nothing in the buffer");
         assert!(!spool.path("j").exists(), "reading creates no file");
-        assert!(spool.write("j", 4, 3, Rect::new(3, 0, 2, 3), &rgb).is_err());
+        assert!(
+            spool
+                .write("j", 4, 3, Rect::new(3, 0, 2, 3), &rgb, 0)
+                .is_err()
+        );
         // A folder removed under the service is made again by the next write.
         std::fs::remove_dir_all(&dir).expect("remove the folder");
-        let crc = spool.write("k", 4, 3, tile, &rgb).expect("written");
+        let crc = spool.write("k", 4, 3, tile, &rgb, 0).expect("written");
         assert!(spool.read("k", 4, 3, tile, crc, &mut buf));
         let _ = std::fs::remove_dir_all(dir);
     }

@@ -1,0 +1,193 @@
+//! The values the store takes and answers with, whatever the backend.
+
+use std::time::Duration;
+
+use serde::Serialize;
+use tessera_tracer::Rect;
+
+use super::state::{JobState, TileState};
+
+/// A job as users see it.
+#[derive(Debug, Clone, Serialize, sqlx::FromRow)]
+pub struct JobRow {
+    /// The job's id (hexadecimal, the service's own).
+    pub id: String,
+    /// Where it is in its life.
+    #[sqlx(try_from = "String")]
+    pub state: JobState,
+    /// The name its submitter gave it.
+    pub name: Option<String>,
+    /// The image's width in pixels.
+    pub width: i64,
+    /// The image's height in pixels.
+    pub height: i64,
+    /// The tile size in pixels.
+    pub tile: i64,
+    /// The sampler asked for, if any.
+    pub sampler: Option<String>,
+    /// Samples per pixel asked for, if any.
+    pub samples: Option<i64>,
+    /// The adaptive sampler's threshold asked for, if any.
+    pub threshold: Option<f64>,
+    /// Tiles in all.
+    pub tiles_total: i64,
+    /// Tiles whose pixels are stored.
+    pub tiles_done: i64,
+    /// Why it failed.
+    pub error: Option<String>,
+    /// When it was submitted (ms since the epoch).
+    pub created_at: i64,
+    /// When its first tile was handed out.
+    pub started_at: Option<i64>,
+    /// When it ended.
+    pub finished_at: Option<i64>,
+    /// The size of its PNG, once done.
+    pub png_bytes: Option<i64>,
+    /// Claims take tiles of the highest-priority job first (see [`crate::store::Store::claim`]).
+    pub priority: i64,
+}
+
+/// A job about to be stored.
+#[derive(Debug, Clone)]
+pub struct NewJob {
+    /// Its id.
+    pub id: String,
+    /// The scene's text.
+    pub scene: String,
+    /// The name its submitter gave it.
+    pub name: Option<String>,
+    /// The image's width in pixels.
+    pub width: u32,
+    /// The image's height in pixels.
+    pub height: u32,
+    /// The tile size in pixels.
+    pub tile: u32,
+    /// The sampler asked for.
+    pub sampler: Option<String>,
+    /// Samples per pixel asked for.
+    pub samples: Option<u32>,
+    /// The adaptive sampler's threshold asked for.
+    pub threshold: Option<f64>,
+    /// When it was submitted (ms since the epoch).
+    pub created_at: i64,
+    /// Higher first; first in, first out among equals.
+    pub priority: i64,
+}
+
+/// A tile's place and lease, with its job's state.
+#[derive(Debug, Clone)]
+pub struct TileInfo {
+    /// Its rectangle in the image.
+    pub rect: Rect,
+    /// Where it is.
+    pub state: TileState,
+    /// Its current lease token, if handed out (kept once done: a repeat is recognised by it).
+    pub lease: Option<String>,
+    /// The worker it was handed to.
+    pub worker: Option<String>,
+    /// Its job's state.
+    pub job_state: JobState,
+}
+
+/// What became of a posted result.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Completion {
+    /// Stored; `last` when it was the job's last tile (the image can be assembled). `worker`
+    /// is the name the tile was claimed under.
+    Stored {
+        /// It was the job's last tile.
+        last: bool,
+        /// The worker that claimed it.
+        worker: Option<String>,
+    },
+    /// Already stored from this very lease: nothing changed.
+    Repeat,
+    /// Not this lease's to post (expired and handed out again, released, or the job ended).
+    Stale(String),
+    /// The lease is current, but the pixels are for another rectangle than this tile.
+    WrongTile(Rect),
+    /// The job has no such tile (or no longer exists).
+    Missing,
+    /// The pixels could not be written to the spool: nothing was stored, and the tile was
+    /// queued again, never charged to the worker. For want of room (a full disk) it is not
+    /// charged at all; after any other write error the tile is charged, as a lost tile is
+    /// (see [`crate::store::Store::complete`]). Says why.
+    Unstored(String),
+}
+
+/// How long after a tile's pixels could not be written the service hands out no work (see
+/// [`crate::store::Store::storage_trouble`]): long enough that workers do not render tile
+/// after tile that cannot be stored, short enough that a freed disk is noticed soon. A
+/// claim after it hands out a tile again, whose result tries the spool again.
+pub const STORAGE_PAUSE: Duration = Duration::from_secs(5);
+
+/// Keep-away policy for workers that fail a job.
+#[derive(Debug, Clone, Copy)]
+pub struct KeepAway {
+    /// Failures (reported or lost leases) of one worker on one job before it is kept away.
+    pub after: u32,
+    /// For how long.
+    pub for_ms: i64,
+    /// Leases of one worker on one job that run out within this of the first are one stall
+    /// (the service uses half a lease: a worker renews all its leases at once, every third
+    /// of one).
+    pub stall_ms: i64,
+}
+
+/// A stored tile of a band, as [`crate::store::Store::band`] read it: its place and size,
+/// and where its rows' bytes are in the band's buffer.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BandTile {
+    /// Its left column.
+    pub x: u32,
+    /// Its width.
+    pub w: u32,
+    /// Its height.
+    pub h: u32,
+    /// Where its bytes are in the band's buffer.
+    pub bytes: std::ops::Range<usize>,
+}
+
+/// What [`crate::store::Store::cancel`] found.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Cancel {
+    /// No such job.
+    Unknown,
+    /// It was queued or running (`from`); now it is cancelled.
+    Cancelled {
+        /// Its state before.
+        from: JobState,
+    },
+    /// Every tile is in (a done job, or a running one whose image is being written): not
+    /// cancelled.
+    Complete,
+    /// It had already ended (failed or cancelled): nothing changed.
+    Ended {
+        /// Its state.
+        state: JobState,
+    },
+}
+
+/// What a WAL checkpoint did, in frames (pages).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Checkpoint {
+    /// Frames in the WAL.
+    pub log: i64,
+    /// Frames of it now copied into the database file.
+    pub copied: i64,
+}
+
+/// What the service knows about a worker it has heard from (the `/workers` route's rows).
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize)]
+pub struct WorkerSeen {
+    /// The name it gives.
+    pub name: String,
+    /// When it was last heard from (ms since the epoch).
+    pub last_seen: i64,
+    /// Tiles it claimed.
+    pub claims: u64,
+    /// Of those claims, the ones that came back with a posted result (`?next=`).
+    pub claims_with_results: u64,
+    /// Tiles it rendered that were stored.
+    pub tiles_done: u64,
+}
