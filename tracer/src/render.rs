@@ -25,11 +25,12 @@ use rayon::prelude::*;
 
 use crate::footprint::{Footprints, PixelRegion};
 use crate::math::{Color, Ray, offset_ray_origin};
+use crate::object::Object;
 use crate::sampler::{Sample, Sampler};
 use crate::shape::LocalHit;
 use crate::srgb;
 use crate::tile::{Rect, tiles};
-use crate::world::{Hit, Object, Scene};
+use crate::world::{Hit, Scene};
 
 /// A shadow ray stops this far short of its light, as a fraction of its scale
 /// (`|origin|/|dir| + 1`, in units of its `t`, which is 1 at the light): a surface that
@@ -49,16 +50,21 @@ pub const SHADOW_END_REL: f64 = 1e-14;
 /// Counts of rays traced, for benchmarks ("rays per pixel").
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct RayStats {
+    /// Rays from the eye.
     pub primary: u64,
+    /// Rays towards lights.
     pub shadow: u64,
+    /// Mirror reflections.
     pub mirror: u64,
 }
 
 impl RayStats {
+    /// All rays together.
     pub fn total(&self) -> u64 {
         self.primary + self.shadow + self.mirror
     }
 
+    /// Adds `other`'s counts to these.
     pub fn add(&mut self, other: &RayStats) {
         self.primary += other.primary;
         self.shadow += other.shadow;
@@ -92,6 +98,7 @@ impl Counters {
 /// must clear, and the normal facing the ray that arrived.
 #[derive(Debug, Clone, Copy)]
 pub struct SurfacePoint {
+    /// The hit point in world space.
     pub p: DVec3,
     /// Per-axis bound the offset must clear: the hit point's own error plus the rounding of
     /// carrying a point near it back into this object's space for the next intersection test.
@@ -116,6 +123,8 @@ impl SurfacePoint {
     }
 
     /// Origin for a secondary ray leaving towards `dir`: off the surface, on `dir`'s side.
+    // Used through `crate::internals` (feature `bench`) and by the tests.
+    #[cfg_attr(not(feature = "bench"), allow(dead_code))]
     pub fn origin_towards(&self, dir: DVec3) -> DVec3 {
         offset_ray_origin(self.p, self.err, self.n, dir)
     }
@@ -329,6 +338,7 @@ impl Scene {
 
     /// A high-rate estimate of the exact image over `rect` (`n × n` stratified samples per
     /// pixel, see [`crate::sampler::reference_pixel`]).
+    #[cfg(feature = "bench")]
     pub fn reference_rect(&self, rect: Rect, n: u32) -> (Vec<Color>, RayStats) {
         let counters = Counters::default();
         let trace = |x: f64, y: f64| self.primary::<true>(x, y, &counters);

@@ -116,6 +116,7 @@ pub fn decode(v: f64) -> f64 {
 }
 
 /// The inverse sRGB transfer function, linear to encoded, both in `[0, 1]`.
+#[cfg(test)]
 pub fn encode(x: f64) -> f64 {
     if x <= 0.0031308 {
         x * 12.92

@@ -8,8 +8,7 @@ mod common;
 use common::{RefPlane, RefSphere, Reference, compare_with_reference, scene};
 use glam::DVec3;
 use tessera_tracer::Rect;
-use tessera_tracer::math::Ray;
-use tessera_tracer::render::SurfacePoint;
+use tessera_tracer::internals::{Ray, SurfacePoint};
 
 /// A sphere of radius 0.1 seen from 1e7 away, framed to fill the image: every pixel centre is
 /// hit or missed exactly as the geometry says, and lit with the right cosine.
@@ -192,7 +191,7 @@ fn offsets_prevent_the_self_hits_that_raw_hit_points_make() {
     let src = "[OBJECT]\ntype = sphere\nradius = 3\nscale = <1, 0.3, 2>\nrotate = <10, 20, 30>\n\
                translate = <123456.7, -98765.4, 55555.5>\n[/OBJECT]\n";
     let s = scene(src);
-    let obj = &s.objects[0];
+    let obj = &s.objects()[0];
     let centre = DVec3::new(123456.7, -98765.4, 55555.5);
     let (mut raw_self_hits, mut lifted_self_hits, mut tested) = (0, 0, 0);
     for i in 0..2000u32 {
@@ -656,7 +655,7 @@ fn an_eye_on_a_torus_never_sees_through_it() {
         let mut into_tube = 0;
         for py in 0..48u32 {
             for px in 0..64u32 {
-                let r = s.camera.ray(f64::from(px) + 0.5, f64::from(py) + 0.5);
+                let r = s.camera().ray(f64::from(px) + 0.5, f64::from(py) + 0.5);
                 let (o, d) = (r.origin, r.dir);
                 // Into the tube: against the outward normal at the eye (the tube's centre
                 // circle is at distance 1 from the axis, in the plane y = 0).

@@ -2,9 +2,7 @@
 //! position and message, several errors reported together, and the limits.
 
 use glam::DVec3;
-use tessera_tracer::scene::{CsgOp, Node};
-use tessera_tracer::shape::Shape;
-use tessera_tracer::{Limits, Pos, Sampler, SceneDesc, SceneError, parse};
+use tessera_tracer::{CsgOp, Limits, Node, Pos, Sampler, SceneDesc, SceneError, Shape, parse};
 
 fn ok(src: &str) -> SceneDesc {
     match parse(src, &Limits::default()) {
@@ -608,7 +606,7 @@ fn degenerate_cameras_and_transforms_are_errors() {
 /// white, an eye at 1e160 was said to look along `up`.
 #[test]
 fn numbers_past_the_largest_are_refused_where_they_are_written() {
-    let limit = tessera_tracer::scene::MAX_NUMBER;
+    let limit = tessera_tracer::MAX_NUMBER;
     assert_eq!(limit, 1e15);
     ok("[LIGHT]\nposition = <1e15, -1e15, 1e15>\n[/LIGHT]\n");
     let cases = [
@@ -720,7 +718,7 @@ fn the_reading_stops_at_the_object_and_block_limits() {
     assert_eq!((stop.0, stop.1), (73, 1));
     assert!(errs.iter().all(|e| e.0 <= 73), "{errs:?}");
 
-    let max = tessera_tracer::scene::MAX_BLOCK_ENTRIES;
+    let max = tessera_tracer::MAX_BLOCK_ENTRIES;
     // A `[rayfile]` inside a block adds its lines to the block's all at once: the next line
     // is past the cap all the same.
     let src = format!(
@@ -1072,7 +1070,7 @@ fn an_overlong_line_is_one_error() {
 /// at the first of them.
 #[test]
 fn errors_are_capped_with_a_count_of_the_rest() {
-    let max = tessera_tracer::diag::MAX_DIAGNOSTICS;
+    let max = tessera_tracer::MAX_DIAGNOSTICS;
     // One unknown key a line, each a different one: one error a line.
     let keys: String = (0..max + 25).map(|i| format!("k{i} = 1\n")).collect();
     let errs = errors(&format!("[GLOBALS]\n{keys}[/GLOBALS]\n"));
@@ -1091,7 +1089,7 @@ fn errors_are_capped_with_a_count_of_the_rest() {
 /// checks its bounded list against the same errors counted line by line.
 #[test]
 fn many_errors_are_counted_exactly_and_the_earliest_shown() {
-    let max = tessera_tracer::diag::MAX_DIAGNOSTICS;
+    let max = tessera_tracer::MAX_DIAGNOSTICS;
     let bad = 5_000;
     // Line 1 opens an object with no `type` (reported after all lines are read, at line 1);
     // then one malformed line each (found by the lexer first).
