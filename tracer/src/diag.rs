@@ -89,11 +89,11 @@ pub(crate) fn shorten(s: &str) -> String {
 }
 
 /// The diagnostics of one pass, as they are found, in bounded memory: a file of millions of
-/// bad lines kept every one of them (160 bytes each) to print the first hundred. Only the
+/// bad lines must not keep every one of them (160 bytes each) to print the first hundred. Only the
 /// earliest [`MAX_DIAGNOSTICS`] + 1 by position are kept (the one past the shown ones says
 /// where the rest begin); the others are only counted, so a diagnostic repeated word for
 /// word at the same place counts twice in "more errors" if both copies are past the kept
-/// ones (kept ones are deduplicated as before).
+/// ones (kept ones are deduplicated).
 #[derive(Debug, Default)]
 pub(crate) struct Found {
     kept: Vec<Diagnostic>,

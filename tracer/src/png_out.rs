@@ -12,7 +12,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 #[derive(Debug, thiserror::Error)]
 pub enum PngError {
     /// The output took no more bytes (a full disk, a closed pipe). Its cause is the message,
-    /// not a source as well: `anyhow`'s `{:#}` printed the OS error twice.
+    /// not a source as well: `anyhow`'s `{:#}` would print the OS error twice.
     #[error("{0}")]
     Write(std::io::Error),
     /// The encoder refused (an image of zero size, an internal limit).
@@ -64,7 +64,8 @@ impl<W: Write + 'static> PngWriter<W> {
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
         enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
-        // `Fast` encodes a 1080p frame in milliseconds; `Balanced` costs ~15× more for ~1 %.
+        // `Fast` keeps encoding a small share of a render; `Balanced` costs many times more
+        // for files barely smaller.
         enc.set_compression(png::Compression::Fast);
         let writer = enc.write_header()?;
         let stream = writer.into_stream_writer()?;

@@ -37,14 +37,14 @@ use crate::world::{Hit, Scene};
 /// passes through the light itself does not shadow it.
 ///
 /// Without it, a light placed exactly on a surface (a lamp on a wall, a light at a sphere's
-/// pole) was shadowed by that surface on a random quarter of the pixels it lights: the
+/// pole) would be shadowed by that surface on a random quarter of the pixels it lights: the
 /// crossing at the light comes out a few ulps before or after `t = 1` from ray to ray. The
 /// segment from a point to its light is open at the light (SCENE.md's "clear" segment
 /// ends there). 1e-14 of the scale is some 45 ulps of it: the crossing's rounding is a few
 /// ulps of the coordinates (of `|origin|` for an object placed by a general matrix, less
 /// for one placed by a similarity), and a blocker nearer the light than that is lost,
 /// 2e-13 of a unit for a scene 20 units across, 1e-5 of a unit for one placed at 1e9. (At
-/// 1e-12, the first value tried, a light 1e-3 under a plane at 1e9 shone through it.)
+/// 1e-12, a light 1e-3 under a plane at 1e9 would shine through it.)
 pub const SHADOW_END_REL: f64 = 1e-14;
 
 /// Counts of rays traced, for benchmarks ("rays per pixel").

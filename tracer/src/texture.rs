@@ -27,8 +27,8 @@ pub struct TextureLimits {
     /// Largest width × height.
     pub max_pixels: u64,
     /// Largest sum of width × height over all of a scene's textures. Every texel is kept (3
-    /// bytes), so this bounds a scene's texture memory whatever the number of files: without
-    /// it, 30 files of 196 KB each (8192² black PNGs) took 6 GB.
+    /// bytes), so this bounds a scene's texture memory whatever the number of files: a small
+    /// PNG of one colour can decode to gigabytes of texels.
     pub max_total_pixels: u64,
 }
 

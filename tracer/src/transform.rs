@@ -33,7 +33,7 @@ pub struct Transform {
     /// `Some((s, t))` when the transform is `p ↦ s·p + t` exactly.
     similarity: Option<(f64, DVec3)>,
     /// `1 / s` of the similarity, computed once here rather than for every ray (the same
-    /// correctly rounded value, so rays come out bit for bit as before).
+    /// correctly rounded value, so rays come out bit for bit as if divided per ray).
     inv_scale: f64,
 }
 

@@ -511,10 +511,8 @@ fn a_checker_fainter_than_the_threshold_costs_nothing() {
 /// in view no pixel holds more, so no pixel needs more than 16 rays for the pattern. Nothing
 /// but the cells changes on this plane (no shadow can fall on it), so a step between two
 /// neighbours that neither saw is a cell edge too, and the same bound decides: it does not
-/// send both to every ray. (With every ray taken wherever the first pass did not bound the
-/// edges, 120 rays per pixel with the light grazing the plane against 5.5; with the light
-/// overhead, unseen steps between neighbours took 40 rays per pixel; on a black-box
-/// tester's scene 7.7 → 246.)
+/// send both to every ray (taking every ray wherever the first pass did not bound the edges
+/// would cost many times the rays per pixel of the bound).
 #[test]
 fn a_checker_just_above_the_threshold_is_searched_only_as_far_as_its_bound() {
     let rays_per_pixel = |color2: f64| {

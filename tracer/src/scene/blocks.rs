@@ -142,15 +142,14 @@ pub(super) fn limit_passed(
 /// closer of the known tag it was taken for (`[CSGG]`'s `[/CSG]`), are then not reported
 /// wherever they come. An unknown closing tag (`[/OBJCET]`) whose nearest known name is the
 /// innermost open block's is reported and closes that block, even if the same misspelling
-/// opened an unknown block before. Without these rules, one typo produced three more
+/// opened an unknown block before. Without these rules, one typo would produce three more
 /// errors, one of them asking for `[/OBJCET]` and one blaming the next, correct block.
 ///
 /// The tree holds the whole file before it is read for meaning, some hundreds of bytes an
 /// entry, so what it may hold is bounded here, where the file is read: past `caps.objects`
-/// `[OBJECT]` tags (2,000,000 spheres, 62 MB, took 2 GB to be refused as too many),
-/// `caps.blocks` blocks of any kind (as many `[LIGHT]` or `[CSG]` blocks took as much) or
-/// [`MAX_BLOCK_ENTRIES`] lines in one block (7,000,000 `scale = 1` lines on one sphere took
-/// 1.4 GB, and were accepted), the reading stops with that error.
+/// `[OBJECT]` tags, `caps.blocks` blocks of any kind or [`MAX_BLOCK_ENTRIES`] lines in one
+/// block, the reading stops with that error: a file of millions of tiny blocks or lines
+/// would otherwise hold gigabytes before a count could refuse it.
 ///
 /// At most `caps.depth` blocks are open at once: a tag that would open one more is an error
 /// and ends the reading there. Everything that walks the tree (the checks, and dropping it)

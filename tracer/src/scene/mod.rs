@@ -25,7 +25,7 @@ use crate::transform::Transform;
 
 /// The largest scene file `tessera-render` reads, in bytes. A scene at the object limit
 /// (1,000,000 objects) is about 70 MB as usually written; the cap is there for the wrong
-/// file (`/dev/zero`, a disk image), which was read until memory ran out. The service's
+/// file (`/dev/zero`, a disk image), which would be read until memory ran out. The service's
 /// request-body limit bounds what it accepts.
 pub const MAX_SCENE_FILE_BYTES: u64 = 256 * 1024 * 1024;
 

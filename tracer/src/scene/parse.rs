@@ -201,7 +201,8 @@ impl Parser<'_> {
         }
         // The defaults (640×480) count against the limits too, where no size was given. A
         // size given and refused has its own error, and the default standing in for it is
-        // not the scene's fault (it read "the default image size 640×4" for `width = 101`).
+        // not the scene's fault (a message about "the default image size" would blame a size
+        // the scene never asked for).
         let pixels = u64::from(desc.width) * u64::from(desc.height);
         let max_dim = self.limits.max_dimension;
         if !size.refused

@@ -245,9 +245,9 @@ impl<'a> Value<'a> {
 /// Largest magnitude of a number in a scene. Far beyond any scene's scale (a kilometre in
 /// micrometres is 1e9), and small enough that what the tracer computes from a few numbers
 /// stays finite: a distance squared, a colour times a light's colour times a texel, summed
-/// over every light. A light at 1e154 squared its distance to infinity and lit nothing;
-/// colours of 1e308 summed to infinity, and `0·∞ = NaN` came out as a white pixel; an eye at
-/// 1e160 was reported as "`up` parallel to the view".
+/// over every light. Without it, a light at 1e154 squares its distance to infinity and
+/// lights nothing; colours of 1e308 sum to infinity, and `0·∞ = NaN` comes out as a white
+/// pixel; an eye at 1e160 is reported as "`up` parallel to the view".
 pub const MAX_NUMBER: f64 = 1e15;
 
 /// Why a value is not a scene number.

@@ -30,11 +30,9 @@ pub(super) struct Quick {
 /// ... or when testing every bounded prim costs at least as much as testing
 /// [`BVH_MIN_PRIMS`] similarity spheres (`prim_cost` units: such a sphere 1, another
 /// object 2, a CSG tree 2 per child it may evaluate, see [`Csg::cost`]). A few expensive
-/// solids gain from a BVH long before eight do: measured with callgrind on
-/// `tessera-bench tracer` scenes, four general shapes
-/// (`examples/shapes.ray`, cost 8) 1.94 G → 0.87 G instructions, the CSG example 1.88 G →
-/// 1.54 G, the CSG bench scene 111.5 M → 95.5 M; scenes of one or two solids (cost ≤ 4)
-/// are 10–14 % slower with one and stay linear.
+/// solids gain from a BVH long before eight do (four general shapes, as in
+/// `examples/shapes.ray`, cost 8), while scenes of one or two solids (cost ≤ 4) are slower
+/// with one and stay linear; docs/PERFORMANCE.md has the figures.
 pub(super) const BVH_MIN_COST: f64 = BVH_MIN_PRIMS as f64 * SPHERE_COST;
 
 /// The acceleration structure of a scene.
@@ -183,8 +181,8 @@ impl PointTables {
 /// rejected by its packed pre-test before its object is touched, and is costed as one
 /// visit (with the miss bookkeeping); any other object carries the ray into its own space
 /// and solves its shape; a CSG tree does that for each child it reaches. Only the ratios
-/// matter, and only roughly: they decide how many items a leaf holds. (Measured on the
-/// scaling scenes, a sphere cost of 0.3, 0.5 or 1 changed instructions per ray by under 1%.)
+/// matter, and only roughly: they decide how many items a leaf holds, and the scaling
+/// scenes barely tell a sphere cost of 0.3 from one of 1.
 pub(super) fn prim_cost(prim: &Prim, objects: &[Object]) -> f64 {
     match prim {
         Prim::Object(o) if objects[*o as usize].sphere.is_some() => SPHERE_COST,

@@ -202,12 +202,12 @@ impl Scene {
 
     /// The lone convex objects whose surface passes through light `light` (within the
     /// rounding of carrying the light into their space), each with its world outward normal
-    /// there ([`Object::normals_through`]), once per supporting plane. Such an object cannot shadow its light from a
-    /// point on the outer side of its tangent plane there: the object lies in the other
+    /// there ([`Object::normals_through`]), once per supporting plane. Such an object cannot
+    /// shadow its light from a point on the outer side of its tangent plane there: the object lies in the other
     /// half-space, and the segment meets it only at the light, which SCENE.md's segment
     /// does not include. Tracing it anyway decides by rounding: a shadow ray reaching the
     /// light nearly tangent meets the surface in two nearly equal roots, known only to
-    /// about √ε, and some of them fell before the light.
+    /// about √ε, and some of them fall before the light.
     pub(crate) fn lights_on(&self, light: usize) -> &[(u32, DVec3)] {
         self.lights_on.get(light).map_or(&[], Vec::as_slice)
     }

@@ -105,8 +105,8 @@ impl Scene {
     }
 
     /// The any-hit search, leaving out the lone objects `skip` names. Generic so that the
-    /// common search (one object left out, or none) costs no more than it did before
-    /// lights on surfaces were known: each caller gets its own compiled copy.
+    /// common search (one object left out, or none) pays nothing for the rarer list of
+    /// objects a light lies on: each caller gets its own compiled copy.
     #[inline]
     pub(super) fn occluded_unless(
         &self,
@@ -129,8 +129,8 @@ impl Scene {
 
     /// The unbounded prims, then the BVH's candidates until one blocks. Not inlined into
     /// the shading code, like [`Self::intersect_bvh`]: compiled on its own, the two-lane box
-    /// test is vectorised the same way in both searches (inlined into the shader it was
-    /// not, and cost half as much again).
+    /// test is vectorised the same way in both searches (inlined into the shader it is
+    /// not, and costs half as much again).
     #[inline(never)]
     pub(super) fn occluded_bvh(
         &self,
