@@ -2,11 +2,13 @@
 //! tracing, extended with an arbitrary camera, many lights, more shapes and CSG.
 //!
 //! This crate turns `.ray` scene text into pixels. It parses and validates scenes
-//! ([`scene`]), places unit shapes with composite and inverse matrices ([`transform`],
-//! [`shape`]), shades them exactly as the format's "exact image" defines ([`render`]),
-//! samples pixels deterministically ([`sampler`]; the adaptive sampler ends a pixel after one
-//! ray where the geometry proves it smooth, and refines one where a thin sphere or rod may
-//! hide between its first rays, [`footprint`]), and encodes sRGB PNGs ([`png_out`]).
+//! ([`parse`], [`SceneDesc`]), places unit shapes with composite and inverse matrices
+//! ([`Transform`], [`Shape`]), shades them exactly as the format's "exact image" defines
+//! ([`Scene::render_rect`]), samples pixels deterministically ([`Sampler`]; the adaptive
+//! sampler ends a pixel after one ray where the geometry proves it smooth, and refines one
+//! where a thin sphere or rod may hide between its first rays), and encodes sRGB PNGs
+//! ([`PngWriter`], [`encode_png`]). Everything public is re-exported here; the modules
+//! behind it are private.
 //! It knows nothing of networks, databases or job queues: the farm's service and workers
 //! call [`Scene::render_rect`] on tiles, and a tile's pixels never depend on the tile.
 //!

@@ -108,7 +108,7 @@ pub const MAX_PIECES: usize = 16;
 
 impl Object {
     /// Boxes that together hold the whole surface, for the BVH: a cylinder or cone cut
-    /// across its axis into up to [`MAX_PIECES`] slices, each bounded exactly; empty for
+    /// across its axis into up to `MAX_PIECES` slices, each bounded exactly; empty for
     /// every other shape (the BVH then uses [`Object::bounds`]).
     ///
     /// A long thin solid laid diagonally fills only a sliver of its world box, and in a
@@ -126,14 +126,14 @@ impl Object {
     /// spanned by `ρ·M·x̂` and `ρ·M·ẑ`, whose extent along world axis `i` is exactly
     /// `ρ·√(M_i0² + M_i2²)` (the largest `ρ(M_i0 cos φ + M_i2 sin φ)`). Computed, each is
     /// within a few ulps of its magnitude; the BVH pads every box by 1e-7 of its magnitude
-    /// ([`crate::bvh::SLACK`]), a margin nine orders wider, and the slices share their end
+    /// (`crate::bvh::SLACK`), a margin nine orders wider, and the slices share their end
     /// discs, so the padded boxes together hold the solid and every computed hit on it.
     pub fn pieces(&self) -> Vec<Aabb> {
         self.slices().into_iter().map(|p| p.bounds).collect()
     }
 
     /// The same slices as [`Object::pieces`], each with its box and a capsule that holds it
-    /// (see [`Piece`]); empty for shapes that are not cut.
+    /// (see `Piece`); empty for shapes that are not cut.
     pub fn slices(&self) -> Vec<Piece> {
         let radius: fn(f64) -> f64 = match self.shape {
             Shape::Cylinder => |_| 1.0,
@@ -197,9 +197,9 @@ pub const RING_CHORDS: usize = 32;
 
 impl Object {
     /// Capsules that together hold the whole solid, for the adaptive sampler's per-pixel
-    /// footprints ([`crate::footprint`]): a long cylinder's or cone's slices
+    /// footprints (`crate::footprint`): a long cylinder's or cone's slices
     /// ([`Object::slices`]), and for a torus one capsule per chord of its core circle
-    /// ([`RING_CHORDS`]); empty for every other shape.
+    /// (`RING_CHORDS`); empty for every other shape.
     ///
     /// **The torus.** In object space the tube is the set of points within `minor` of the
     /// core circle, and every point of an arc lies within the sagitta `s = R·(1 − cos(π/n))`

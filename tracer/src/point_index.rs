@@ -69,7 +69,7 @@ pub const PAD: f64 = 1e-7;
 pub const NEAR: f64 = 1e-6;
 
 /// Fewest bounded solids for which a scene builds tables: the one for its eye, and the ones
-/// for its first [`MAX_LIGHTS`] lights. With fewer the BVH search is a couple of node visits,
+/// for its first `MAX_LIGHTS` lights. With fewer the BVH search is a couple of node visits,
 /// and a lookup gains nothing (the cloud bench scenes show it: see PERFORMANCE.md).
 pub const MIN_PRIMS: usize = 64;
 

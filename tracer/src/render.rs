@@ -337,7 +337,7 @@ impl Scene {
     }
 
     /// A high-rate estimate of the exact image over `rect` (`n × n` stratified samples per
-    /// pixel, see [`crate::sampler::reference_pixel`]).
+    /// pixel, see `crate::sampler::reference_pixel`).
     #[cfg(feature = "bench")]
     pub fn reference_rect(&self, rect: Rect, n: u32) -> (Vec<Color>, RayStats) {
         let counters = Counters::default();

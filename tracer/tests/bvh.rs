@@ -144,7 +144,7 @@ fn bvh_answers_equal_brute_force_on_random_scenes() {
                 || linear
                     .prims()
                     .iter()
-                    .all(|p| p.bounds(&linear.objects()).is_none())
+                    .all(|p| p.bounds(linear.objects()).is_none())
         );
         for _ in 0..500 {
             let r = random_ray(&mut rng, &linear, extent);

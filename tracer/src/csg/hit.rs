@@ -132,10 +132,10 @@ impl Csg {
     }
 
     /// The nearest boundary of the solid with `0 < t < t_max`: its `t` and the primitive
-    /// surface there. See [`first_boundary`] for how the surface a ray leaves is told apart.
+    /// surface there. See `first_boundary` for how the surface a ray leaves is told apart.
     ///
-    /// The tree's balls ([`Ball`]) and its box are tested first: only a ray that passes
-    /// both takes this thread's scratch buffers (see [`with_scratch`]) and evaluates the
+    /// The tree's balls (`Ball`) and its box are tested first: only a ray that passes
+    /// both takes this thread's scratch buffers (see `with_scratch`) and evaluates the
     /// tree.
     pub fn first_hit(&self, objects: &[Object], ray: &Ray, t_max: f64) -> Option<Boundary> {
         // The balls first: they need no division, and they are the tighter test.

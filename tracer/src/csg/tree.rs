@@ -148,7 +148,7 @@ impl Csg {
     }
 
     /// Calls `visit` with every child whose box may pass `touches` (a conservative test of
-    /// a region, as [`Bvh::any_item`] takes): through the index where there is one, so a
+    /// a region, as `Bvh::any_item` takes): through the index where there is one, so a
     /// tree of thousands of children costs about `log n` box tests plus the children
     /// found; otherwise every child. Children without a box are always visited.
     pub fn children_near<'a>(

@@ -397,7 +397,7 @@ impl<'s> Footprints<'s> {
 
     /// What an edge of `object`'s checker can hide in pixel `(px, py)`'s square on a side
     /// that none of the rays through image positions `seen` (rays that all saw `object`) fell
-    /// on: the step between the two colours there ([`Scene::checker_step`]'s bound) and how
+    /// on: the step between the two colours there (`Scene::checker_step`'s bound) and how
     /// many cell edges may cross the square (see `cell_edges`; unknown where a corner's ray
     /// misses the plane). `None` where the square lies in one cell, where those rays met
     /// cells of both colours, or for anything but a checkered plane without a texture. A ray

@@ -46,7 +46,7 @@ pub enum Sampler {
     /// stages that reuse every ray already traced, up to `max × max` stratified rays (for
     /// even `max`, the very rays of `Jitter { n: max }`): where the first pass varies by
     /// more than `threshold` or meets two objects, where the scene's geometry says a solid
-    /// the first pass did not see may show in the pixel ([`PixelGeometry::may_hide`]), or
+    /// the first pass did not see may show in the pixel (`PixelGeometry::may_hide`), or
     /// where a neighbour's first pass saw an edge, another object or another mean. For even
     /// `max ≥ 6`, a pixel only a neighbour asked for takes one more ray per quadrant first
     /// and stops there unless they disagree (or the step between them went unseen by both:
@@ -163,7 +163,7 @@ impl Sampler {
     }
 
     /// [`Sampler::render_rect`] with what the scene's geometry knows of each pixel's square
-    /// (see [`PixelGeometry`]): the adaptive sampler ends pixels it calls smooth after one
+    /// (see `PixelGeometry`): the adaptive sampler ends pixels it calls smooth after one
     /// ray, and refines pixels where a solid their first pass did not see may show. Other
     /// samplers never ask it.
     pub fn render_rect_probed<F, G>(&self, rect: Rect, trace: F, geometry: &G, out: &mut [Color])

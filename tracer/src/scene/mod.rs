@@ -69,7 +69,7 @@ impl Default for Limits {
 /// A parsed, validated scene, before its textures are loaded.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SceneDesc {
-    /// Image width in pixels (`width` in [GLOBALS]).
+    /// Image width in pixels (`width` in `[GLOBALS]`).
     pub width: u32,
     /// Image height in pixels.
     pub height: u32,
@@ -85,7 +85,7 @@ pub struct SceneDesc {
     pub sampler: Sampler,
     /// The camera.
     pub camera: CameraDesc,
-    /// The point lights: the globals' `light` first, then each [LIGHT] in order.
+    /// The point lights: the globals' `light` first, then each `[LIGHT]` in order.
     pub lights: Vec<Light>,
     /// The top-level objects and CSG trees, in the order written.
     pub objects: Vec<Node>,

@@ -140,7 +140,7 @@ impl Scene {
     }
 
     /// The same scene with its candidate search rebuilt as `mode` says (and its clear
-    /// lights found again, see [`crate::shadow`]). The images are the same whatever the
+    /// lights found again, see `crate::shadow`). The images are the same whatever the
     /// mode; tests and benchmarks use [`Acceleration::Off`] as the reference.
     pub fn with_acceleration(mut self, mode: Acceleration) -> Scene {
         // CSG nodes with many children carry their own index (see `crate::csg`): kept at its
@@ -173,7 +173,7 @@ impl Scene {
     }
 
     /// The same scene with its BVH but without the tables of rays through the eye and the
-    /// lights ([`crate::point_index`]): every ray walks the tree. The reference the tables'
+    /// lights (`crate::point_index`): every ray walks the tree. The reference the tables'
     /// tests and the benchmark compare against (the images are the same).
     #[cfg(feature = "bench")]
     pub fn without_point_tables(mut self) -> Scene {
@@ -182,7 +182,7 @@ impl Scene {
     }
 
     /// Whether rays through the eye, and through how many lights, look up a table of their
-    /// own (see [`crate::point_index`]).
+    /// own (see `crate::point_index`).
     #[cfg(feature = "bench")]
     pub fn point_tables(&self) -> (bool, usize) {
         (
@@ -191,7 +191,7 @@ impl Scene {
         )
     }
 
-    /// The same scene tracing every shadow ray, even those [`crate::shadow`] knows cannot be
+    /// The same scene tracing every shadow ray, even those `crate::shadow` knows cannot be
     /// blocked: the reference that tests and benchmarks compare the culling against (the
     /// images are the same).
     #[cfg(feature = "bench")]

@@ -41,7 +41,7 @@ pub struct Hit {
     pub local: LocalHit,
 }
 
-/// A scene ready to render: built once from a [`SceneDesc`] and its assets, then shared by
+/// A scene ready to render: built once from a `SceneDesc` and its assets, then shared by
 /// every thread that renders a tile of it.
 #[derive(Debug, Clone)]
 pub struct Scene {
@@ -81,13 +81,13 @@ pub struct Scene {
     pub(crate) mirrors: usize,
 }
 
-/// Which way [`Scene::intersect`] and [`Scene::occluded`] find candidate prims. Every choice
+/// Which way `Scene::intersect` and `Scene::occluded` find candidate prims. Every choice
 /// gives the same answers, bit for bit; only the speed differs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Acceleration {
-    /// A BVH when there are at least [`BVH_MIN_PRIMS`] bounded prims or their cost is at
-    /// least [`BVH_MIN_COST`], else every prim; an index in each union or difference with
-    /// at least [`crate::csg::CSG_INDEX_MIN`] children to index.
+    /// A BVH when there are at least `BVH_MIN_PRIMS` bounded prims or their cost is at
+    /// least `BVH_MIN_COST`, else every prim; an index in each union or difference with
+    /// at least `crate::csg::CSG_INDEX_MIN` children to index.
     #[default]
     Auto,
     /// Every prim, in order, for every ray, and every CSG child in order (the reference
