@@ -8,7 +8,7 @@ WORKDIR /src
 # The whole workspace (.dockerignore keeps target/ and .git out): Cargo reads every member's
 # manifest even for -p, and the service embeds migrations/ and its page at compile time.
 COPY . .
-RUN cargo build --release --locked -p tessera-service -p tessera-worker -p tessera-tracer \
+RUN cargo build --release --locked -p tessera-service -p tessera-worker -p tessera-render \
     && cp target/release/tessera-service target/release/tessera-worker \
           target/release/tessera-render /usr/local/bin/
 

@@ -16,9 +16,8 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use rayon::prelude::*;
-use tessera_tracer::exact::error;
-use tessera_tracer::math::Color;
-use tessera_tracer::{DirAssets, Limits, Rect, Sampler, Scene, TextureLimits, parse, tiles};
+use tessera_tracer::internals::exact::error;
+use tessera_tracer::{Color, DirAssets, Limits, Rect, Sampler, Scene, TextureLimits, parse, tiles};
 
 use crate::stats::median;
 use crate::svg::{Panel, Series};

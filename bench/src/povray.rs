@@ -27,10 +27,10 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use glam::{DAffine3, DVec3};
-use tessera_tracer::scene::{CsgOp, Light, MaterialDesc, Node, ObjectDesc, SceneDesc};
-use tessera_tracer::shape::Shape;
-use tessera_tracer::transform::Transform;
-use tessera_tracer::{Limits, MemoryAssets, Rect, Sampler, Scene, TextureLimits, parse};
+use tessera_tracer::{
+    CsgOp, Light, Limits, MaterialDesc, MemoryAssets, Node, ObjectDesc, Rect, Sampler, Scene,
+    SceneDesc, Shape, TextureLimits, Transform, parse,
+};
 
 use crate::stats::{Spread, median};
 
@@ -370,7 +370,7 @@ mod tests {
     fn matrix_flips_handedness_consistently() {
         // A rotation about y by 90° maps +z to +x in our right-handed world; in POV-Ray's
         // left-handed one, -z (our +z) must go to +x.
-        let t = Transform::from_op(tessera_tracer::transform::TransformOp::Rotate(DVec3::new(
+        let t = Transform::from_op(tessera_tracer::TransformOp::Rotate(DVec3::new(
             0.0, 90.0, 0.0,
         )));
         let m = matrix(&t);

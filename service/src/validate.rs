@@ -60,14 +60,14 @@ fn busy_decoding(state: &AppState) -> ApiError {
 }
 
 /// A scene's texture name as the upload it stands for: `/`-separated, resolved by
-/// `tessera-render`'s own rule ([`tessera_tracer::texture::lexical`]: `./globe.png` and
+/// `tessera-render`'s own rule ([`tessera_tracer::lexical_texture_path`]: `./globe.png` and
 /// `maps/../globe.png` are `globe.png`). `None` for a name that leaves the scene's folder
 /// or is no relative name (a leading `/`, a `\`, control characters).
 fn texture_key(name: &str) -> Option<String> {
     if name.starts_with('/') || name.contains('\\') || name.chars().any(char::is_control) {
         return None;
     }
-    let resolved = tessera_tracer::texture::lexical(name);
+    let resolved = tessera_tracer::lexical_texture_path(name);
     let parts: Option<Vec<&str>> = resolved
         .components()
         .map(|c| match c {

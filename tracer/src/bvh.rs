@@ -4,7 +4,7 @@
 //!
 //! **What it is for.** [`crate::world::Scene`] builds one over its *bounded* solids (lone
 //! objects and CSG trees with a finite box) when there are enough of them to gain
-//! ([`crate::world::BVH_MIN_PRIMS`]). The tree is built once, top-down with the surface area
+//! ([`crate::bvh::BVH_MIN_PRIMS`]). The tree is built once, top-down with the surface area
 //! heuristic over [`BINS`] centroid bins on each of the three axes (Wald 2007; pbrt §4.3.2),
 //! each item weighted by what testing it costs, and stored as a flat array of interior
 //! nodes in depth-first order. A node holds the boxes of *both* its children (in `f32`,
@@ -306,16 +306,8 @@ impl Bvh {
         self.items.len()
     }
 
-    pub fn is_empty(&self) -> bool {
-        self.items.is_empty()
-    }
-
-    /// Number of interior nodes (for tests and statistics).
-    pub fn node_count(&self) -> usize {
-        self.nodes.len()
-    }
-
     /// Depth of the deepest leaf (a root leaf is depth 0).
+    #[cfg(test)]
     pub fn depth(&self) -> usize {
         fn go(nodes: &[Node], c: Child) -> usize {
             if c.count > 0 {
@@ -395,8 +387,8 @@ impl Bvh {
         }
         let ray = SlabRay::new(origin, inv_dir);
         // Not an array: `[(Child, f64); STACK]` would be zero-filled (976 bytes) on every
-        // query, and that `memset` was 6 % of all instructions in a scene of small spheres
-        // (callgrind). An `ArrayVec` leaves its slots uninitialised until pushed. It cannot
+        // query, a `memset` that costs a visible share of a scene of small spheres. An
+        // `ArrayVec` leaves its slots uninitialised until pushed. It cannot
         // overflow: the builder caps the interior depth at MAX_DEPTH, and each interior
         // level of the path leaves at most one entry.
         let mut stack: ArrayVec<(Child, f64), STACK> = ArrayVec::new();
@@ -589,6 +581,11 @@ fn sah_split(items: &mut [BuildItem], bounds: &Aabb) -> Option<usize> {
     // Both sides are non-empty by the choice of plane, as the bin counts say.
     (mid > 0 && mid < items.len()).then_some(mid)
 }
+
+/// Below this many bounded prims a scene tests every prim for every ray: a BVH's box tests
+/// and bookkeeping cost more than they save on a handful of solids (`tessera-bench tracer`
+/// puts the break-even near eight spheres; docs/PERFORMANCE.md has the figures).
+pub const BVH_MIN_PRIMS: usize = 8;
 
 #[cfg(test)]
 mod tests {

@@ -9,6 +9,8 @@ use glam::DVec3;
 use crate::math::Ray;
 use crate::scene::CameraDesc;
 
+/// The pinhole camera: the eye, the image plane at unit distance along the view, and the
+/// primary ray through any point of the image.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Camera {
     eye: DVec3,
@@ -41,12 +43,9 @@ impl Camera {
         }
     }
 
+    /// Where primary rays start.
     pub fn eye(&self) -> DVec3 {
         self.eye
-    }
-
-    pub fn forward(&self) -> DVec3 {
-        self.forward
     }
 
     /// An upper bound on the angle between two rays through the same pixel, anywhere in the

@@ -12,11 +12,14 @@ use std::fmt;
 /// A position in a scene file: 1-based line and column (in characters).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
 pub struct Pos {
+    /// Line, from 1.
     pub line: u32,
+    /// Column in characters, from 1.
     pub column: u32,
 }
 
 impl Pos {
+    /// A position at `line` and `column` (both from 1).
     pub const fn new(line: u32, column: u32) -> Self {
         Pos { line, column }
     }
@@ -31,7 +34,9 @@ impl fmt::Display for Pos {
 /// One problem in a scene, at a position.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Diagnostic {
+    /// Where the problem is.
     pub pos: Pos,
+    /// What is wrong, in one line.
     pub message: String,
 }
 
@@ -84,11 +89,11 @@ pub(crate) fn shorten(s: &str) -> String {
 }
 
 /// The diagnostics of one pass, as they are found, in bounded memory: a file of millions of
-/// bad lines kept every one of them (160 bytes each) to print the first hundred. Only the
+/// bad lines must not keep every one of them (160 bytes each) to print the first hundred. Only the
 /// earliest [`MAX_DIAGNOSTICS`] + 1 by position are kept (the one past the shown ones says
 /// where the rest begin); the others are only counted, so a diagnostic repeated word for
 /// word at the same place counts twice in "more errors" if both copies are past the kept
-/// ones (kept ones are deduplicated as before).
+/// ones (kept ones are deduplicated).
 #[derive(Debug, Default)]
 pub(crate) struct Found {
     kept: Vec<Diagnostic>,
@@ -146,8 +151,8 @@ pub struct SceneError {
 }
 
 /// Most diagnostics one error reports; past them, one more says how many were left out. A
-/// file of a million bad lines printed a million lines (and the service answered them all
-/// in one JSON body); the first hundred say what is wrong as well.
+/// file of a million bad lines would otherwise print a million lines (and the service answer
+/// them all in one JSON body); the first hundred say what is wrong as well.
 pub const MAX_DIAGNOSTICS: usize = 100;
 
 impl SceneError {
@@ -174,10 +179,12 @@ impl SceneError {
         SceneError { diagnostics }
     }
 
+    /// An error of one diagnostic.
     pub fn single(pos: Pos, message: impl Into<String>) -> Self {
         SceneError::new(vec![Diagnostic::new(pos, message)])
     }
 
+    /// The diagnostics, sorted by position (the last may count the ones left out).
     pub fn diagnostics(&self) -> &[Diagnostic] {
         &self.diagnostics
     }

@@ -27,17 +27,21 @@ pub const fn gamma(n: u32) -> f64 {
 /// A ray `origin + t · dir`. `dir` need not be normalised; `t` is measured in units of `dir`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ray {
+    /// Where the ray starts (`t = 0`).
     pub origin: DVec3,
+    /// Its direction; `t = 1` is `origin + dir`.
     pub dir: DVec3,
 }
 
 impl Ray {
     #[inline]
+    /// The ray from `origin` along `dir`.
     pub const fn new(origin: DVec3, dir: DVec3) -> Self {
         Ray { origin, dir }
     }
 
     #[inline]
+    /// The point `origin + t · dir`.
     pub fn at(&self, t: f64) -> DVec3 {
         self.origin + self.dir * t
     }
@@ -53,24 +57,30 @@ impl Ray {
 /// An axis-aligned bounding box.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Aabb {
+    /// The corner with the smallest coordinates.
     pub min: DVec3,
+    /// The corner with the largest coordinates.
     pub max: DVec3,
 }
 
 impl Aabb {
+    /// The box that holds nothing: the union with it leaves a box unchanged.
     pub const EMPTY: Aabb = Aabb {
         min: DVec3::splat(f64::INFINITY),
         max: DVec3::splat(f64::NEG_INFINITY),
     };
 
+    /// The box from `min` to `max`.
     pub fn new(min: DVec3, max: DVec3) -> Self {
         Aabb { min, max }
     }
 
+    /// The smallest box holding both.
     pub fn union(&self, other: &Aabb) -> Aabb {
         Aabb::new(self.min.min(other.min), self.max.max(other.max))
     }
 
+    /// The smallest box holding this one and `p`.
     pub fn grow(&self, p: DVec3) -> Aabb {
         Aabb::new(self.min.min(p), self.max.max(p))
     }
@@ -80,14 +90,17 @@ impl Aabb {
         (self.min.cmple(p) & p.cmple(self.max)).all()
     }
 
+    /// Whether the box holds no point (`min > max` on some axis).
     pub fn is_empty(&self) -> bool {
         self.min.x > self.max.x || self.min.y > self.max.y || self.min.z > self.max.z
     }
 
+    /// The box's centre.
     pub fn centroid(&self) -> DVec3 {
         (self.min + self.max) * 0.5
     }
 
+    /// The area of its six faces.
     pub fn surface_area(&self) -> f64 {
         if self.is_empty() {
             return 0.0;

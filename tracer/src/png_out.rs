@@ -12,15 +12,30 @@ use std::sync::{Arc, Mutex, PoisonError};
 #[derive(Debug, thiserror::Error)]
 pub enum PngError {
     /// The output took no more bytes (a full disk, a closed pipe). Its cause is the message,
-    /// not a source as well: `anyhow`'s `{:#}` printed the OS error twice.
+    /// not a source as well: `anyhow`'s `{:#}` would print the OS error twice.
     #[error("{0}")]
     Write(std::io::Error),
+    /// The encoder refused (an image of zero size, an internal limit).
     #[error("PNG encoding failed: {0}")]
     Encode(png::EncodingError),
+    /// The rows given add up to more or fewer bytes than the image holds.
     #[error("expected {expected} bytes of rows in all, got {got}")]
-    Length { expected: u64, got: u64 },
+    Length {
+        /// `width × height × 3`.
+        expected: u64,
+        /// The bytes given.
+        got: u64,
+    },
+    /// A tile's bytes do not match its size (`width × height × 3`).
     #[error("a tile {width} pixels wide and {height} rows high holds {len} bytes")]
-    Piece { width: u32, height: u32, len: usize },
+    Piece {
+        /// The tile's width in pixels.
+        width: u32,
+        /// Its height in rows.
+        height: u32,
+        /// The bytes given for it.
+        len: usize,
+    },
 }
 
 impl From<png::EncodingError> for PngError {
@@ -43,12 +58,14 @@ pub struct PngWriter<W: Write + 'static> {
 }
 
 impl<W: Write + 'static> PngWriter<W> {
+    /// Writes the PNG header of a `width × height` sRGB image to `out`.
     pub fn new(out: W, width: u32, height: u32) -> Result<Self, PngError> {
         let mut enc = png::Encoder::new(out, width, height);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
         enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
-        // `Fast` encodes a 1080p frame in milliseconds; `Balanced` costs ~15× more for ~1 %.
+        // `Fast` keeps encoding a small share of a render; `Balanced` costs many times more
+        // for files barely smaller.
         enc.set_compression(png::Compression::Fast);
         let writer = enc.write_header()?;
         let stream = writer.into_stream_writer()?;
@@ -137,6 +154,7 @@ impl<W: Write + 'static> PngWriter<W> {
 pub struct SharedBuffer(Arc<Mutex<Vec<u8>>>);
 
 impl SharedBuffer {
+    /// An empty buffer.
     pub fn new() -> Self {
         Self::default()
     }

@@ -69,18 +69,18 @@ pub const PAD: f64 = 1e-7;
 pub const NEAR: f64 = 1e-6;
 
 /// Fewest bounded solids for which a scene builds tables: the one for its eye, and the ones
-/// for its first [`MAX_LIGHTS`] lights. With fewer the BVH search is a couple of node visits,
-/// and a lookup gains nothing (measured on the cloud bench scenes: see PERFORMANCE.md).
+/// for its first `MAX_LIGHTS` lights. With fewer the BVH search is a couple of node visits,
+/// and a lookup gains nothing (the cloud bench scenes show it: see PERFORMANCE.md).
 pub const MIN_PRIMS: usize = 64;
 
 /// Fewest pixels of the image per box to list for which a scene builds tables. A table costs
 /// over a thousand instructions a box to build and saves at most about a thousand a ray, some
-/// rays of each pixel passing through each point. Measured, with tables for every scene: 2,000
-/// long rods under 64 lights took 0.42 s for a 16 × 12 image that took 0.09 s without them,
-/// and 2.17 s against 1.96 s at 320 × 240; 20,000 spheres of radius 5 under 70 lights
-/// rendered at 200 × 150 1.2 times as slowly. The threshold is on the safe side: the
+/// rays of each pixel passing through each point, so a small image over many boxes loses
+/// more to building than it gains (a few thousand rods under dozens of lights at 16 × 12
+/// render several times as slowly with tables). The threshold is on the safe side: the
 /// benchmark's cloud of 16,384 spheres at 160 × 120 (1.2 pixels a box, its tables built with
-/// `Acceleration::Always`) already gains from both of its tables.
+/// `Acceleration::Always`) already gains from both of its tables; docs/PERFORMANCE.md has
+/// the figures.
 pub const PIXELS_PER_BOX: u64 = 4;
 
 /// Lights with a table of their own; the others' shadow rays take the BVH.

@@ -25,40 +25,46 @@ use rayon::prelude::*;
 
 use crate::footprint::{Footprints, PixelRegion};
 use crate::math::{Color, Ray, offset_ray_origin};
+use crate::object::Object;
 use crate::sampler::{Sample, Sampler};
 use crate::shape::LocalHit;
 use crate::srgb;
 use crate::tile::{Rect, tiles};
-use crate::world::{Hit, Object, Scene};
+use crate::world::{Hit, Scene};
 
 /// A shadow ray stops this far short of its light, as a fraction of its scale
 /// (`|origin|/|dir| + 1`, in units of its `t`, which is 1 at the light): a surface that
 /// passes through the light itself does not shadow it.
 ///
 /// Without it, a light placed exactly on a surface (a lamp on a wall, a light at a sphere's
-/// pole) was shadowed by that surface on a random quarter of the pixels it lights: the
+/// pole) would be shadowed by that surface on a random quarter of the pixels it lights: the
 /// crossing at the light comes out a few ulps before or after `t = 1` from ray to ray. The
 /// segment from a point to its light is open at the light (SCENE.md's "clear" segment
 /// ends there). 1e-14 of the scale is some 45 ulps of it: the crossing's rounding is a few
 /// ulps of the coordinates (of `|origin|` for an object placed by a general matrix, less
 /// for one placed by a similarity), and a blocker nearer the light than that is lost,
 /// 2e-13 of a unit for a scene 20 units across, 1e-5 of a unit for one placed at 1e9. (At
-/// 1e-12, the first value tried, a light 1e-3 under a plane at 1e9 shone through it.)
+/// 1e-12, a light 1e-3 under a plane at 1e9 would shine through it.)
 pub const SHADOW_END_REL: f64 = 1e-14;
 
 /// Counts of rays traced, for benchmarks ("rays per pixel").
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct RayStats {
+    /// Rays from the eye.
     pub primary: u64,
+    /// Rays towards lights.
     pub shadow: u64,
+    /// Mirror reflections.
     pub mirror: u64,
 }
 
 impl RayStats {
+    /// All rays together.
     pub fn total(&self) -> u64 {
         self.primary + self.shadow + self.mirror
     }
 
+    /// Adds `other`'s counts to these.
     pub fn add(&mut self, other: &RayStats) {
         self.primary += other.primary;
         self.shadow += other.shadow;
@@ -92,6 +98,7 @@ impl Counters {
 /// must clear, and the normal facing the ray that arrived.
 #[derive(Debug, Clone, Copy)]
 pub struct SurfacePoint {
+    /// The hit point in world space.
     pub p: DVec3,
     /// Per-axis bound the offset must clear: the hit point's own error plus the rounding of
     /// carrying a point near it back into this object's space for the next intersection test.
@@ -116,6 +123,8 @@ impl SurfacePoint {
     }
 
     /// Origin for a secondary ray leaving towards `dir`: off the surface, on `dir`'s side.
+    // Used through `crate::internals` (feature `bench`) and by the tests.
+    #[cfg_attr(not(feature = "bench"), allow(dead_code))]
     pub fn origin_towards(&self, dir: DVec3) -> DVec3 {
         offset_ray_origin(self.p, self.err, self.n, dir)
     }
@@ -328,7 +337,8 @@ impl Scene {
     }
 
     /// A high-rate estimate of the exact image over `rect` (`n × n` stratified samples per
-    /// pixel, see [`crate::sampler::reference_pixel`]).
+    /// pixel, see `crate::sampler::reference_pixel`).
+    #[cfg(feature = "bench")]
     pub fn reference_rect(&self, rect: Rect, n: u32) -> (Vec<Color>, RayStats) {
         let counters = Counters::default();
         let trace = |x: f64, y: f64| self.primary::<true>(x, y, &counters);

@@ -38,9 +38,9 @@ use glam::DVec3;
 use crate::bvh::{self, Bvh};
 use crate::csg::Prim;
 use crate::math::{Aabb, Ray};
+use crate::object::Object;
 use crate::scene::Light;
 use crate::shape::Shape;
-use crate::world::Object;
 
 /// Most box and item tests one scene spends on this; past it, the objects not yet decided
 /// keep all their shadow rays. It bounds the build time of adversarial scenes (thousands of
@@ -194,6 +194,7 @@ impl ClearLights {
     }
 
     /// Whether nothing but `object` itself can block its shadow rays to light `light`.
+    #[cfg(test)]
     pub fn is_clear(&self, object: u32, light: usize) -> bool {
         light < 64 && self.mask(object) >> light & 1 == 1
     }

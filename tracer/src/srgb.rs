@@ -3,12 +3,11 @@
 //! Encoding is the step where a last-bit difference between machines would change a byte of
 //! the PNG, so it uses no transcendental function at run time: an 8-bit value `k` is chosen by
 //! comparing the linear value with the 255 fixed thresholds `decode((k + ½) / 255)` (the
-//! linear values where rounding `255 · encode(x)` moves from `k` to `k + 1`). The table was
+//! linear values where rounding `255 · encode(x)` moves from `k` to `k + 1`). The table is
 //! computed in 50-digit decimal arithmetic and rounded once to `f64`; a test checks it against
 //! the formula. Encoding is then exact round-to-nearest of the sRGB curve, identical on every
 //! machine. To find `k` without a binary search over the 255 thresholds (eight dependent
-//! comparisons per channel, which were about a fifth of the time of a one-ray-per-pixel
-//! render), `[0, 1)` is cut into `BUCKETS` equal buckets; `FIRST` holds the code at each
+//! comparisons per channel, a large share of a one-ray-per-pixel render), `[0, 1)` is cut into `BUCKETS` equal buckets; `FIRST` holds the code at each
 //! bucket's lower end, and since no bucket holds more than one threshold (the thresholds are
 //! at least 3.0e-4 apart, a bucket 2.4e-4 wide; a test checks it), one comparison finishes
 //! the job. The answer is the same count of thresholds at or below `x`, exactly.
@@ -116,6 +115,7 @@ pub fn decode(v: f64) -> f64 {
 }
 
 /// The inverse sRGB transfer function, linear to encoded, both in `[0, 1]`.
+#[cfg(test)]
 pub fn encode(x: f64) -> f64 {
     if x <= 0.0031308 {
         x * 12.92

@@ -27,8 +27,8 @@ pub struct TextureLimits {
     /// Largest width × height.
     pub max_pixels: u64,
     /// Largest sum of width × height over all of a scene's textures. Every texel is kept (3
-    /// bytes), so this bounds a scene's texture memory whatever the number of files: without
-    /// it, 30 files of 196 KB each (8192² black PNGs) took 6 GB.
+    /// bytes), so this bounds a scene's texture memory whatever the number of files: a small
+    /// PNG of one colour can decode to gigabytes of texels.
     pub max_total_pixels: u64,
 }
 
@@ -51,31 +51,64 @@ pub const MAX_TEXTURE_FILE_BYTES: u64 = 1 << 30;
 /// Why a texture could not be used.
 #[derive(Debug, thiserror::Error)]
 pub enum TextureError {
+    /// The file cannot be read (or the assets do not hold it).
     #[error("cannot read texture file `{name}`: {reason}")]
-    Missing { name: String, reason: String },
+    Missing {
+        /// The texture name as the scene writes it.
+        name: String,
+        /// Why, as the operating system or the asset source says it.
+        reason: String,
+    },
+    /// The bytes are neither a PNG nor a PPM.
     #[error("texture `{name}` is not a PNG or PPM (P3/P6) image")]
-    UnknownFormat { name: String },
+    UnknownFormat {
+        /// The texture name as the scene writes it.
+        name: String,
+    },
+    /// Wider, higher or larger than [`TextureLimits`] allow, by its header.
     #[error("texture `{name}` is {width}×{height} texels; the limit is {limit}")]
     TooLarge {
+        /// The texture name as the scene writes it.
         name: String,
+        /// Its width in texels.
         width: u32,
+        /// Its height in texels.
         height: u32,
+        /// The limit it passes, as a message shows it.
         limit: String,
     },
     #[error(
         "texture `{name}` ({texels} texels) brings the scene's textures to {total} texels; \
          the limit is {limit} in all"
     )]
+    /// Within its own limits, but the scene's textures together pass
+    /// [`TextureLimits::max_total_pixels`].
     TooMuch {
+        /// The texture name as the scene writes it.
         name: String,
+        /// Its own texels.
         texels: u64,
+        /// The scene's texels with this one.
         total: u64,
+        /// The limit on all of them.
         limit: u64,
     },
+    /// The decoder would need more memory than the texture's limits allow.
     #[error("texture `{name}` needs more memory to decode than its limit allows ({limit})")]
-    DecodeLimit { name: String, limit: String },
+    DecodeLimit {
+        /// The texture name as the scene writes it.
+        name: String,
+        /// The limit, as a message shows it.
+        limit: String,
+    },
+    /// The image's data is broken.
     #[error("texture `{name}` cannot be decoded: {reason}")]
-    Decode { name: String, reason: String },
+    Decode {
+        /// The texture name as the scene writes it.
+        name: String,
+        /// The decoder's message.
+        reason: String,
+    },
 }
 
 /// Where a scene's texture files come from.
@@ -92,14 +125,17 @@ pub struct MemoryAssets {
 }
 
 impl MemoryAssets {
+    /// No assets.
     pub fn new() -> Self {
         Self::default()
     }
 
+    /// Adds (or replaces) the file `name` with `bytes`.
     pub fn insert(&mut self, name: impl Into<String>, bytes: Vec<u8>) {
         self.files.insert(name.into(), bytes);
     }
 
+    /// Whether the assets hold a file `name`.
     pub fn contains(&self, name: &str) -> bool {
         self.files.contains_key(name)
     }
@@ -124,6 +160,7 @@ pub struct DirAssets {
 }
 
 impl DirAssets {
+    /// Texture names are read relative to `root` (the scene file's folder).
     pub fn new(root: impl Into<PathBuf>) -> Self {
         DirAssets { root: root.into() }
     }
@@ -331,10 +368,12 @@ impl Texture {
         )
     }
 
+    /// Width in texels.
     pub fn width(&self) -> u32 {
         self.width
     }
 
+    /// Height in texels.
     pub fn height(&self) -> u32 {
         self.height
     }

@@ -6,9 +6,13 @@
 /// A rectangle of pixels: columns `x..x + width`, rows `y..y + height` (row 0 at the top).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Rect {
+    /// First column.
     pub x: u32,
+    /// First row (row 0 at the top).
     pub y: u32,
+    /// Columns.
     pub width: u32,
+    /// Rows.
     pub height: u32,
 }
 
@@ -24,6 +28,7 @@ impl std::fmt::Display for Rect {
 }
 
 impl Rect {
+    /// The rectangle of `width × height` pixels whose top-left pixel is (`x`, `y`).
     pub const fn new(x: u32, y: u32, width: u32, height: u32) -> Rect {
         Rect {
             x,
@@ -38,6 +43,7 @@ impl Rect {
         Rect::new(0, 0, width, height)
     }
 
+    /// `width × height`.
     pub fn pixel_count(&self) -> usize {
         self.width as usize * self.height as usize
     }

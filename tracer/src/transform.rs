@@ -19,6 +19,7 @@ pub enum TransformOp {
     Scale(DVec3),
     /// Rotation in degrees about X, then Y, then Z (right-hand rule).
     Rotate(DVec3),
+    /// Translation by the vector.
     Translate(DVec3),
 }
 
@@ -32,7 +33,7 @@ pub struct Transform {
     /// `Some((s, t))` when the transform is `p ↦ s·p + t` exactly.
     similarity: Option<(f64, DVec3)>,
     /// `1 / s` of the similarity, computed once here rather than for every ray (the same
-    /// correctly rounded value, so rays come out bit for bit as before).
+    /// correctly rounded value, so rays come out bit for bit as if divided per ray).
     inv_scale: f64,
 }
 
@@ -43,6 +44,7 @@ impl Default for Transform {
 }
 
 impl Transform {
+    /// The transform that leaves every point where it is.
     pub const IDENTITY: Transform = Transform {
         to_world: DAffine3::IDENTITY,
         to_object: DAffine3::IDENTITY,
@@ -105,14 +107,18 @@ impl Transform {
             .all(|e| e.abs() < 1e-9)
     }
 
+    /// Object space to world space.
     pub fn to_world(&self) -> &DAffine3 {
         &self.to_world
     }
 
+    /// World space to object space (the inverse).
     pub fn to_object(&self) -> &DAffine3 {
         &self.to_object
     }
 
+    /// `Some((s, t))` when the transform is exactly `p ↦ s·p + t` (a uniform scale and a
+    /// translation).
     pub fn similarity(&self) -> Option<(f64, DVec3)> {
         self.similarity
     }

@@ -9,8 +9,8 @@ use std::cell::RefCell;
 
 use common::{Reference, scene};
 use glam::{DVec2, DVec3};
-use tessera_tracer::exact::{disc_coverage, error, sphere_disc_radius};
-use tessera_tracer::sampler::Sample;
+use tessera_tracer::internals::Sample;
+use tessera_tracer::internals::exact::{disc_coverage, error, sphere_disc_radius};
 use tessera_tracer::{Rect, Sampler};
 
 const FLAT: f64 = 0.8;

@@ -8,7 +8,7 @@ mod common;
 use common::Rng;
 
 use glam::DVec3;
-use tessera_tracer::math::Ray;
+use tessera_tracer::internals::{Ray, SceneInternals};
 use tessera_tracer::{Acceleration, Rect, Scene};
 
 fn v(p: DVec3) -> String {
@@ -103,8 +103,8 @@ fn random_scene(rng: &mut Rng, n: usize, extent: f64, planes: bool) -> String {
 fn random_ray(rng: &mut Rng, s: &Scene, extent: f64) -> Ray {
     let origin = match rng.below(3) {
         0 => {
-            let k = rng.below(s.objects.len() as u64) as usize;
-            s.objects[k].transform.to_world().translation
+            let k = rng.below(s.objects().len() as u64) as usize;
+            s.objects()[k].transform.to_world().translation
         }
         1 => rng.vec(extent * 1.5).round(),
         _ => rng.vec(extent * 2.0),
@@ -142,9 +142,9 @@ fn bvh_answers_equal_brute_force_on_random_scenes() {
         assert!(
             bvh.uses_bvh()
                 || linear
-                    .prims
+                    .prims()
                     .iter()
-                    .all(|p| p.bounds(&linear.objects).is_none())
+                    .all(|p| p.bounds(linear.objects()).is_none())
         );
         for _ in 0..500 {
             let r = random_ray(&mut rng, &linear, extent);
@@ -153,8 +153,8 @@ fn bvh_answers_equal_brute_force_on_random_scenes() {
                 _ => f64::INFINITY,
             };
             // `skip` is only ever an object outside every CSG tree.
-            let free: Vec<u32> = (0..linear.objects.len() as u32)
-                .filter(|&i| !linear.objects[i as usize].in_csg)
+            let free: Vec<u32> = (0..linear.objects().len() as u32)
+                .filter(|&i| !linear.objects()[i as usize].in_csg)
                 .collect();
             let skip = (rng.below(4) == 0 && !free.is_empty())
                 .then(|| free[rng.below(free.len() as u64) as usize]);
@@ -171,14 +171,17 @@ fn bvh_answers_equal_brute_force_on_random_scenes() {
                     );
                     hits += 1;
                     // A tie: another solid also has a hit at exactly this t.
-                    let others = linear.objects.len();
+                    let others = linear.objects().len();
                     let tied = (0..others as u32).any(|k| {
-                        k != a.object && !linear.objects[k as usize].in_csg && Some(k) != skip && {
-                            let o = &linear.objects[k as usize];
-                            o.shape
-                                .intersect(&o.transform.ray_to_object(&r), t_max)
-                                .is_some_and(|h| h.t == a.local.t)
-                        }
+                        k != a.object
+                            && !linear.objects()[k as usize].in_csg
+                            && Some(k) != skip
+                            && {
+                                let o = &linear.objects()[k as usize];
+                                o.shape
+                                    .intersect(&o.transform.ray_to_object(&r), t_max)
+                                    .is_some_and(|h| h.t == a.local.t)
+                            }
                     });
                     ties += usize::from(tied);
                 }
@@ -332,7 +335,7 @@ fn thin_cylinders_bench_scene_is_identical() {
 #[test]
 fn few_prims_stay_linear() {
     let mut src = String::from("[OBJECT]\ntype = plane\n[/OBJECT]\n");
-    for i in 0..tessera_tracer::world::BVH_MIN_PRIMS - 1 {
+    for i in 0..tessera_tracer::internals::BVH_MIN_PRIMS - 1 {
         src += &format!(
             "[OBJECT]\ntype = sphere\ntranslate = <{}, 1, 0>\n[/OBJECT]\n",
             3 * i
@@ -409,9 +412,9 @@ fn big_csg_trees_answer_the_same_with_and_without_their_index() {
         );
         let indexed = common::scene(&src);
         let plain = indexed.clone().without_acceleration();
-        let root = |s: &Scene| match &s.prims[0] {
-            tessera_tracer::csg::Prim::Csg(c) => c.is_indexed(),
-            tessera_tracer::csg::Prim::Object(_) => panic!("round {round}: no tree first"),
+        let root = |s: &Scene| match &s.prims()[0] {
+            tessera_tracer::internals::Prim::Csg(c) => c.is_indexed(),
+            tessera_tracer::internals::Prim::Object(_) => panic!("round {round}: no tree first"),
         };
         assert!(root(&indexed) && !root(&plain), "round {round}");
         for _ in 0..1500 {
@@ -455,9 +458,9 @@ fn big_csg_trees_answer_the_same_with_and_without_their_index() {
 
 /// A shadow ray from `o` to light `li` as the renderer builds it, with its segment's end.
 fn shadow_ray(s: &Scene, li: usize, o: DVec3) -> (Ray, f64) {
-    let ray = Ray::new(o, s.lights[li].position - o);
+    let ray = Ray::new(o, s.lights()[li].position - o);
     let scale = o.length() / ray.dir.length() + 1.0;
-    (ray, 1.0 - tessera_tracer::render::SHADOW_END_REL * scale)
+    (ray, 1.0 - tessera_tracer::internals::SHADOW_END_REL * scale)
 }
 
 /// Rays through the eye look their candidates up in the eye's table, shadow rays in their
@@ -476,8 +479,8 @@ fn rays_through_the_eye_and_the_lights_answer_as_every_prim_does() {
         let base = common::scene(&src);
         // Where the eye and the first light go: their usual places, a solid's centre (inside
         // it), or a corner of a solid's box.
-        let k = rng.below(base.objects.len() as u64) as usize;
-        let centre = base.objects[k].transform.to_world().translation;
+        let k = rng.below(base.objects().len() as u64) as usize;
+        let centre = base.objects()[k].transform.to_world().translation;
         match round % 3 {
             1 => {
                 src = src.replace(
@@ -490,7 +493,7 @@ fn rays_through_the_eye_and_the_lights_answer_as_every_prim_does() {
                 );
             }
             2 => {
-                if let Some(b) = base.objects[k].bounds {
+                if let Some(b) = base.objects()[k].bounds {
                     src = src.replace(
                         "position = <10, 20, 15>",
                         &format!("position = {}", v(b.max)),
@@ -505,15 +508,15 @@ fn rays_through_the_eye_and_the_lights_answer_as_every_prim_does() {
             continue;
         }
         assert_eq!(tables.point_tables(), (true, 2), "round {round}");
-        let eye = tables.camera.eye();
+        let eye = tables.camera().eye();
         for _ in 0..1500 {
             let target = match rng.below(5) {
                 0 => {
-                    let o = &linear.objects[rng.below(linear.objects.len() as u64) as usize];
+                    let o = &linear.objects()[rng.below(linear.objects().len() as u64) as usize];
                     o.transform.to_world().translation
                 }
                 1 => {
-                    let o = &linear.objects[rng.below(linear.objects.len() as u64) as usize];
+                    let o = &linear.objects()[rng.below(linear.objects().len() as u64) as usize];
                     match o.bounds {
                         Some(b) if rng.below(2) == 0 => b.min,
                         Some(b) => b.max,
@@ -557,11 +560,11 @@ fn rays_through_the_eye_and_the_lights_answer_as_every_prim_does() {
                 (Some(h), 1) => r.origin + r.dir * (h.local.t * (1.0 - 1e-9)),
                 _ => rng.vec(extent * 2.0),
             };
-            for li in 0..tables.lights.len() {
+            for li in 0..tables.lights().len() {
                 let (sr, end) = shadow_ray(&tables, li, from);
                 let skip = a
                     .map(|h| h.object)
-                    .filter(|&o| !linear.objects[o as usize].in_csg && rng.below(2) == 0);
+                    .filter(|&o| !linear.objects()[o as usize].in_csg && rng.below(2) == 0);
                 let want = linear.occluded(&sr, end, skip);
                 assert_eq!(
                     tables.occluded_towards(li, &sr, end, skip, &[]),
@@ -613,7 +616,7 @@ fn a_shadow_ray_from_far_away_still_finds_its_blocker() {
 #[test]
 fn images_are_identical_with_and_without_the_point_tables() {
     let mut rng = Rng(4242);
-    let min = tessera_tracer::point_index::MIN_PRIMS;
+    let min = tessera_tracer::internals::point_index::MIN_PRIMS;
     for (n, sampler) in [
         (min - 2, "sampler = center"),
         (min - 1, "sampler = center"),
@@ -666,7 +669,7 @@ fn images_are_identical_with_and_without_the_point_tables() {
 /// `Acceleration::Always` whatever the image.
 #[test]
 fn small_images_of_many_solids_build_no_tables() {
-    let per_box = tessera_tracer::point_index::PIXELS_PER_BOX;
+    let per_box = tessera_tracer::internals::point_index::PIXELS_PER_BOX;
     let mut rng = Rng(99);
     let mut solids = String::new();
     for _ in 0..400 {

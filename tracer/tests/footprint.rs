@@ -13,10 +13,8 @@ mod common;
 use common::Rng;
 
 use glam::DVec3;
-use tessera_tracer::footprint::{Footprints, PixelRegion};
-use tessera_tracer::sampler::Sample;
-use tessera_tracer::shape::Shape;
-use tessera_tracer::{Rect, Scene};
+use tessera_tracer::internals::{Footprints, PixelRegion, Sample, SceneInternals};
+use tessera_tracer::{Rect, Scene, Shape};
 
 fn v(p: DVec3) -> String {
     format!("<{}, {}, {}>", p.x, p.y, p.z)
@@ -118,10 +116,10 @@ fn seen(s: &Scene, x: f64, y: f64) -> u32 {
 /// [`seen`], with the checker cell's parity where the object is checkered (as the renderer
 /// computes it: the floors of the object's own coordinates, summed).
 fn seen_cell(s: &Scene, x: f64, y: f64) -> (u32, i64) {
-    let Some(h) = s.intersect(&s.camera.ray(x, y), f64::INFINITY, None) else {
+    let Some(h) = s.intersect(&s.camera().ray(x, y), f64::INFINITY, None) else {
         return (Sample::BACKGROUND, 0);
     };
-    let obj = &s.objects[h.object as usize];
+    let obj = &s.objects()[h.object as usize];
     if obj.material.color2.is_none() {
         return (h.object, 0);
     }
@@ -184,7 +182,7 @@ fn a_pixel_called_smooth_shows_one_solid_everywhere() {
                 }
                 smooth += 1;
                 on_checker += u32::from(
-                    s.objects
+                    s.objects()
                         .get(object as usize)
                         .is_some_and(|o| o.material.color2.is_some()),
                 );
@@ -232,7 +230,7 @@ fn a_sphere_or_rod_that_shows_in_a_pixel_is_never_hidden() {
         // Spheres placed by a similarity, rods (cylinders, cones) and tori, in a tree or
         // not (a tree's child is seen as itself).
         let fitted = |o: u32| {
-            s.objects.get(o as usize).is_some_and(|obj| {
+            s.objects().get(o as usize).is_some_and(|obj| {
                 obj.similarity_sphere().is_some()
                     || matches!(
                         obj.shape,
@@ -344,7 +342,7 @@ fn a_checker_colour_the_rays_all_missed_is_never_overlooked() {
                     rays.iter().map(|&(x, y)| seen_cell(&s, x, y)).collect();
                 let (object, cell) = seen[0];
                 let checkered = s
-                    .objects
+                    .objects()
                     .get(object as usize)
                     .is_some_and(|o| o.material.color2.is_some() && o.shape == Shape::Plane);
                 if !checkered || seen.iter().any(|&o| o.0 != object) {
@@ -442,9 +440,9 @@ fn a_checker_s_step_bounds_what_the_renderer_makes_of_its_colours() {
             common::scene(&(rest.clone() + &pa)),
             common::scene(&(rest + &pb)),
         );
-        let plane_id = a.objects.len() as u32 - 1;
-        let step = a.checker_step(&a.objects[plane_id as usize]);
-        assert_eq!(step, b.checker_step(&b.objects[plane_id as usize]));
+        let plane_id = a.objects().len() as u32 - 1;
+        let step = a.checker_step(&a.objects()[plane_id as usize]);
+        assert_eq!(step, b.checker_step(&b.objects()[plane_id as usize]));
         let rect = Rect::full(a.width, a.height);
         let (va, _) = a.render_rect_linear_with(rect, &tessera_tracer::Sampler::Center);
         let (vb, _) = b.render_rect_linear_with(rect, &tessera_tracer::Sampler::Center);
@@ -513,10 +511,8 @@ fn a_checker_fainter_than_the_threshold_costs_nothing() {
 /// in view no pixel holds more, so no pixel needs more than 16 rays for the pattern. Nothing
 /// but the cells changes on this plane (no shadow can fall on it), so a step between two
 /// neighbours that neither saw is a cell edge too, and the same bound decides: it does not
-/// send both to every ray. (With every ray taken wherever the first pass did not bound the
-/// edges, 120 rays per pixel with the light grazing the plane against 5.5; with the light
-/// overhead, unseen steps between neighbours took 40 rays per pixel; on a black-box
-/// tester's scene 7.7 → 246.)
+/// send both to every ray (taking every ray wherever the first pass did not bound the edges
+/// would cost many times the rays per pixel of the bound).
 #[test]
 fn a_checker_just_above_the_threshold_is_searched_only_as_far_as_its_bound() {
     let rays_per_pixel = |color2: f64| {
@@ -575,7 +571,7 @@ fn plain_scene_at(cap: u32) {
     );
     for tile in [3u32, 8, 19] {
         let mut assembled = vec![0u8; whole.len()];
-        for r in tessera_tracer::tile::tiles(w, h, tile) {
+        for r in tessera_tracer::tiles(w, h, tile) {
             let bytes = s.render_rect(r);
             for row in 0..r.height {
                 let src = &bytes[(row * r.width * 3) as usize..((row + 1) * r.width * 3) as usize];
@@ -608,7 +604,7 @@ fn adaptive_images_of_every_solid_stay_tile_independent() {
         let whole = s.render_rect(Rect::full(w, h));
         for tile in [7u32, 16] {
             let mut assembled = vec![0u8; whole.len()];
-            for r in tessera_tracer::tile::tiles(w, h, tile) {
+            for r in tessera_tracer::tiles(w, h, tile) {
                 let bytes = s.render_rect(r);
                 for row in 0..r.height {
                     let from = (row * r.width * 3) as usize;

@@ -8,8 +8,7 @@ mod common;
 use common::{RefPlane, RefSphere, Reference, compare_with_reference, scene};
 use glam::DVec3;
 use tessera_tracer::Rect;
-use tessera_tracer::math::Ray;
-use tessera_tracer::render::SurfacePoint;
+use tessera_tracer::internals::{Ray, SurfacePoint};
 
 /// A sphere of radius 0.1 seen from 1e7 away, framed to fill the image: every pixel centre is
 /// hit or missed exactly as the geometry says, and lit with the right cosine.
@@ -192,7 +191,7 @@ fn offsets_prevent_the_self_hits_that_raw_hit_points_make() {
     let src = "[OBJECT]\ntype = sphere\nradius = 3\nscale = <1, 0.3, 2>\nrotate = <10, 20, 30>\n\
                translate = <123456.7, -98765.4, 55555.5>\n[/OBJECT]\n";
     let s = scene(src);
-    let obj = &s.objects[0];
+    let obj = &s.objects()[0];
     let centre = DVec3::new(123456.7, -98765.4, 55555.5);
     let (mut raw_self_hits, mut lifted_self_hits, mut tested) = (0, 0, 0);
     for i in 0..2000u32 {
@@ -377,10 +376,10 @@ fn csg_scene(offset: f64) -> String {
 }
 
 /// The CSG scene above moved 1e8, 1e9 and 1e10 along x renders the image it renders at the
-/// origin. Lone objects do that (see above); CSG trees lost geometry there, because their
-/// tolerance for coincident surfaces grows with the distance from the world origin: with the
-/// old 1e-10 it was 0.1 of a unit at 1e9, and the pocket, the nearer sphere's colour and
-/// pixels of the cube's silhouette went (214 of these 6,912 pixels at 1e9).
+/// origin. Lone objects do that (see above); CSG trees can lose geometry there, because
+/// their tolerance for coincident surfaces grows with the distance from the world origin: a
+/// tolerance of 1e-10 would be 0.1 of a unit at 1e9, and the pocket, the nearer sphere's
+/// colour and pixels of the cube's silhouette would go.
 ///
 /// Tolerance: at 1e10 every coordinate carries a rounding error near 1e10 · 2⁻⁵³ ≈ 1e-6,
 /// and a composed transform a few times that, so a pixel may change where its sample lands
@@ -419,8 +418,8 @@ fn csg_far_from_the_origin_renders_the_same_image() {
 /// A light placed exactly on a surface (a sphere's +x point; a point of a cube's face) is
 /// not shadowed by that surface: SCENE.md's segment from a point to its light ends at the
 /// light, and the surface meets it only there. The crossing at the light comes out a few
-/// ulps either side of the end of the shadow ray, and a random quarter of the floor behind
-/// the light was shadowed (362 and 166 pixels of these scenes). The reference: the same
+/// ulps either side of the end of the shadow ray, which would shadow a random quarter of
+/// the floor behind the light. The reference: the same
 /// scene with the light moved 1e-6 off the surface, outwards, where no rounding can reach.
 #[test]
 fn a_light_on_a_surface_is_not_shadowed_by_it() {
@@ -634,10 +633,10 @@ fn a_light_on_a_curved_surface_is_not_shadowed_by_grazing_rays() {
 
 /// The eye exactly on a torus (the top of its tube, the outer and the inner equator),
 /// looking along the tube: every ray into the tube must meet the torus again from inside.
-/// The tube's entry at the eye rounds to a tiny `t` of either sign; when it fell behind the
-/// eye, the exit ahead was skipped as if it were the surface the ray had just left, and
-/// 1,246 of the 1,536 pixels looking into the tube showed the floor through the solid. (A
-/// ray whose entry rounds ahead of the eye may still stop on the surface at the eye.)
+/// The tube's entry at the eye rounds to a tiny `t` of either sign; when it falls behind the
+/// eye, the exit ahead must not be skipped as if it were the surface the ray had just left,
+/// or most pixels looking into the tube would show the floor through the solid. (A ray
+/// whose entry rounds ahead of the eye may still stop on the surface at the eye.)
 #[test]
 fn an_eye_on_a_torus_never_sees_through_it() {
     for (eye, look) in [
@@ -656,7 +655,7 @@ fn an_eye_on_a_torus_never_sees_through_it() {
         let mut into_tube = 0;
         for py in 0..48u32 {
             for px in 0..64u32 {
-                let r = s.camera.ray(f64::from(px) + 0.5, f64::from(py) + 0.5);
+                let r = s.camera().ray(f64::from(px) + 0.5, f64::from(py) + 0.5);
                 let (o, d) = (r.origin, r.dir);
                 // Into the tube: against the outward normal at the eye (the tube's centre
                 // circle is at distance 1 from the axis, in the plane y = 0).
@@ -682,12 +681,10 @@ fn an_eye_on_a_torus_never_sees_through_it() {
 /// cylinder's rim, a cone's base rim) lights a point outside any one face plane through it:
 /// the solid lies on the inner side of that plane and the segment on the outer side, but
 /// for the light (SCENE.md's segment ends there). Traced, segments reaching the light at
-/// grazing angles to a face crossed its plane a rounding error before the light, inside the
-/// face, and notched the shadow's edge on the wall and floor (a QA pass: 8 pixels of this
-/// 160×120 image off by up to 169 steps for the corner). The reference is the light moved
-/// 1e-9 outwards, off every face. The edge and rim cases came out right before too; they
-/// check that the planes now also listed there (a cube's two faces, a rim's cap and side)
-/// light nothing the solid shadows.
+/// grazing angles to a face would cross its plane a rounding error before the light, inside
+/// the face, and notch the shadow's edge on the wall and floor. The reference is the light
+/// moved 1e-9 outwards, off every face. The edge and rim cases check that the planes listed
+/// there (a cube's two faces, a rim's cap and side) light nothing the solid shadows.
 #[test]
 fn a_light_on_an_edge_or_corner_is_not_shadowed_by_it() {
     let src = |light: &str, solid: &str| {

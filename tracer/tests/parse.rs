@@ -2,9 +2,7 @@
 //! position and message, several errors reported together, and the limits.
 
 use glam::DVec3;
-use tessera_tracer::scene::{CsgOp, Node};
-use tessera_tracer::shape::Shape;
-use tessera_tracer::{Limits, Pos, Sampler, SceneDesc, SceneError, parse};
+use tessera_tracer::{CsgOp, Limits, Node, Pos, Sampler, SceneDesc, SceneError, Shape, parse};
 
 fn ok(src: &str) -> SceneDesc {
     match parse(src, &Limits::default()) {
@@ -493,7 +491,7 @@ fn a_misspelt_tag_is_one_error() {
         &["unknown tag [RAYFLE]"],
     );
     // The same misspelling twice, once opening and once closing a real block: two errors,
-    // each at its typo (the second was silently skipped, and the next block blamed).
+    // each at its typo (not the second silently skipped and the next block blamed).
     let errs = errors(&format!(
         "[OBJCET]\n{sphere}[/OBJECT]\n[OBJECT]\ntype = cube\n[/OBJCET]\n{cube}"
     ));
@@ -501,7 +499,7 @@ fn a_misspelt_tag_is_one_error() {
     assert_eq!(at, vec![(1, 1), (7, 1)], "{errs:?}");
     assert!(errs[1].2.contains("unknown tag [/OBJCET]"), "{errs:?}");
     // A misspelling silences one closer, not every later one: a stray [/OBJECT] after the
-    // misspelt block was closed by its own closer, or after its hint was used once, is still
+    // misspelt block is closed by its own closer, or after its hint is used once, is still
     // reported.
     for src in [
         format!("[OBJCET]\n{sphere}[/OBJCET]\n{cube}[/OBJECT]\n"),
@@ -531,7 +529,7 @@ fn tag_structure_errors() {
         &["cannot appear inside [LIGHT]"],
     );
     // `[GLOBAL]` and `[GLOBALS]` are one block, whichever spelling closes it (a mismatch
-    // was "[/GLOBAL] closes nothing" while the block it would close was open).
+    // must not read "[/GLOBAL] closes nothing" while the block it would close is open).
     for (open, close) in [("GLOBALS", "GLOBAL"), ("GLOBAL", "GLOBALS")] {
         let d = ok(&format!("[{open}]\nwidth = 8\nheight = 6\n[/{close}]\n"));
         assert_eq!((d.width, d.height), (8, 6));
@@ -603,12 +601,12 @@ fn degenerate_cameras_and_transforms_are_errors() {
 }
 
 /// Numbers are at most 1e15 in magnitude, wherever they are written; past that, the error
-/// is at the number. Each of these was accepted and broke something: a light at 1e154 lit
-/// nothing (its distance squared overflowed), colours of 1e308 made NaN pixels that came out
-/// white, an eye at 1e160 was said to look along `up`.
+/// is at the number. Each of these, accepted, would break something: a light at 1e154
+/// lights nothing (its distance squared overflows), colours of 1e308 make NaN pixels that
+/// come out white, an eye at 1e160 is said to look along `up`.
 #[test]
 fn numbers_past_the_largest_are_refused_where_they_are_written() {
-    let limit = tessera_tracer::scene::MAX_NUMBER;
+    let limit = tessera_tracer::MAX_NUMBER;
     assert_eq!(limit, 1e15);
     ok("[LIGHT]\nposition = <1e15, -1e15, 1e15>\n[/LIGHT]\n");
     let cases = [
@@ -677,8 +675,9 @@ fn errors_format_as_file_line_col_message() {
 }
 
 /// Past the object limit the file is not read further (one error, at the first object too
-/// many), so what the parser holds is bounded by the limit, not by the file: 2,000,000
-/// spheres took 2 GB to be refused. Likewise past the most lines one block may hold.
+/// many), so what the parser holds is bounded by the limit, not by the file (millions of
+/// spheres would otherwise take gigabytes to be refused). Likewise past the most lines one
+/// block may hold.
 #[test]
 fn the_reading_stops_at_the_object_and_block_limits() {
     let limits = Limits {
@@ -720,7 +719,7 @@ fn the_reading_stops_at_the_object_and_block_limits() {
     assert_eq!((stop.0, stop.1), (73, 1));
     assert!(errs.iter().all(|e| e.0 <= 73), "{errs:?}");
 
-    let max = tessera_tracer::scene::MAX_BLOCK_ENTRIES;
+    let max = tessera_tracer::MAX_BLOCK_ENTRIES;
     // A `[rayfile]` inside a block adds its lines to the block's all at once: the next line
     // is past the cap all the same.
     let src = format!(
@@ -944,8 +943,9 @@ fn csg_nests_to_its_limit_and_no_further() {
 
 /// Tags nested far past the limit are refused a few levels past what any valid scene
 /// needs, and the reading stops there: parsing 100,000 open `[CSG]` tags (600 KB) takes a
-/// bounded stack. Without the stop the tree was as deep as the file and dropping it alone
-/// overflowed the main thread's 8 MB stack; here the parse runs on a thread of 256 KB.
+/// bounded stack. Without the stop the tree would be as deep as the file and dropping it
+/// alone would overflow the main thread's 8 MB stack; here the parse runs on a thread of
+/// 256 KB.
 #[test]
 fn runaway_nesting_is_refused_on_a_small_stack() {
     let limit = Limits::default().max_csg_depth;
@@ -967,7 +967,7 @@ fn runaway_nesting_is_refused_on_a_small_stack() {
     assert!(errs.iter().all(|e| e.0 <= stop), "{errs:?}");
 }
 
-/// A UTF-8 byte-order mark before the first tag is not an error (it was four), and the first
+/// A UTF-8 byte-order mark before the first tag is not an error (nor four), and the first
 /// line's columns count from after it.
 #[test]
 fn a_byte_order_mark_is_skipped() {
@@ -1018,7 +1018,8 @@ fn quoted_invisible_characters_are_escaped() {
 }
 
 /// Names quoted in messages are cut short, as values are: a line of a binary file read as a
-/// key, or a tag of 50,000 letters, was echoed whole (a 1 MB key made a 1 MB message).
+/// key, or a tag of 50,000 letters, is not echoed whole (a 1 MB key would make a 1 MB
+/// message).
 #[test]
 fn quoted_names_are_cut_short() {
     let long = "x".repeat(50_000);
@@ -1049,8 +1050,8 @@ fn quoted_names_are_cut_short() {
 }
 
 /// A line far longer than any scene line is refused on its own, at its line, and the lines
-/// around it are still read: one 100 MB line used to be widened to 400 MB of characters
-/// before its first was refused.
+/// around it are still read: a 100 MB line is not widened to 400 MB of characters before
+/// its first is refused.
 #[test]
 fn an_overlong_line_is_one_error() {
     let long = format!("color = <{}>", "1,".repeat(40_000));
@@ -1072,7 +1073,7 @@ fn an_overlong_line_is_one_error() {
 /// at the first of them.
 #[test]
 fn errors_are_capped_with_a_count_of_the_rest() {
-    let max = tessera_tracer::diag::MAX_DIAGNOSTICS;
+    let max = tessera_tracer::MAX_DIAGNOSTICS;
     // One unknown key a line, each a different one: one error a line.
     let keys: String = (0..max + 25).map(|i| format!("k{i} = 1\n")).collect();
     let errs = errors(&format!("[GLOBALS]\n{keys}[/GLOBALS]\n"));
@@ -1091,7 +1092,7 @@ fn errors_are_capped_with_a_count_of_the_rest() {
 /// checks its bounded list against the same errors counted line by line.
 #[test]
 fn many_errors_are_counted_exactly_and_the_earliest_shown() {
-    let max = tessera_tracer::diag::MAX_DIAGNOSTICS;
+    let max = tessera_tracer::MAX_DIAGNOSTICS;
     let bad = 5_000;
     // Line 1 opens an object with no `type` (reported after all lines are read, at line 1);
     // then one malformed line each (found by the lexer first).
@@ -1113,7 +1114,7 @@ fn many_errors_are_counted_exactly_and_the_earliest_shown() {
 }
 
 /// `[rayfile]` wraps the whole scene: anything after its close is an error, once, at the
-/// first thing after it (it used to be read as part of the scene).
+/// first thing after it (it is not read as part of the scene).
 #[test]
 fn nothing_follows_the_rayfile_wrapper() {
     let inside = "[rayfile]\n[GLOBALS]\nwidth = 8\n[/GLOBALS]\n[/rayfile]\n";

@@ -22,13 +22,13 @@ pub(crate) enum Item {
 
 /// The longest line read, in bytes. A scene's lines are a tag or one `key = value`; a longer
 /// one is a file that is not a scene (a binary, a minified dump), and each line is widened to
-/// 4-byte `char`s to be read, so without a cap one 100 MB line cost 400 MB before its first
-/// character was refused.
+/// 4-byte `char`s to be read, so without a cap one 100 MB line would cost 400 MB before its
+/// first character is refused.
 pub(crate) const MAX_LINE_BYTES: usize = 64 * 1024;
 
 /// Reads a scene line by line, as the parser asks for the next item: the file is never
-/// held as a list of items (a 56 MB file of 7,000,000 short lines took 700 MB as one before
-/// its first block was read), and the parser may stop reading where a limit is passed.
+/// held as a list of items (for a file of millions of short lines such a list is many times
+/// the file's size), and the parser may stop reading where a limit is passed.
 pub(crate) struct Lexer<'a> {
     lines: std::iter::Enumerate<std::str::Lines<'a>>,
 }

@@ -6,12 +6,16 @@
 //! here; [`crate::Scene::build`] loads them through an [`crate::AssetSource`]. This module
 //! does not trace rays.
 
+mod blocks;
 mod lex;
 mod parse;
+mod value;
 
 use glam::DVec3;
 
-pub use parse::{MAX_BLOCK_ENTRIES, MAX_NUMBER, parse};
+pub use blocks::MAX_BLOCK_ENTRIES;
+pub use parse::parse;
+pub use value::MAX_NUMBER;
 
 use crate::diag::Pos;
 use crate::math::Color;
@@ -21,7 +25,7 @@ use crate::transform::Transform;
 
 /// The largest scene file `tessera-render` reads, in bytes. A scene at the object limit
 /// (1,000,000 objects) is about 70 MB as usually written; the cap is there for the wrong
-/// file (`/dev/zero`, a disk image), which was read until memory ran out. The service's
+/// file (`/dev/zero`, a disk image), which would be read until memory ran out. The service's
 /// request-body limit bounds what it accepts.
 pub const MAX_SCENE_FILE_BYTES: u64 = 256 * 1024 * 1024;
 
@@ -65,15 +69,25 @@ impl Default for Limits {
 /// A parsed, validated scene, before its textures are loaded.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SceneDesc {
+    /// Image width in pixels (`width` in `[GLOBALS]`).
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Ambient light colour: every surface shows its colour times this, lit or not.
     pub ambient: Color,
+    /// Fraction of a light's contribution removed where that light is blocked, in [0, 1].
     pub shadow: f64,
+    /// Colour of rays that hit nothing.
     pub background: Color,
+    /// Most mirror bounces a ray takes.
     pub max_depth: u32,
+    /// How pixels are sampled.
     pub sampler: Sampler,
+    /// The camera.
     pub camera: CameraDesc,
+    /// The point lights: the globals' `light` first, then each `[LIGHT]` in order.
     pub lights: Vec<Light>,
+    /// The top-level objects and CSG trees, in the order written.
     pub objects: Vec<Node>,
 }
 
@@ -112,9 +126,13 @@ impl SceneDesc {
 /// The camera as given: eye, target, up and vertical field of view in degrees.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CameraDesc {
+    /// Where the camera is.
     pub eye: DVec3,
+    /// The point the view is centred on.
     pub look_at: DVec3,
+    /// Which way is up in the image (need not be perpendicular to the view).
     pub up: DVec3,
+    /// Vertical field of view, in degrees.
     pub fov_degrees: f64,
 }
 
@@ -132,14 +150,18 @@ impl Default for CameraDesc {
 /// A point light, no fall-off.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Light {
+    /// Where the light is.
     pub position: DVec3,
+    /// Its colour and strength (components may exceed 1).
     pub color: Color,
 }
 
 /// An object or a CSG combination of them.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Node {
+    /// One primitive.
     Object(ObjectDesc),
+    /// A set operation over its children.
     Csg(CsgDesc),
 }
 
@@ -148,6 +170,7 @@ pub enum Node {
 pub struct ObjectDesc {
     /// Position of the `[OBJECT]` tag.
     pub pos: Pos,
+    /// The unit shape.
     pub shape: Shape,
     /// Scale from the unit shape to the shape's own space, from its own keys (a sphere of
     /// `radius = r` is the unit sphere scaled by `r`). Checker cells are unit cubes of the
@@ -155,16 +178,23 @@ pub struct ObjectDesc {
     pub own_scale: DVec3,
     /// Unit shape to world (or to the enclosing CSG's space), own scale included.
     pub transform: Transform,
+    /// How its surface looks.
     pub material: MaterialDesc,
 }
 
 /// Surface properties of an object.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MaterialDesc {
+    /// The colour, or a checker's first colour.
     pub color1: Color,
+    /// A checker's second colour: with it, the surface is a checker of unit cells of the
+    /// shape's own space.
     pub color2: Option<Color>,
+    /// An image mapped onto the surface by its u, v coordinates (instead of the colours).
     pub texture: Option<TextureRef>,
+    /// Mirror weight `m` in [0, 1]: a pixel is `(1 − m)·local + m·(what the mirror ray sees)`.
     pub mirror: f64,
+    /// Weight `k` of the lights' Lambertian term in the local colour.
     pub diffuse: f64,
 }
 
@@ -183,14 +213,18 @@ impl Default for MaterialDesc {
 /// A texture file named by a scene, with the position of the name.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct TextureRef {
+    /// The file name as written, relative to the scene's folder.
     pub name: String,
+    /// Where the name is written.
     pub pos: Pos,
 }
 
 /// The CSG set operations.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CsgOp {
+    /// Inside any child.
     Union,
+    /// Inside every child.
     Intersection,
     /// The first child minus all the others.
     Difference,
@@ -199,9 +233,12 @@ pub enum CsgOp {
 /// One `[CSG]` block.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CsgDesc {
+    /// Position of the `[CSG]` tag.
     pub pos: Pos,
+    /// The set operation.
     pub op: CsgOp,
     /// CSG space to world (or to the enclosing CSG's space).
     pub transform: Transform,
+    /// The children, in the order written (for a difference, the body first).
     pub children: Vec<Node>,
 }

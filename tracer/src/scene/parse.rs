@@ -4,11 +4,11 @@
 //! recorded and parsing goes on with the next item, so one run reports every independent
 //! mistake. Only the final result is all-or-nothing.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 
 use glam::DVec3;
 
-use super::lex::{Item, Lexer};
+use super::lex::Lexer;
 use super::{
     CameraDesc, CsgDesc, CsgOp, Light, Limits, MaterialDesc, Node, ObjectDesc, SceneDesc,
     TextureRef,
@@ -19,10 +19,10 @@ use crate::sampler::Sampler;
 use crate::shape::Shape;
 use crate::transform::{Transform, TransformOp};
 
-const TAGS: &[&str] = &[
-    "rayfile", "globals", "global", "camera", "light", "object", "csg",
-];
-const GLOBAL_KEYS: &[&str] = &[
+use super::blocks::{Block, Caps, Entry, build_tree};
+use super::value::{GivenSize, Value};
+
+pub(super) const GLOBAL_KEYS: &[&str] = &[
     "width",
     "height",
     "ambient",
@@ -35,10 +35,10 @@ const GLOBAL_KEYS: &[&str] = &[
     "threshold",
     "light",
 ];
-const CAMERA_KEYS: &[&str] = &["eye", "look_at", "up", "fov"];
-const LIGHT_KEYS: &[&str] = &["position", "color"];
-const TRANSFORM_KEYS: &[&str] = &["scale", "rotate", "translate"];
-const MATERIAL_KEYS: &[&str] = &[
+pub(super) const CAMERA_KEYS: &[&str] = &["eye", "look_at", "up", "fov"];
+pub(super) const LIGHT_KEYS: &[&str] = &["position", "color"];
+pub(super) const TRANSFORM_KEYS: &[&str] = &["scale", "rotate", "translate"];
+pub(super) const MATERIAL_KEYS: &[&str] = &[
     "color1",
     "color2",
     "texture",
@@ -46,7 +46,7 @@ const MATERIAL_KEYS: &[&str] = &[
     "reflection",
     "diffuse",
 ];
-const OBJECT_KEYS: &[&str] = &[
+pub(super) const OBJECT_KEYS: &[&str] = &[
     "type",
     "radius",
     "major",
@@ -61,9 +61,9 @@ const OBJECT_KEYS: &[&str] = &[
     "rotate",
     "translate",
 ];
-const CSG_KEYS: &[&str] = &["op", "scale", "rotate", "translate"];
-const SHAPES: &[&str] = &["sphere", "plane", "cube", "cylinder", "cone", "torus"];
-const SAMPLERS: &[&str] = &["center", "thesis", "grid", "jitter", "adaptive"];
+pub(super) const CSG_KEYS: &[&str] = &["op", "scale", "rotate", "translate"];
+pub(super) const SHAPES: &[&str] = &["sphere", "plane", "cube", "cylinder", "cone", "torus"];
+pub(super) const SAMPLERS: &[&str] = &["center", "thesis", "grid", "jitter", "adaptive"];
 
 /// Parses and validates a `.ray` scene. All problems found are returned together, sorted by
 /// position.
@@ -86,431 +86,7 @@ pub fn parse(source: &str, limits: &Limits) -> Result<SceneDesc, SceneError> {
     }
 }
 
-#[derive(Debug)]
-struct Entry {
-    key: String,
-    key_pos: Pos,
-    value: String,
-    value_pos: Pos,
-}
-
-#[derive(Debug)]
-struct Block {
-    /// Lower-cased tag name; empty for the root.
-    name: String,
-    pos: Pos,
-    entries: Vec<Entry>,
-    children: Vec<Block>,
-    /// Something inside could not be read (a malformed line, an unclosed child): checks for
-    /// missing keys or children would only echo that error, so they are skipped.
-    broken: bool,
-    /// An unknown tag's block, already reported: its contents are not read, and the next
-    /// known tag ends it without another error (see `build_tree`).
-    unknown: bool,
-    /// For an unknown tag's block, the known tag it was likely meant to be.
-    hint: Option<&'static str>,
-}
-
-impl Block {
-    fn new(name: String, pos: Pos) -> Self {
-        Block {
-            name,
-            pos,
-            entries: Vec::new(),
-            children: Vec::new(),
-            broken: false,
-            unknown: false,
-            hint: None,
-        }
-    }
-
-    fn display(&self) -> String {
-        format!("[{}]", self.name.to_ascii_uppercase())
-    }
-}
-
-/// Most `key = value` lines one block may hold: far more than any block's keys, and room for
-/// a long chain of transforms.
-pub const MAX_BLOCK_ENTRIES: usize = 4_096;
-
-/// Where the reading of a file stops (see `build_tree`), from the scene's limits.
-struct Caps {
-    /// Blocks open at once.
-    depth: usize,
-    /// `[OBJECT]` tags.
-    objects: usize,
-    /// Blocks of any kind.
-    blocks: usize,
-}
-
-impl Caps {
-    fn of(limits: &Limits) -> Caps {
-        Caps {
-            // `[rayfile]`, the CSG levels and the `[OBJECT]` inside the deepest, and room for
-            // a few levels more, which the CSG check then reports as such.
-            depth: limits.max_csg_depth + 8,
-            objects: limits.max_objects,
-            // A [CSG] holds two objects at least, so a file within the limits has fewer
-            // blocks than this; past it, [LIGHT] or [CSG] blocks alone would fill the tree.
-            blocks: limits
-                .max_objects
-                .saturating_mul(2)
-                .saturating_add(limits.max_lights)
-                .saturating_add(16),
-        }
-    }
-}
-
-/// The error that ends the reading at `item`, if it passes one of `caps` (`object_tags` and
-/// `blocks` opened so far).
-fn limit_passed(
-    item: &Item,
-    stack: &[Block],
-    object_tags: usize,
-    blocks: usize,
-    caps: &Caps,
-) -> Option<Diagnostic> {
-    let message = match item {
-        Item::Tag { close: false, .. } if stack.len() > caps.depth => {
-            format!("blocks nested more than {} deep", caps.depth)
-        }
-        Item::Tag {
-            name, close: false, ..
-        } if name == "object" && object_tags == caps.objects => {
-            format!("too many objects: the limit is {}", caps.objects)
-        }
-        Item::Tag { close: false, .. } if blocks >= caps.blocks => format!(
-            "more than {} blocks, more than a scene within the limits can have",
-            caps.blocks
-        ),
-        // `>=`: a `[rayfile]` wrapper's entries join its parent's all at once.
-        Item::Entry { .. } if stack.last()?.entries.len() >= MAX_BLOCK_ENTRIES => {
-            let block = match stack {
-                [_root] => "no block".to_string(),
-                _ => stack.last()?.display(),
-            };
-            format!("more than {MAX_BLOCK_ENTRIES} lines in {block}")
-        }
-        _ => return None,
-    };
-    let pos = match item {
-        Item::Tag { pos, .. } => *pos,
-        Item::Entry { key_pos, .. } => *key_pos,
-        Item::Broken => return None,
-    };
-    Some(Diagnostic::new(
-        pos,
-        format!("{message}; the rest of the file is not read"),
-    ))
-}
-
-/// Nests items into blocks by their tags, reporting unknown, misplaced, unmatched and
-/// unclosed tags. The returned root holds the top-level blocks (a `[rayfile]` wrapper is
-/// unwrapped) and any entries written outside every block.
-///
-/// A misspelt tag is one mistake and gets one error. An unknown opening tag (`[OBJCET]`)
-/// opens a block that the next known tag ends, silently: an opening one (the block was
-/// likely never meant to hold it), or a closing one that matches nothing open (most likely
-/// the closer of the misspelt opener, `[/OBJECT]`); the unknown name's own closer, and the
-/// closer of the known tag it was taken for (`[CSGG]`'s `[/CSG]`), are then not reported
-/// wherever they come. An unknown closing tag (`[/OBJCET]`) whose nearest known name is the
-/// innermost open block's is reported and closes that block, even if the same misspelling
-/// opened an unknown block before. Without these rules, one typo produced three more
-/// errors, one of them asking for `[/OBJCET]` and one blaming the next, correct block.
-///
-/// The tree holds the whole file before it is read for meaning, some hundreds of bytes an
-/// entry, so what it may hold is bounded here, where the file is read: past `caps.objects`
-/// `[OBJECT]` tags (2,000,000 spheres, 62 MB, took 2 GB to be refused as too many),
-/// `caps.blocks` blocks of any kind (as many `[LIGHT]` or `[CSG]` blocks took as much) or
-/// [`MAX_BLOCK_ENTRIES`] lines in one block (7,000,000 `scale = 1` lines on one sphere took
-/// 1.4 GB, and were accepted), the reading stops with that error.
-///
-/// At most `caps.depth` blocks are open at once: a tag that would open one more is an error
-/// and ends the reading there. Everything that walks the tree (the checks, and dropping it)
-/// recurses once per level, so an unbounded nesting (100,000 `[CSG]` tags: 600 KB) would
-/// overflow the stack and abort the process, the service's included.
-fn build_tree(mut items: Lexer<'_>, errors: &mut Found, caps: Caps) -> Block {
-    let mut object_tags = 0usize;
-    let mut blocks = 0usize;
-    let mut stack: Vec<Block> = vec![Block::new(String::new(), Pos::new(1, 1))];
-    // Unknown opening tags' names, whose closers are then not reported again.
-    let mut unknown_names: HashSet<String> = HashSet::new();
-    // The known tags those unknown openers were taken for (`[CSGG]`: `csg`), whose closers
-    // (`[/CSG]`) are then not reported as closing nothing: counted, each standing for one
-    // closer still to come and silencing one.
-    let mut unknown_hints: HashMap<&'static str, usize> = HashMap::new();
-    let mut seen_rayfile = false;
-    let mut seen_anything = false;
-    let mut stopped = false;
-    // Where `[/rayfile]` closed the wrapper, until something after it has been reported.
-    let mut rayfile_closed: Option<Pos> = None;
-    while let Some(item) = items.next(errors) {
-        if let (Some(closed), Item::Tag { pos, .. } | Item::Entry { key_pos: pos, .. }) =
-            (rayfile_closed, &item)
-        {
-            errors.push(Diagnostic::new(
-                *pos,
-                format!(
-                    "the scene goes on after [/rayfile] (line {}), which must end it",
-                    closed.line
-                ),
-            ));
-            rayfile_closed = None;
-        }
-        if let Some(stop) = limit_passed(&item, &stack, object_tags, blocks, &caps) {
-            errors.push(stop);
-            stopped = true;
-            break;
-        }
-        match item {
-            Item::Tag {
-                name,
-                close: false,
-                pos,
-            } => {
-                if name == "object" {
-                    object_tags += 1;
-                }
-                blocks += 1;
-                let known = TAGS.contains(&name.as_str());
-                let suggestion = if known {
-                    end_unknown(&mut stack);
-                    None
-                } else {
-                    closest(&name, TAGS.iter().copied())
-                };
-                let parent = stack.last().map(|b| b.name.as_str()).unwrap_or("");
-                if !known {
-                    if let Some(s) = suggestion {
-                        *unknown_hints.entry(s).or_default() += 1;
-                    }
-                    let hint = match suggestion {
-                        Some(s) => format!("; did you mean [{}]?", s.to_ascii_uppercase()),
-                        None => {
-                            "; expected [GLOBALS], [CAMERA], [LIGHT], [OBJECT] or [CSG]".to_string()
-                        }
-                    };
-                    errors.push(Diagnostic::new(
-                        pos,
-                        format!(
-                            "unknown tag [{}]{hint}",
-                            shorten(&name.to_ascii_uppercase())
-                        ),
-                    ));
-                    unknown_names.insert(name.clone());
-                } else if name == "rayfile" {
-                    if seen_rayfile || seen_anything || stack.len() > 1 {
-                        errors.push(Diagnostic::new(
-                            pos,
-                            "[rayfile] may only wrap the whole file, once, as its first tag",
-                        ));
-                    }
-                    seen_rayfile = true;
-                } else {
-                    let allowed = match name.as_str() {
-                        "object" | "csg" => matches!(parent, "" | "rayfile" | "csg"),
-                        _ => matches!(parent, "" | "rayfile"),
-                    };
-                    if !allowed {
-                        errors.push(Diagnostic::new(
-                            pos,
-                            format!(
-                                "[{}] cannot appear inside [{}]; close [/{}] first",
-                                name.to_ascii_uppercase(),
-                                parent.to_ascii_uppercase(),
-                                parent.to_ascii_uppercase()
-                            ),
-                        ));
-                    }
-                }
-                seen_anything = true;
-                let mut block = Block::new(name, pos);
-                block.unknown = !known;
-                block.hint = suggestion;
-                stack.push(block);
-            }
-            Item::Tag {
-                name,
-                close: true,
-                pos,
-            } => {
-                let open_at = stack
-                    .iter()
-                    .skip(1)
-                    .rposition(|b| same_block(&b.name, &name));
-                let Some(depth) = open_at else {
-                    let top = stack.len() - 1;
-                    let hint = closest(&name, TAGS.iter().copied());
-                    // A misspelling of the innermost block's own closer.
-                    let closes_top = top > 0 && hint == Some(stack[top].name.as_str());
-                    if TAGS.contains(&name.as_str()) {
-                        // The closer of a misspelt opener: of the one still open, or of one
-                        // a known tag has ended since. Each silences one closer, not all.
-                        let silenced = match end_unknown(&mut stack) {
-                            Some(hint) => {
-                                forget_one(&mut unknown_hints, hint);
-                                true
-                            }
-                            None => forget_one(&mut unknown_hints, Some(name.as_str())),
-                        };
-                        if !silenced {
-                            errors.push(Diagnostic::new(
-                                pos,
-                                format!(
-                                    "[/{0}] closes nothing: no [{0}] is open",
-                                    name.to_ascii_uppercase()
-                                ),
-                            ));
-                        }
-                    } else if closes_top || !unknown_names.contains(&name) {
-                        // A misspelt closer is reported even if the same misspelling opened
-                        // an unknown block earlier, when it may close the innermost block.
-                        errors.push(Diagnostic::new(
-                            pos,
-                            match hint {
-                                Some(s) => format!(
-                                    "unknown tag [/{}]; did you mean [/{}]?",
-                                    shorten(&name.to_ascii_uppercase()),
-                                    s.to_ascii_uppercase()
-                                ),
-                                None => format!(
-                                    "unknown tag [/{}]",
-                                    shorten(&name.to_ascii_uppercase())
-                                ),
-                            },
-                        ));
-                        // The innermost block's own closer, misspelt: it ends that block.
-                        if closes_top {
-                            close_top(&mut stack, &mut rayfile_closed, pos);
-                        }
-                    }
-                    continue;
-                };
-                let depth = depth + 1;
-                while stack.len() > depth + 1 {
-                    let Some(open) = stack.pop() else { break };
-                    if !open.unknown {
-                        errors.push(unclosed(&open, Some(pos)));
-                    }
-                    attach(&mut stack, open);
-                    if let Some(parent) = stack.last_mut() {
-                        parent.broken = true;
-                    }
-                }
-                // An unknown block closed by its own closer: its hint has had its closer.
-                if let Some(top) = stack.last().filter(|b| b.unknown) {
-                    forget_one(&mut unknown_hints, top.hint);
-                }
-                close_top(&mut stack, &mut rayfile_closed, pos);
-            }
-            Item::Broken => {
-                if let Some(top) = stack.last_mut() {
-                    top.broken = true;
-                }
-            }
-            Item::Entry {
-                key,
-                key_pos,
-                value,
-                value_pos,
-            } => {
-                seen_anything = true;
-                if let Some(top) = stack.last_mut() {
-                    top.entries.push(Entry {
-                        key,
-                        key_pos,
-                        value,
-                        value_pos,
-                    });
-                }
-            }
-        }
-    }
-    while stack.len() > 1 {
-        let Some(mut open) = stack.pop() else { break };
-        if stopped || open.unknown {
-            // Not read to its end: its closing tag may well be in the part not read.
-            open.broken = true;
-        } else {
-            errors.push(unclosed(&open, None));
-        }
-        attach(&mut stack, open);
-    }
-    stack
-        .pop()
-        .unwrap_or_else(|| Block::new(String::new(), Pos::new(1, 1)))
-}
-
-/// Ends the innermost block at its closing tag at `pos`.
-fn close_top(stack: &mut Vec<Block>, rayfile_closed: &mut Option<Pos>, pos: Pos) {
-    if let Some(done) = stack.pop() {
-        if done.name == "rayfile" && stack.len() == 1 {
-            *rayfile_closed = Some(pos);
-        }
-        attach(stack, done);
-    }
-}
-
-/// Ends the innermost block if it is an unknown tag's (reported when it opened); its parent
-/// is marked broken, since what the block swallowed may have been the parent's. Returns the
-/// ended block's hint (`Some`) if there was one.
-fn end_unknown(stack: &mut Vec<Block>) -> Option<Option<&'static str>> {
-    if stack.len() < 2 || !stack[stack.len() - 1].unknown {
-        return None;
-    }
-    let open = stack.pop()?;
-    let hint = open.hint;
-    attach(stack, open);
-    if let Some(parent) = stack.last_mut() {
-        parent.broken = true;
-    }
-    Some(hint)
-}
-
-/// Whether a closing tag named `close` ends the block opened as `open`: by name, with
-/// `[GLOBAL]` and `[GLOBALS]` one block (SCENE.md accepts either), so that `[GLOBALS]` …
-/// `[/GLOBAL]` is a block and not "closes nothing".
-fn same_block(open: &str, close: &str) -> bool {
-    open == close || (matches!(open, "global" | "globals") && matches!(close, "global" | "globals"))
-}
-
-/// Takes one pending closer of `hint` off the count; whether there was one.
-fn forget_one(pending: &mut HashMap<&'static str, usize>, hint: Option<&str>) -> bool {
-    match hint.and_then(|h| pending.get_mut(h)) {
-        Some(n) if *n > 0 => {
-            *n -= 1;
-            true
-        }
-        _ => false,
-    }
-}
-
-/// Adds a finished block to its parent; a `[rayfile]` wrapper is dissolved into it.
-fn attach(stack: &mut [Block], block: Block) {
-    let Some(parent) = stack.last_mut() else {
-        return;
-    };
-    if block.name == "rayfile" {
-        parent.entries.extend(block.entries);
-        parent.children.extend(block.children);
-    } else {
-        parent.children.push(block);
-    }
-}
-
-fn unclosed(block: &Block, at: Option<Pos>) -> Diagnostic {
-    let name = block.name.to_ascii_uppercase();
-    let message = match at {
-        Some(p) => format!(
-            "[{name}] is not closed: expected [/{name}] before line {}",
-            p.line
-        ),
-        None => format!("[{name}] is not closed: expected [/{name}] before the end of the file"),
-    };
-    Diagnostic::new(block.pos, message)
-}
-
-struct Parser<'a> {
+pub(super) struct Parser<'a> {
     errors: Found,
     limits: &'a Limits,
     textures: Vec<String>,
@@ -519,7 +95,7 @@ struct Parser<'a> {
 }
 
 /// Which block kinds a key belongs to, for "`fov` belongs in [CAMERA]" hints.
-fn home_of(key: &str) -> Option<&'static str> {
+pub(super) fn home_of(key: &str) -> Option<&'static str> {
     if GLOBAL_KEYS.contains(&key) {
         Some("[GLOBALS]")
     } else if CAMERA_KEYS.contains(&key) {
@@ -625,7 +201,8 @@ impl Parser<'_> {
         }
         // The defaults (640×480) count against the limits too, where no size was given. A
         // size given and refused has its own error, and the default standing in for it is
-        // not the scene's fault (it read "the default image size 640×4" for `width = 101`).
+        // not the scene's fault (a message about "the default image size" would blame a size
+        // the scene never asked for).
         let pixels = u64::from(desc.width) * u64::from(desc.height);
         let max_dim = self.limits.max_dimension;
         if !size.refused
@@ -1200,285 +777,4 @@ impl Parser<'_> {
             }
         }
     }
-}
-
-/// A value to interpret, with its position for error messages.
-struct Value<'a> {
-    text: &'a str,
-    pos: Pos,
-    key: &'a str,
-}
-
-impl<'a> Value<'a> {
-    fn new(e: &'a Entry) -> Self {
-        Value {
-            text: e.value.as_str(),
-            pos: e.value_pos,
-            key: e.key.as_str(),
-        }
-    }
-
-    fn fail<T>(&self, expected: &str) -> Result<T, Diagnostic> {
-        let found = if self.text.is_empty() {
-            "nothing".to_string()
-        } else {
-            format!("`{}`", shorten(self.text))
-        };
-        Err(Diagnostic::new(
-            self.pos,
-            format!("`{}`: expected {expected}, found {found}", self.key),
-        ))
-    }
-
-    fn at(&self, offset_chars: usize, message: String) -> Diagnostic {
-        let col = self
-            .pos
-            .column
-            .saturating_add(u32::try_from(offset_chars).unwrap_or(0));
-        Diagnostic::new(Pos::new(self.pos.line, col), message)
-    }
-
-    fn number(&self) -> Result<f64, Diagnostic> {
-        parse_f64(self.text).or_else(|e| self.fail(e.expected()))
-    }
-
-    fn number_in(&self, lo: f64, hi: f64) -> Result<f64, Diagnostic> {
-        let x = self.number()?;
-        if (lo..=hi).contains(&x) {
-            Ok(x)
-        } else {
-            self.fail(&format!("a number from {lo} to {hi}"))
-        }
-    }
-
-    fn number_open(&self, lo: f64, hi: f64) -> Result<f64, Diagnostic> {
-        let x = self.number()?;
-        if x > lo && x < hi {
-            Ok(x)
-        } else {
-            self.fail(&format!("a number between {lo} and {hi}, exclusive"))
-        }
-    }
-
-    fn positive(&self) -> Result<f64, Diagnostic> {
-        let x = self.number()?;
-        if x > 0.0 {
-            Ok(x)
-        } else {
-            self.fail("a number greater than 0")
-        }
-    }
-
-    fn non_negative(&self) -> Result<f64, Diagnostic> {
-        let x = self.number()?;
-        if x >= 0.0 {
-            Ok(x)
-        } else {
-            self.fail("a number ≥ 0")
-        }
-    }
-
-    fn whole(&self, lo: u32, hi: u32) -> Result<u32, Diagnostic> {
-        let expected = format!("a whole number from {lo} to {hi}");
-        match self.text.parse::<u64>() {
-            Ok(n) if n >= u64::from(lo) && n <= u64::from(hi) => Ok(n as u32),
-            _ => self.fail(&expected),
-        }
-    }
-
-    fn flag(&self) -> Result<bool, Diagnostic> {
-        match self.text.to_ascii_lowercase().as_str() {
-            "on" | "yes" | "true" => Ok(true),
-            "off" | "no" | "false" => Ok(false),
-            _ => self.fail("on, off, yes, no, true or false"),
-        }
-    }
-
-    fn keyword(&self, options: &[&'static str], what: &str) -> Result<&'static str, Diagnostic> {
-        let word = self.text.to_ascii_lowercase();
-        if let Some(k) = options.iter().find(|o| **o == word) {
-            return Ok(k);
-        }
-        let hint = match closest(&word, options.iter().copied()) {
-            Some(s) => format!("; did you mean `{s}`?"),
-            None => String::new(),
-        };
-        Err(Diagnostic::new(
-            self.pos,
-            format!(
-                "unknown {what} `{}`: expected one of {}{hint}",
-                shorten(self.text),
-                options.join(", ")
-            ),
-        ))
-    }
-
-    fn name(&self) -> Result<String, Diagnostic> {
-        let t = self.text;
-        if let Some(rest) = t.strip_prefix('"') {
-            return match rest.strip_suffix('"') {
-                Some(inner) if !inner.is_empty() && !inner.contains('"') => Ok(inner.to_string()),
-                _ => self.fail("a file name, bare or in double quotes"),
-            };
-        }
-        if t.is_empty() || t.chars().any(char::is_whitespace) || t.contains('"') {
-            return self.fail("a file name (put a name with spaces in double quotes)");
-        }
-        Ok(t.to_string())
-    }
-
-    /// `<a, b, c>` with finite components.
-    fn vector(&self) -> Result<DVec3, Diagnostic> {
-        const EXPECTED: &str = "a vector like <1, 0, 0>";
-        let t = self.text;
-        let (Some(inner), true) = (t.strip_prefix('<'), t.ends_with('>')) else {
-            return self.fail(EXPECTED);
-        };
-        let inner = &inner[..inner.len() - 1];
-        // `<>` has no components (split, it is one empty one).
-        let parts: Vec<&str> = if inner.trim().is_empty() {
-            Vec::new()
-        } else {
-            inner.split(',').collect()
-        };
-        if parts.len() != 3 {
-            // Say why the count is off where a reader would not see it: components written
-            // with spaces and no commas, or a comma at the end.
-            let why = if parts.len() < 3 && parts.iter().any(|p| p.split_whitespace().count() > 1) {
-                " (components are separated by commas)"
-            } else if parts.len() > 3 && parts.last().is_some_and(|p| p.trim().is_empty()) {
-                " (the last is empty: a comma at the end?)"
-            } else {
-                ""
-            };
-            return Err(Diagnostic::new(
-                self.pos,
-                format!(
-                    "`{}`: expected {EXPECTED} with three components, found {}{why}",
-                    self.key,
-                    parts.len()
-                ),
-            ));
-        }
-        let mut v = [0.0; 3];
-        let mut offset = 1; // past '<', in characters
-        for (i, part) in parts.iter().enumerate() {
-            let lead = part.chars().take_while(|c| c.is_whitespace()).count();
-            match parse_f64(part.trim()) {
-                Ok(x) => v[i] = x,
-                Err(e) => {
-                    let expected = match e {
-                        BadNumber::NotANumber => "a number",
-                        BadNumber::TooLarge => e.expected(),
-                    };
-                    return Err(self.at(
-                        offset + lead,
-                        format!(
-                            "`{}`: component {} of the vector: expected {expected}, found `{}`",
-                            self.key,
-                            i + 1,
-                            shorten(part.trim())
-                        ),
-                    ));
-                }
-            }
-            offset += part.chars().count() + 1;
-        }
-        Ok(DVec3::from_array(v))
-    }
-
-    /// A colour: one number `c` (meaning `<c, c, c>`) or a vector, components ≥ 0.
-    fn color(&self) -> Result<Color, Diagnostic> {
-        let c = if self.text.starts_with('<') {
-            self.vector()?
-        } else {
-            match parse_f64(self.text) {
-                Ok(x) => Color::splat(x),
-                Err(BadNumber::NotANumber) => {
-                    return self.fail("a colour: a number or a vector like <1, 0.5, 0>");
-                }
-                Err(e) => return self.fail(e.expected()),
-            }
-        };
-        if c.min_element() < 0.0 {
-            return self.fail("a colour with components ≥ 0");
-        }
-        Ok(c)
-    }
-
-    fn transform_op(&self, key: &str) -> Result<TransformOp, Diagnostic> {
-        match key {
-            "scale" => {
-                let s = if self.text.starts_with('<') {
-                    self.vector()?
-                } else {
-                    match parse_f64(self.text) {
-                        Ok(x) => DVec3::splat(x),
-                        Err(BadNumber::NotANumber) => {
-                            return self.fail("a number or a vector like <1, 2, 1>");
-                        }
-                        Err(e) => return self.fail(e.expected()),
-                    }
-                };
-                if s.x == 0.0 || s.y == 0.0 || s.z == 0.0 {
-                    return self.fail("a scale with no zero component");
-                }
-                Ok(TransformOp::Scale(s))
-            }
-            "rotate" => Ok(TransformOp::Rotate(self.vector()?)),
-            _ => Ok(TransformOp::Translate(self.vector()?)),
-        }
-    }
-}
-
-/// Largest magnitude of a number in a scene. Far beyond any scene's scale (a kilometre in
-/// micrometres is 1e9), and small enough that what the tracer computes from a few numbers
-/// stays finite: a distance squared, a colour times a light's colour times a texel, summed
-/// over every light. A light at 1e154 squared its distance to infinity and lit nothing;
-/// colours of 1e308 summed to infinity, and `0·∞ = NaN` came out as a white pixel; an eye at
-/// 1e160 was reported as "`up` parallel to the view".
-pub const MAX_NUMBER: f64 = 1e15;
-
-/// Why a value is not a scene number.
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum BadNumber {
-    NotANumber,
-    TooLarge,
-}
-
-impl BadNumber {
-    /// What was expected, for a message.
-    fn expected(self) -> &'static str {
-        match self {
-            BadNumber::NotANumber => "a number like 1.5 or -2e3",
-            BadNumber::TooLarge => "a number of magnitude at most 1e15",
-        }
-    }
-}
-
-/// A finite decimal number of magnitude at most [`MAX_NUMBER`]. Rust's parser also takes
-/// `inf`, `NaN` and `infinity`; the format does not.
-fn parse_f64(s: &str) -> Result<f64, BadNumber> {
-    if !s
-        .chars()
-        .all(|c| c.is_ascii_digit() || matches!(c, '+' | '-' | '.' | 'e' | 'E'))
-    {
-        return Err(BadNumber::NotANumber);
-    }
-    let x = s.parse::<f64>().map_err(|_| BadNumber::NotANumber)?;
-    // Only digits, signs, points and exponents got here, so an infinite value is a literal
-    // too large for an `f64` (`1e400`), not `inf`.
-    if x.abs() > MAX_NUMBER {
-        return Err(BadNumber::TooLarge);
-    }
-    Ok(x)
-}
-
-/// Which of `width` and `height` a scene's [GLOBALS] gave, and whether either was refused:
-/// the default size is checked against the limits only where it stands for a size not given.
-#[derive(Debug, Default, Clone, Copy)]
-struct GivenSize {
-    width: bool,
-    height: bool,
-    refused: bool,
 }

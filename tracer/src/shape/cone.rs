@@ -73,8 +73,8 @@ fn span(ray: &Ray) -> Option<(Crossing, Crossing)> {
     // the eye is; and a line passing near the apex has small coefficients there, whose
     // roots come out to a few ulps of its distance from the apex. (From the middle of the
     // line's passage through the box, the two roots of a line passing 1e-9 from the apex,
-    // nearly a double root, came out only to √ε ≈ 1e-8: a light just above the apex was
-    // shadowed by the cone on a random half of the floor.)
+    // nearly a double root, would come out only to √ε ≈ 1e-8: a light just above the apex
+    // would be shadowed by the cone on a random half of the floor.)
     let um = (DVec3::Y - ray.origin).dot(d);
     let o = ray.origin + d * um;
 

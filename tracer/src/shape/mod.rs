@@ -43,12 +43,18 @@ pub enum Shape {
     Cone,
     /// The ring torus around the y axis in the xz plane: points at distance `minor` from the
     /// circle of radius `major`. `0 < minor < major` (the parser refuses the others).
-    Torus { major: f64, minor: f64 },
+    Torus {
+        /// Radius of the core circle.
+        major: f64,
+        /// Radius of the tube.
+        minor: f64,
+    },
 }
 
 /// A ray–surface hit in object space.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LocalHit {
+    /// Where along the ray, in units of its direction.
     pub t: f64,
     /// The hit point, projected onto the surface.
     pub p: DVec3,

@@ -21,8 +21,8 @@ fn roots(ray: &Ray) -> Option<(f64, f64)> {
     let len2 = ray.dir.length_squared();
     // `|d|²` underflows to 0 for directions shorter than about 1e-154 and overflows past
     // 1e154, which an object scaled by as much makes of the eye's unit directions: the
-    // sphere then had no hit at all. Such directions are scaled by their largest component
-    // first; every other ray keeps the one square root (the same bits as before).
+    // sphere would then have no hit at all. Such directions are scaled by their largest
+    // component first; every other ray keeps the one square root (and so its exact bits).
     let (d, len) = if len2 > 1e-300 && len2 < 1e300 {
         let len = len2.sqrt();
         (ray.dir / len, len)

@@ -1,5 +1,10 @@
 //! `tessera-render`: the stand-alone tracer. Renders a `.ray` scene to a PNG on this machine,
 //! on all cores (or `--threads N`), with no service involved.
+//!
+//! This crate is only the command line: flags, the progress bar, reading the scene and
+//! writing the file, and errors reported as `file:line:col: message`. Parsing, rendering and
+//! PNG encoding are the `tessera-tracer` library's, which is why that library needs none of
+//! clap, indicatif or anyhow. Install it with `cargo install --path render`.
 
 use std::fs::{File, OpenOptions};
 use std::io::{BufWriter, IsTerminal, Read, Write};
@@ -25,8 +30,8 @@ struct OutFile(Arc<Mutex<BufWriter<File>>>);
 
 impl OutFile {
     fn lock(&self) -> MutexGuard<'_, BufWriter<File>> {
-        // Held for one write or flush at a time, neither of which panics; were the lock
-        // poisoned all the same, the writer behind it is still whole.
+        // Held for one write or flush at a time, neither of which panics; a poisoned lock
+        // still guards a whole writer.
         self.0.lock().unwrap_or_else(PoisonError::into_inner)
     }
 }
@@ -179,7 +184,7 @@ fn check_output(path: &Path, scene: &Path) -> Result<()> {
                 .with_context(what)?;
         }
         Ok(_) => {}
-        // A link to nothing yet: the PNG is written through it at the end, as before.
+        // A link to nothing yet: the PNG is written through it at the end, like any path.
         Err(_) if std::fs::symlink_metadata(path).is_ok() => {}
         Err(_) => {
             OpenOptions::new()
@@ -187,7 +192,7 @@ fn check_output(path: &Path, scene: &Path) -> Result<()> {
                 .create_new(true)
                 .open(path)
                 .with_context(what)?;
-            // It was made just now, empty; the real one is written after the render.
+            // The file just made is empty; the real one is written after the render.
             std::fs::remove_file(path).with_context(what)?;
         }
     }

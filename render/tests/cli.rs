@@ -1,7 +1,5 @@
 //! `tessera-render` as a user runs it: a PNG out, errors as `file:line:col: message`.
 
-mod common;
-
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -69,7 +67,7 @@ fn examples_render_to_the_same_png_as_the_library() {
     assert!(rendered >= 3, "only {rendered} examples");
 }
 
-/// Renders `scene` into `dir`, expecting a refusal: returns what was printed.
+/// Renders `scene` into `dir`, expecting a refusal: returns what it printed.
 fn refused(scene: &Path, dir: &Path) -> String {
     let out = render_to(scene, &dir.join("x.png"));
     assert!(!out.status.success());
@@ -214,7 +212,7 @@ fn texture_names_resolve_next_to_the_scene_and_errors_point_at_them() {
 
 /// A PNG that cannot be written whole is an error, not a success with a cut-short file:
 /// `/dev/full` takes nothing (`ENOSPC` on every write), like a full disk. A small image is
-/// the case that was missed: all of it sat in the output buffer until the end.
+/// the case to check: all of it sits in the output buffer until the end.
 #[test]
 fn a_full_disk_is_an_error() {
     if !Path::new("/dev/full").exists() {
@@ -228,15 +226,15 @@ fn a_full_disk_is_an_error() {
         .expect("runs");
     assert!(!out.status.success());
     let stderr = String::from_utf8_lossy(&out.stderr);
-    // The cause once (`{:#}` printed it twice when the PNG error also held it as a source).
+    // The cause once: `{:#}` prints it twice when the PNG error also holds it as a source.
     assert!(
         stderr.contains("cannot write /dev/full") && stderr.matches("No space left").count() == 1,
         "{stderr}"
     );
 }
 
-/// A texture name that names a device is refused at once (`/dev/zero` was read until memory
-/// ran out), at the name's position.
+/// A texture name that names a device is refused at once, at the name's position: reading
+/// `/dev/zero` would run until memory ran out.
 #[test]
 fn a_texture_that_is_not_a_file_is_refused() {
     if !Path::new("/dev/zero").exists() {
@@ -259,8 +257,8 @@ fn a_texture_that_is_not_a_file_is_refused() {
 }
 
 /// A texture name that resolves to the scene's own folder (`.`, `maps/..`) says so: the
-/// file system was asked for an empty path ("cannot read texture file `.`: : No such file
-/// or directory").
+/// file system would otherwise be asked for an empty path ("cannot read texture file `.`: :
+/// No such file or directory").
 #[test]
 fn a_texture_naming_the_scenes_folder_says_so() {
     let dir = temp_dir("folder-texture");
@@ -282,8 +280,8 @@ fn a_texture_naming_the_scenes_folder_says_so() {
 }
 
 /// Runs `cmd` to its end, or fails the test if it has not ended within `limit`: for the
-/// cases below, which used to run for ever (a render of hours, a read of `/dev/zero`, an
-/// open of a pipe). A guard against a hang, not a measure of speed: the cases take well
+/// cases below, which run for ever unless refused (a render of hours, a read of `/dev/zero`,
+/// an open of a pipe). A guard against a hang, not a measure of speed: the cases take well
 /// under a second.
 fn output_within(cmd: &mut Command, limit: std::time::Duration) -> std::process::Output {
     use std::process::Stdio;
@@ -349,7 +347,7 @@ fn an_output_that_cannot_be_written_fails_before_the_render() {
     }
     assert!(!fresh.exists());
     assert_eq!(std::fs::read(&kept).expect("kept"), b"old image");
-    // `-o` naming the scene replaced the scene with its picture: refused, here through `.`
+    // `-o` naming the scene would replace the scene with its picture: refused, here through `.`
     // and (Unix) through a hard link, where the paths have nothing in common.
     let refused_as_the_scene = |output: &Path| {
         let out = render_to(&bad, output);
@@ -366,7 +364,7 @@ fn an_output_that_cannot_be_written_fails_before_the_render() {
         std::fs::hard_link(&bad, &twin).expect("a hard link");
         refused_as_the_scene(&twin);
     }
-    // A link to a file not yet there is written through, as it was before the check.
+    // A link to a file not yet there is written through: the check refuses only the scene.
     #[cfg(unix)]
     {
         let target = dir.join("target.png");

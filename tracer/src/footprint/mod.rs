@@ -1,0 +1,527 @@
+//! Whether a pixel can hold an edge: the geometric tests that let the adaptive sampler end a
+//! pixel after its first ray, and make it refine a pixel where a thin solid may hide between
+//! its first rays.
+//!
+//! **What it is for.** A pixel's exact value differs from the radiance of one ray through it
+//! only through what changes inside the pixel's square: a solid's silhouette, a plane's
+//! horizon, a texture or checker edge, a reflection, a shadow's edge, or the smooth variation
+//! of Lambertian shading. [`Footprints::is_smooth`] says "smooth" only when it can rule out
+//! all but the last:
+//!
+//! - the ray saw the background, or a sphere placed by a similarity, or a plane, outside any
+//!   CSG tree, with a plain material (no texture, checker or mirror) and no shadow ray to
+//!   trace (`shadow = 0`, no diffuse light, or every light known clear of the object by
+//!   [`crate::shadow`]);
+//! - a sphere it hit fills the whole pixel, a plane it hit has no horizon in it;
+//! - no other solid shows in the pixel's square.
+//!
+//! The last is decided per tile, once, by projecting the solids onto the image
+//! ([`Footprints::new`]): a bounded solid's BVH boxes (a long cylinder's slices, see
+//! [`Object::pieces`]) are projected by their corners, and every pixel whose square meets
+//! the rectangle around them counts the solid; a similarity sphere, a long object's slice
+//! and a torus's ring piece (as capsules, [`Object::outline`]) count only in those pixels
+//! whose cone around the centre ray (below) meets them; a box reaching behind the eye's plane
+//! counts everywhere. Planes are tested per pixel.
+//!
+//! **Thin solids.** The same projection answers the opposite question,
+//! [`Footprints::may_hide`]: may a solid other than the one a pixel's first rays all saw show
+//! in its square? A sphere or rod thinner than the first rays' spacing can fall between them
+//! and leave them agreeing; the sampler then refines the pixel as if they had disagreed. Only
+//! the solids tested pixel by pixel (similarity spheres, long objects' slices and tori's
+//! ring pieces as capsules, [`Object::outline`]) are asked about, alone or inside a CSG tree
+//! (a tree counts by its rectangle, and its spheres, rods and tori also pixel by pixel under
+//! their own numbers, within the tree's box): a box's rectangle is far larger than what it
+//! holds, and would send every pixel around a cube to the cap. Sub-pixel features come from
+//! small spheres, thin rods and thin tori; other thin solids keep the sampler's colour and
+//! neighbour rules alone.
+//!
+//! **Cones.** Every ray through a pixel's square lies within [`crate::camera::Camera::pixel_angle`]
+//! of any other, so within the cone of that half-angle around any one of them, and within
+//! [`crate::camera::Camera::pixel_angle_from_centre`] of the ray through its centre. A sphere of
+//! radius `r` at distance `d` fills the directions within `α = asin(r/d)` of its centre: the
+//! cone meets it when `θ ≤ α + φ` and lies inside it when `θ + φ ≤ α` (`θ` the angle from the
+//! cone's axis to the centre, `φ` the half-angle). These are compared as sines (`sin θ` from a
+//! cross product, exact to a few ulps even for the tiny angles of a pixel, where `acos` of a
+//! dot product would lose half the digits); a plane is compared by the angle of the cone's
+//! axis to its normal. The half-angle is widened by 1e-6 of itself and every comparison
+//! keeps a margin of [`ANGLE_MARGIN`], and boxes are the BVH's padded ones, which dwarfs the
+//! rounding of these tests and of the renderer's own intersections.
+//!
+//! **What it is not.** It ignores occlusion (a solid hidden behind another still counts),
+//! and a non-spherical solid's rectangle is not its silhouette: it errs towards "may hold an
+//! edge", which only costs rays. It says nothing about how many rays a pixel with an edge
+//! needs; the sampler decides that.
+
+use std::ops::Range;
+
+use glam::DVec3;
+
+use crate::bvh;
+use crate::csg::Prim;
+use crate::math::Aabb;
+use crate::sampler::{Sample, UnseenPattern};
+use crate::shape::Shape;
+use crate::world::Scene;
+use cells::{cell_edges, cell_parity, covers, one_cell, plane_of};
+
+mod cells;
+mod cone;
+
+pub use cone::{Aperture, Cone, PlaneView};
+
+/// A rectangle of pixels (it may reach outside the image: the adaptive sampler looks at a
+/// border around each tile).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PixelRegion {
+    /// First column (may be negative).
+    pub x: i64,
+    /// First row (may be negative).
+    pub y: i64,
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+}
+
+/// Which solids may show in each pixel of a region, for [`Footprints::is_smooth`] and
+/// [`Footprints::may_hide`].
+#[derive(Debug, Clone)]
+pub struct Footprints<'s> {
+    scene: &'s Scene,
+    region: PixelRegion,
+    /// Around any ray through a pixel, and around the ray through its centre.
+    aperture: Aperture,
+    centre_aperture: Aperture,
+    /// Per pixel, row-major: [`NOTHING`], the one solid that may show in it, or
+    /// [`SEVERAL`].
+    shown: Vec<u32>,
+    /// Per pixel, as `shown`, but only the solids whose footprint is tested pixel by pixel
+    /// (spheres, and long rods and tori piece by piece, in a CSG tree or not): what
+    /// [`Footprints::may_hide`] answers from.
+    fitted: Vec<u32>,
+    /// The planes (world point, normal, object), tested per pixel.
+    planes: Vec<(DVec3, DVec3, u32)>,
+}
+
+/// A pixel no solid may show in.
+const NOTHING: u32 = u32::MAX;
+/// A pixel more than one solid may show in.
+const SEVERAL: u32 = u32::MAX - 1;
+/// The object number a CSG tree counts under: never a hit's object (those are the tree's
+/// children, and a child is never plain anyway). Object numbers stay below all three: a
+/// scene holds at most `Limits::max_objects` objects (a million by default), and the
+/// renderer numbers them in `u32` with `u32::MAX` meaning the background.
+const CSG: u32 = u32::MAX - 2;
+
+/// Counts solid `id` in a pixel's record: [`NOTHING`] → `id` → [`SEVERAL`].
+#[inline]
+fn count(record: &mut u32, id: u32) {
+    if *record == NOTHING {
+        *record = id;
+    } else if *record != id {
+        *record = SEVERAL;
+    }
+}
+
+/// Where a box's projection lies.
+enum Projection {
+    /// Wholly behind the eye's plane: no primary ray reaches it.
+    Behind,
+    /// Within `[x0, y0, x1, y1]` (image positions, pixels).
+    Within([f64; 4]),
+    /// Reaching across the eye's plane (or not finite): anywhere.
+    Anywhere,
+}
+
+impl<'s> Footprints<'s> {
+    /// Which solids may show in each pixel of `region` (see the module comment).
+    pub fn new(scene: &'s Scene, region: PixelRegion) -> Footprints<'s> {
+        let n = region.width * region.height;
+        let mut fp = Footprints {
+            scene,
+            region,
+            aperture: Aperture::new(scene.camera.pixel_angle()),
+            centre_aperture: Aperture::new(scene.camera.pixel_angle_from_centre()),
+            shown: vec![NOTHING; n],
+            fitted: vec![NOTHING; n],
+            planes: Vec::new(),
+        };
+        // The prims that may show in the region: every prim, or those the BVH finds whose
+        // boxes' projections meet it, with the ones it leaves out.
+        let prims: Vec<u32> = match scene.bvh_and_unbounded() {
+            None => (0..scene.prims.len() as u32).collect(),
+            Some((tree, unbounded)) => {
+                let mut found = unbounded.to_vec();
+                tree.any_item(
+                    |b| match fp.project_box(b) {
+                        Projection::Behind => false,
+                        Projection::Within(r) => fp.rect_meets_region(r),
+                        Projection::Anywhere => true,
+                    },
+                    |pi| {
+                        found.push(pi);
+                        false
+                    },
+                );
+                found.sort_unstable();
+                found.dedup();
+                found
+            }
+        };
+        for pi in prims {
+            fp.add_prim(pi);
+        }
+        fp
+    }
+
+    /// Counts prim `pi` in the pixels it may show in.
+    fn add_prim(&mut self, pi: u32) {
+        let scene = self.scene;
+        let (id, boxes) = match &scene.prims[pi as usize] {
+            Prim::Object(o) => {
+                let obj = &scene.objects[*o as usize];
+                if matches!(obj.shape, Shape::Plane) {
+                    let (p0, n) = plane_of(obj);
+                    self.planes.push((p0, n, *o));
+                    return;
+                }
+                if self.add_fitted(*o, None) {
+                    return;
+                }
+                (*o, obj.bounds.into_iter().collect::<Vec<Aabb>>())
+            }
+            Prim::Csg(c) => {
+                // The tree counts in its rectangle; its spheres, rods and tori also count
+                // pixel by pixel under their own numbers, so that `may_hide` knows of them
+                // (a child can only show within the tree's box, when it has one).
+                self.add_leaves(c, c.bounds.as_ref());
+                (CSG, c.bounds.into_iter().collect())
+            }
+        };
+        if boxes.is_empty() {
+            // Unbounded: anywhere.
+            self.mark_all(id);
+        }
+        for b in boxes {
+            match bvh::padded(&b).map(|p| self.project_box(&p)) {
+                Some(Projection::Behind) => {}
+                Some(Projection::Within(r)) => self.mark_rect(id, r),
+                _ => self.mark_all(id),
+            }
+        }
+    }
+
+    /// Where the box's projection lies: the bounds of its corners' projections, widened by
+    /// 1e-9 of their size and a millionth of a pixel against the projection's rounding.
+    fn project_box(&self, b: &Aabb) -> Projection {
+        let cam = &self.scene.camera;
+        let mut r = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        let mut behind = 0;
+        for i in 0..8 {
+            let corner = DVec3::new(
+                if i & 1 == 0 { b.min.x } else { b.max.x },
+                if i & 2 == 0 { b.min.y } else { b.max.y },
+                if i & 4 == 0 { b.min.z } else { b.max.z },
+            );
+            match cam.project(corner) {
+                Some((x, y)) if x.is_finite() && y.is_finite() => {
+                    r = [r[0].min(x), r[1].min(y), r[2].max(x), r[3].max(y)];
+                }
+                Some(_) => return Projection::Anywhere,
+                None => behind += 1,
+            }
+        }
+        match behind {
+            // Every corner at depth ≤ 0 puts the whole (convex) box there.
+            8 => Projection::Behind,
+            0 => {
+                let pad = |v: f64| 1e-6 + 1e-9 * v.abs();
+                Projection::Within([
+                    r[0] - pad(r[0]),
+                    r[1] - pad(r[1]),
+                    r[2] + pad(r[2]),
+                    r[3] + pad(r[3]),
+                ])
+            }
+            _ => Projection::Anywhere,
+        }
+    }
+
+    /// The region's pixels (columns, rows) whose squares meet the rectangle: pixel `p`'s
+    /// square `[p, p + 1]` meets `[lo, hi]` when `p ≤ hi` and `p + 1 ≥ lo`.
+    fn pixels_of(&self, [x0, y0, x1, y1]: [f64; 4]) -> (Range<usize>, Range<usize>) {
+        let span = |lo: f64, hi: f64, start: i64, len: usize| {
+            // Clamped in f64 first, so that huge or infinite bounds convert exactly.
+            let end = (start + len as i64) as f64;
+            let first = (lo - 1.0).ceil().clamp(start as f64, end);
+            let last = (hi.floor() + 1.0).clamp(start as f64, end);
+            if !(first < last) {
+                return 0..0;
+            }
+            (first as i64 - start) as usize..(last as i64 - start) as usize
+        };
+        let reg = self.region;
+        (
+            span(x0, x1, reg.x, reg.width),
+            span(y0, y1, reg.y, reg.height),
+        )
+    }
+
+    fn rect_meets_region(&self, r: [f64; 4]) -> bool {
+        let (xs, ys) = self.pixels_of(r);
+        !xs.is_empty() && !ys.is_empty()
+    }
+
+    /// Counts `id` in every pixel of the region whose square meets the rectangle.
+    fn mark_rect(&mut self, id: u32, r: [f64; 4]) {
+        let (xs, ys) = self.pixels_of(r);
+        for row in ys {
+            for col in xs.clone() {
+                self.mark(row * self.region.width + col, id);
+            }
+        }
+    }
+
+    fn mark_all(&mut self, id: u32) {
+        for i in 0..self.shown.len() {
+            self.mark(i, id);
+        }
+    }
+
+    /// Counts object `o` pixel by pixel if it is a similarity sphere, or has capsules that
+    /// hold it (a long rod's slices, a torus's ring, see [`Object::outline`]); `clip`, when
+    /// given, is a box outside which it cannot show (its CSG tree's). Returns false for
+    /// other shapes, which count by their rectangles.
+    fn add_fitted(&mut self, o: u32, clip: Option<&Aabb>) -> bool {
+        let obj = &self.scene.objects[o as usize];
+        // Boxes clipped to `clip`; an empty one (nothing of the object can show) is skipped,
+        // since `add_where` takes a box it cannot pad for "anywhere".
+        let clipped = |b: Aabb| match clip {
+            None => Some(b),
+            Some(c) => {
+                let b = Aabb::new(b.min.max(c.min), b.max.min(c.max));
+                (!b.is_empty()).then_some(b)
+            }
+        };
+        if let Some((c, r2)) = obj.similarity_sphere() {
+            let r = r2.sqrt();
+            let b = Aabb::new(c - DVec3::splat(r), c + DVec3::splat(r));
+            if let Some(b) = clipped(b) {
+                self.add_where(o, &b, |cone| cone.meets_sphere(c, r));
+            }
+            return true;
+        }
+        let pieces = obj.outline();
+        if pieces.is_empty() {
+            return false;
+        }
+        for p in pieces {
+            let (a, e) = p.axis;
+            if let Some(b) = clipped(p.bounds) {
+                self.add_where(o, &b, |cone| cone.may_meet_capsule(a, e, p.radius));
+            }
+        }
+        true
+    }
+
+    /// Counts the fitted leaves of a CSG tree ([`Self::add_fitted`]) within its box `clip`
+    /// (none for an unbounded tree), visiting only the children whose boxes may project
+    /// into the region (through the tree's index, when it has one: a union of thousands of
+    /// spheres is not projected child by child for every tile).
+    fn add_leaves(&mut self, c: &crate::csg::Csg, clip: Option<&Aabb>) {
+        let mut found: Vec<&Prim> = Vec::new();
+        c.children_near(
+            |b| match self.project_box(b) {
+                Projection::Behind => false,
+                Projection::Within(r) => self.rect_meets_region(r),
+                Projection::Anywhere => true,
+            },
+            |child| found.push(child),
+        );
+        for child in found {
+            match child {
+                Prim::Object(o) => {
+                    self.add_fitted(*o, clip);
+                }
+                Prim::Csg(inner) => self.add_leaves(inner, clip),
+            }
+        }
+    }
+
+    /// Counts `id` in the pixels of the rectangle of box `b` where `meets` holds for the
+    /// cone around the ray through the pixel's centre.
+    fn add_where(&mut self, id: u32, b: &Aabb, meets: impl Fn(&Cone) -> bool) {
+        let rect = match bvh::padded(b).map(|p| self.project_box(&p)) {
+            Some(Projection::Behind) => return,
+            Some(Projection::Within(rect)) => rect,
+            _ => [
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::INFINITY,
+            ],
+        };
+        let (xs, ys) = self.pixels_of(rect);
+        let reg = self.region;
+        for row in ys {
+            for col in xs.clone() {
+                let (px, py) = (reg.x + col as i64, reg.y + row as i64);
+                let ray = self.scene.camera.ray(px as f64 + 0.5, py as f64 + 0.5);
+                if meets(&Cone::new(ray.origin, ray.dir, self.centre_aperture)) {
+                    let i = row * reg.width + col;
+                    self.mark(i, id);
+                    count(&mut self.fitted[i], id);
+                }
+            }
+        }
+    }
+
+    #[inline]
+    fn mark(&mut self, i: usize, id: u32) {
+        count(&mut self.shown[i], id);
+    }
+
+    /// Whether a similarity sphere, a long object's slice or a torus's ring piece other than
+    /// `object` (a hit's object, or [`Sample::BACKGROUND`]) may show in pixel `(px, py)`'s
+    /// square: its cone
+    /// around the centre ray meets one. Pixels outside the region: no.
+    pub fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
+        self.index(px, py)
+            .is_some_and(|i| self.fitted[i] != NOTHING && self.fitted[i] != object)
+    }
+
+    /// What an edge of `object`'s checker can hide in pixel `(px, py)`'s square on a side
+    /// that none of the rays through image positions `seen` (rays that all saw `object`) fell
+    /// on: the step between the two colours there (`Scene::checker_step`'s bound) and how
+    /// many cell edges may cross the square (see `cell_edges`; unknown where a corner's ray
+    /// misses the plane). `None` where the square lies in one cell, where those rays met
+    /// cells of both colours, or for anything but a checkered plane without a texture. A ray
+    /// within rounding of a cell's edge tells no side. Asked of any pixel, inside the region
+    /// or not (the answer depends on the pixel alone). Never below the truth.
+    pub fn unseen_pattern(
+        &self,
+        px: i64,
+        py: i64,
+        object: u32,
+        seen: &[(f64, f64)],
+    ) -> Option<UnseenPattern> {
+        let obj = self.scene.objects.get(object as usize)?;
+        if obj.material.texture.is_some() || !matches!(obj.shape, Shape::Plane) {
+            return None;
+        }
+        let step = self.scene.checker_step(obj);
+        if step == 0.0 {
+            return None;
+        }
+        let edges = cell_edges(self.scene, obj, px, py);
+        if edges == Some(0) {
+            return None;
+        }
+        let mut parity = None;
+        for &(x, y) in seen {
+            if let Some(p) = cell_parity(self.scene, obj, x, y) {
+                if parity.is_some_and(|q| q != p) {
+                    return None;
+                }
+                parity = Some(p);
+            }
+        }
+        Some(UnseenPattern { step, edges })
+    }
+
+    /// Pixel `(px, py)`'s place in the per-pixel records; `None` outside the region.
+    fn index(&self, px: i64, py: i64) -> Option<usize> {
+        let reg = self.region;
+        let (cx, cy) = (px - reg.x, py - reg.y);
+        let inside = cx >= 0 && cy >= 0 && cx < reg.width as i64 && cy < reg.height as i64;
+        inside.then(|| cy as usize * reg.width + cx as usize)
+    }
+
+    /// Whether pixel `(px, py)`, where the primary ray through image position `(x, y)` (a
+    /// point of that pixel) saw `seen`, is known to hold no edge, texture, reflection or
+    /// shadow edge: its exact value then differs from that ray's only by smooth shading.
+    /// Pixels outside the region are never known smooth.
+    pub fn is_smooth(&self, px: i64, py: i64, x: f64, y: f64, seen: &Sample) -> bool {
+        self.shows_alone(px, py, x, y, seen.object, true)
+    }
+
+    /// [`Footprints::is_smooth`] but for a checker's cells: whether pixel `(px, py)`, where
+    /// the primary ray through `(x, y)` saw `object`, holds no edge, texture, reflection or
+    /// shadow edge other than the edges between a checkered plane's cells, which
+    /// [`Footprints::unseen_pattern`] bounds. A step between it and a neighbour that neither
+    /// saw is then a cell edge, in the neighbour unless the pattern puts one here.
+    pub fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool {
+        self.shows_alone(px, py, x, y, object, false)
+    }
+
+    /// [`Footprints::is_smooth`], with a checker's cell edges allowed unless `one_cell`.
+    fn shows_alone(
+        &self,
+        px: i64,
+        py: i64,
+        x: f64,
+        y: f64,
+        object: u32,
+        one_cell_too: bool,
+    ) -> bool {
+        let Some(i) = self.index(px, py) else {
+            return false;
+        };
+        let hit = (object != Sample::BACKGROUND).then_some(object);
+        let alone = match self.shown[i] {
+            NOTHING => true,
+            SEVERAL => false,
+            one => Some(one) == hit,
+        };
+        if !alone || hit.is_some_and(|o| !self.scene.plain(o)) {
+            return false;
+        }
+        let ray = self.scene.camera.ray(x, y);
+        let cone = Cone::new(ray.origin, ray.dir, self.aperture);
+        if let Some(o) = hit {
+            let obj = &self.scene.objects[o as usize];
+            if !covers(obj, &cone)
+                || (one_cell_too
+                    && obj.material.color2.is_some()
+                    && !one_cell(self.scene, obj, px, py))
+            {
+                return false;
+            }
+        }
+        self.planes
+            .iter()
+            .all(|&(p0, n, o)| Some(o) == hit || cone.view_of_plane(p0, n) == PlaneView::Misses)
+    }
+}
+
+impl crate::sampler::PixelGeometry for Footprints<'_> {
+    fn is_smooth(&self, px: i64, py: i64, x: f64, y: f64, seen: &Sample) -> bool {
+        Footprints::is_smooth(self, px, py, x, y, seen)
+    }
+
+    fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
+        Footprints::may_hide(self, px, py, object)
+    }
+
+    fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool {
+        Footprints::pattern_alone(self, px, py, x, y, object)
+    }
+
+    fn unseen_pattern(
+        &self,
+        px: i64,
+        py: i64,
+        object: u32,
+        seen: &[(f64, f64)],
+    ) -> Option<UnseenPattern> {
+        Footprints::unseen_pattern(self, px, py, object, seen)
+    }
+}
+
+#[cfg(test)]
+mod tests;

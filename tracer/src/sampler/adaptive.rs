@@ -1,0 +1,630 @@
+//! The adaptive sampler: a probe ray or a four-ray first pass per pixel, compared with the
+//! neighbours' to decide which pixels end early and which are refined, up to the sampler's
+//! maximum, with the decision made the same way in every tile.
+
+use crate::math::Color;
+use crate::tile::Rect;
+
+use super::jitter::{PixelHash, SEED_FIRST, SEED_JITTER, mix, stratified};
+use super::{PixelGeometry, Sample, UnseenPattern};
+
+/// The samples an adaptive pixel has taken so far: their sum, sum of squares, range and
+/// whether they met more than one object.
+#[derive(Clone, Copy)]
+pub(super) struct Tally {
+    pub(super) sum: Color,
+    pub(super) sum_sq: Color,
+    pub(super) min: Color,
+    pub(super) max: Color,
+    pub(super) count: u32,
+    pub(super) object: u32,
+    pub(super) mixed: bool,
+}
+
+impl Tally {
+    pub(super) fn new() -> Tally {
+        Tally {
+            sum: Color::ZERO,
+            sum_sq: Color::ZERO,
+            min: Color::splat(f64::INFINITY),
+            max: Color::splat(f64::NEG_INFINITY),
+            count: 0,
+            object: 0,
+            mixed: false,
+        }
+    }
+
+    pub(super) fn add(&mut self, s: Sample) {
+        if self.count == 0 {
+            self.object = s.object;
+        } else if s.object != self.object {
+            self.mixed = true;
+        }
+        self.sum += s.color;
+        self.sum_sq += s.color * s.color;
+        self.min = self.min.min(s.color);
+        self.max = self.max.max(s.color);
+        self.count += 1;
+    }
+
+    /// The tally of one sample.
+    pub(super) fn of(s: Sample) -> Tally {
+        let mut t = Tally::new();
+        t.add(s);
+        t
+    }
+
+    pub(super) fn mean(&self) -> Color {
+        self.sum / f64::from(self.count)
+    }
+
+    /// Whether a step between these samples' pixel and `other`'s went unseen by both: in
+    /// some channel the two means differ by more than `threshold`, and the two ranges of
+    /// samples stay apart by more than `threshold` and by more than [`UNSEEN_GAP`] of that
+    /// difference. An unseen step leaves a gap as high as the step itself (each pixel's
+    /// samples all on its own side); a smooth gradient leaves a third of the difference on
+    /// average (each pixel's samples reach towards the other's), and is no step at all.
+    pub(super) fn unseen_step(&self, other: &Tally, threshold: f64) -> bool {
+        let (a, b) = (self.mean(), other.mean());
+        (0..3).any(|i| {
+            let difference = (a[i] - b[i]).abs();
+            let gap = (self.min[i] - other.max[i]).max(other.min[i] - self.max[i]);
+            difference > threshold && gap > threshold && gap > UNSEEN_GAP * difference
+        })
+    }
+
+    /// Whether the samples disagree: more than `threshold` apart in a channel, or on
+    /// different objects.
+    pub(super) fn contrast(&self, threshold: f64) -> bool {
+        self.mixed || (self.max - self.min).max_element() > threshold
+    }
+
+    /// The standard error of the mean, largest over the channels, as if the samples were
+    /// independent (stratification makes the true error smaller, so this errs on the side
+    /// of more samples).
+    pub(super) fn standard_error(&self) -> f64 {
+        let n = f64::from(self.count);
+        let var = (self.sum_sq - self.sum * self.sum / n) / (n - 1.0);
+        (var.max_element().max(0.0) / n).sqrt()
+    }
+}
+
+/// First-pass result of one pixel for the adaptive sampler: the tally of its four samples,
+/// where they were taken, and, for even `n`, the cell offset each quadrant drew (see
+/// [`QuadrantOrder`]).
+#[derive(Clone, Copy)]
+pub(super) struct FirstPass {
+    pub(super) tally: Tally,
+    pub(super) positions: [(f64, f64); 4],
+    pub(super) offsets: [(u32, u32); 4],
+}
+
+/// The order in which each quadrant of an adaptive pixel with an even cap `n` (`h = n/2`
+/// cells a side per quadrant) takes its cells of the `n × n` grid, and where it may stop.
+///
+/// The order is a fixed list of cells of an `h × h` quadrant, shifted cyclically by the
+/// quadrant's hashed offset `(a, b)`. Since the offset is uniform over the quadrant, the
+/// cell of any rank is uniform over it, and its sample (at that cell's own hashed position,
+/// whatever the rank) is uniform over the quadrant too: the mean of the same number of ranks
+/// in every quadrant is an unbiased estimate of the pixel, and all `h²` ranks are exactly
+/// the `n × n` stratified set. The list is built so that its prefixes are well spread:
+///
+/// - ranks 0–3 are a 2 × 2 lattice: the offset, the cell half the quadrant away diagonally,
+///   then the two others (for every `h`);
+/// - for `h` a power of two, each later doubling repeats the lattice one level down: ranks
+///   `m..2m` put a cell diagonally across each block of the current level from the cell of
+///   rank `r − m`, ranks `2m..4m` fill the two other sub-blocks. So every prefix of `4^k`
+///   ranks has exactly one cell in each block of `h/2^k` cells a side (16 rays per pixel are
+///   one per quarter-pixel square, as 4 × 4 jitter has), and every prefix of `2·4^k` ranks
+///   has one in each row and column of those blocks' halves.
+pub(super) struct QuadrantOrder {
+    pub(super) h: u32,
+    pub(super) cells: Vec<(u32, u32)>,
+}
+
+impl QuadrantOrder {
+    pub(super) fn new(h: u32) -> QuadrantOrder {
+        let mut cells = vec![(0, 0)];
+        if h.is_power_of_two() {
+            let mut size = h;
+            while size > 1 {
+                let half = size / 2;
+                let level: Vec<(u32, u32)> = cells.clone();
+                cells.extend(level.iter().map(|&(i, j)| (i + half, j + half)));
+                for &(i, j) in &level {
+                    cells.push((i + half, j));
+                    cells.push((i, j + half));
+                }
+                size = half;
+            }
+        } else {
+            let s = h.div_ceil(2);
+            cells.extend([(s, s), (s, 0), (0, s)]);
+            for j in 0..h {
+                for i in 0..h {
+                    if !cells.contains(&(i, j)) {
+                        cells.push((i, j));
+                    }
+                }
+            }
+        }
+        debug_assert_eq!(cells.len() as u32, h * h);
+        QuadrantOrder { h, cells }
+    }
+
+    /// The cell of the `n × n` grid that quadrant `k` takes as its sample number `rank`,
+    /// given the quadrant's offset `(a, b)` in `[0, h)²`.
+    #[inline]
+    pub(super) fn cell(&self, k: u32, rank: u32, (a, b): (u32, u32)) -> u32 {
+        let h = self.h;
+        let (di, dj) = self.cells[rank as usize];
+        // a + di < 2h, so one subtraction is the remainder.
+        let wrap = |v: u32| if v >= h { v - h } else { v };
+        let ci = (k & 1) * h + wrap(a + di);
+        let cj = (k >> 1) * h + wrap(b + dj);
+        cj * 2 * h + ci
+    }
+}
+
+/// The sample of cell `cell` of pixel `(x, y)`'s `n × n` grid, at the cell's hashed position.
+#[inline]
+pub(super) fn cell_sample<F: Fn(f64, f64) -> Sample>(
+    x: i64,
+    y: i64,
+    hash: PixelHash,
+    n: u32,
+    inv: f64,
+    cell: u32,
+    trace: &F,
+) -> Sample {
+    let (ox, oy) = hash.pair(cell);
+    let (ci, cj) = (cell % n, cell / n);
+    trace(
+        x as f64 + (f64::from(ci) + ox) * inv,
+        y as f64 + (f64::from(cj) + oy) * inv,
+    )
+}
+
+/// Where pixel `(x, y)`'s first-pass sample in quadrant `k` lies and, for even `n`, the
+/// quadrant's offset (see [`QuadrantOrder`]).
+///
+/// For even `n` it is rank 0 of the quadrant, so every later stage reuses it. For odd `n`
+/// the quadrants do not align with the grid, and the first pass is an independent 2 × 2
+/// jittered set.
+pub(super) fn first_position(
+    x: i64,
+    y: i64,
+    n: u32,
+    order: Option<&QuadrantOrder>,
+    k: u32,
+    hashes: &FirstHashes,
+) -> ((f64, f64), (u32, u32)) {
+    let FirstHashes { first, cells } = *hashes;
+    let Some(order) = order else {
+        let (ox, oy) = first.pair(k);
+        let (qx, qy) = (f64::from(k % 2), f64::from(k / 2));
+        return (
+            (x as f64 + (qx + ox) * 0.5, y as f64 + (qy + oy) * 0.5),
+            (0, 0),
+        );
+    };
+    let h = order.h;
+    // Each half of one 64-bit hash picks a coordinate: ⌊u · h / 2³²⌋ for u uniform on 32
+    // bits takes each value in [0, h) with probability within 2⁻³² of 1/h.
+    let r = mix(first.0 ^ u64::from(k));
+    let a = (((r >> 32) * u64::from(h)) >> 32) as u32;
+    let b = (((r & 0xffff_ffff) * u64::from(h)) >> 32) as u32;
+    let cell = order.cell(k, 0, (a, b));
+    // The cells' positions are jitter's: a pixel refined to the full grid takes exactly the
+    // rays of `jitter` with the same `n` (the same arithmetic as `cell_sample`).
+    let (ox, oy) = cells.pair(cell);
+    let (ci, cj) = (cell % n, cell / n);
+    let inv = 1.0 / f64::from(n);
+    (
+        (
+            x as f64 + (f64::from(ci) + ox) * inv,
+            y as f64 + (f64::from(cj) + oy) * inv,
+        ),
+        (a, b),
+    )
+}
+
+/// A pixel's hashes for its first pass: the quadrants' offsets and the cells' positions.
+#[derive(Clone, Copy)]
+pub(super) struct FirstHashes {
+    pub(super) first: PixelHash,
+    pub(super) cells: PixelHash,
+}
+
+impl FirstHashes {
+    pub(super) fn new(x: i64, y: i64) -> FirstHashes {
+        // Border pixels left of or above the image have negative coordinates; their hash
+        // input wraps, which is as good a seed as any and the same in every tile.
+        let (hx, hy) = (x as u32, y as u32);
+        FirstHashes {
+            first: PixelHash::new(hx, hy, SEED_FIRST),
+            cells: PixelHash::new(hx, hy, SEED_JITTER),
+        }
+    }
+}
+
+/// The first pass of pixel `(x, y)`: one sample per quadrant (see [`first_position`]), the
+/// first of them `probed` when the pixel's probe already traced it.
+pub(super) fn first_pass<F: Fn(f64, f64) -> Sample>(
+    x: i64,
+    y: i64,
+    n: u32,
+    order: Option<&QuadrantOrder>,
+    trace: &F,
+    probed: Option<Sample>,
+) -> FirstPass {
+    let mut fp = FirstPass {
+        tally: Tally::new(),
+        positions: [(0.0, 0.0); 4],
+        offsets: [(0, 0); 4],
+    };
+    let hashes = FirstHashes::new(x, y);
+    for k in 0..4u32 {
+        let ((sx, sy), offset) = first_position(x, y, n, order, k, &hashes);
+        fp.offsets[k as usize] = offset;
+        fp.positions[k as usize] = (sx, sy);
+        fp.tally.add(match probed {
+            Some(s) if k == 0 => s,
+            _ => trace(sx, sy),
+        });
+    }
+    fp
+}
+
+/// The part of the difference between two neighbours' means that must lie between their
+/// ranges of samples for a step between them to count as unseen ([`Ask::Unseen`]). A step
+/// that neither saw leaves all of it (less the shading's spread); a linear gradient leaves
+/// a third on average, more only where both pixels' first rays fell near their centres.
+pub(super) const UNSEEN_GAP: f64 = 0.75;
+
+/// Why a pixel takes more samples than its first pass (see [`refine`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) enum Ask {
+    /// Only a neighbour asked: it saw an edge, or differs from this pixel with the edge
+    /// seen inside one of the two.
+    Neighbour,
+    /// The pixel itself asked: its first pass disagreed, or the geometry says a solid it did
+    /// not see may show in it.
+    Own,
+    /// A neighbour's colour differs from this pixel's and neither saw the step between
+    /// them: a sliver that agreeing rays say nothing about lies in one of the two.
+    Unseen,
+    /// The geometry says the pixel's square crosses edges of the pattern its first rays
+    /// all met on one side of: the pixel stops only where a stratified set of its rays
+    /// bounds what those edges can hide to the threshold (and its standard error allows).
+    Pattern(UnseenPattern),
+}
+
+/// The estimate of a pixel whose first pass, or a neighbour's, asked for more samples
+/// (`ask`: why).
+///
+/// Even `n`, in stages of ranks per quadrant (see [`QuadrantOrder`]), each stage reusing the
+/// ones before:
+/// - 2 (8 rays in all), when only a neighbour asked ([`Ask::Neighbour`]) and `n ≥ 6`: the
+///   pixel stops there unless these samples disagree (contrast above `threshold`, or two
+///   objects);
+/// - 4 (16 rays), when `n ≥ 6`, then every doubling below `n²/4` when `n/2` is a power of
+///   two (32, 64, … rays): the pixel stops at such a stage if the standard error of its mean
+///   is at most the stage's bound (see [`se_bound`]), unless the edge is unseen
+///   ([`Ask::Unseen`]: rays that agree bound nothing about a sliver they all missed);
+/// - for [`Ask::Pattern`], with `n/2` a power of two: the stages of `4^k` ranks per
+///   quadrant (16, 64, 256 rays), whose rays are a stratified set over a grid of `m × m`
+///   cells (`m = 2^(k+1)`, see [`QuadrantOrder`]): the pixel stops at such a stage if the
+///   pattern's error bound for that grid is at most `threshold` and the standard error at
+///   most the stage's bound;
+/// - `n²/4` (all `n × n` cells).
+///
+/// Odd `n`: `n × n` stratified samples besides the first pass, count-weighted with it.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
+    x: u32,
+    y: u32,
+    n: u32,
+    threshold: f64,
+    ask: Ask,
+    fp: &FirstPass,
+    order: Option<&QuadrantOrder>,
+    trace: &F,
+) -> Color {
+    let Some(order) = order else {
+        // Both sets are unbiased estimates of the pixel, so their count-weighted mean is too.
+        let n2 = f64::from(n * n);
+        let t = &fp.tally;
+        return (t.sum + stratified(x, y, n, Some(SEED_JITTER), trace) * n2) / (4.0 + n2);
+    };
+    let h = order.h;
+    let hash = PixelHash::new(x, y, SEED_JITTER);
+    let inv = 1.0 / f64::from(n);
+    let (xi, yi) = (i64::from(x), i64::from(y));
+    let mut tally = fp.tally;
+    // Takes ranks `from..upto` of every quadrant.
+    let take = |tally: &mut Tally, from: u32, upto: u32| {
+        for rank in from..upto {
+            for k in 0..4 {
+                let cell = order.cell(k, rank, fp.offsets[k as usize]);
+                tally.add(cell_sample(xi, yi, hash, n, inv, cell, trace));
+            }
+        }
+    };
+    let all = h * h;
+    let mut ranks = 1;
+    if h >= 3 && ask == Ask::Neighbour {
+        take(&mut tally, ranks, 2);
+        ranks = 2;
+        if !tally.contrast(threshold) {
+            return tally.mean();
+        }
+    }
+    if let Ask::Pattern(pattern) = ask {
+        if h.is_power_of_two() {
+            let (mut stage, mut m) = (4, 4);
+            while stage < all {
+                take(&mut tally, ranks, stage);
+                ranks = stage;
+                if pattern.error_bound(m) <= threshold
+                    && tally.standard_error() <= se_bound(threshold, 4 * stage)
+                {
+                    return tally.mean();
+                }
+                (stage, m) = (stage * 4, m * 2);
+            }
+        }
+    } else if h >= 3 && ask != Ask::Unseen {
+        let mut stage = 4;
+        while stage < all {
+            take(&mut tally, ranks, stage);
+            ranks = stage;
+            if tally.standard_error() <= se_bound(threshold, 4 * stage) {
+                return tally.mean();
+            }
+            if !h.is_power_of_two() {
+                break;
+            }
+            stage *= 2;
+        }
+    }
+    take(&mut tally, ranks, all);
+    tally.mean()
+}
+
+/// The standard error at or below which a pixel of `rays` rays (16 or more) takes no more:
+/// `threshold` at 16 rays, growing as √(rays/16).
+///
+/// The growth spreads rays the way that minimises the image's summed squared error: a
+/// pixel whose samples have spread σ errs by about σ²/m with m rays, so its next m rays
+/// (doubling) save σ²/2m, and they are worth their cost where σ²/m² is above a constant
+/// common to all pixels, that is where σ/m, the standard error over √m, is. Pixels then end
+/// with rays in proportion to σ (Neyman's allocation), rather than to σ² as a fixed bound
+/// on the standard error would give, which spends most of the rays on the few noisiest
+/// pixels. At 16 rays the bound is the threshold itself, as documented.
+pub(super) fn se_bound(threshold: f64, rays: u32) -> f64 {
+    threshold * (f64::from(rays) / 16.0).sqrt()
+}
+
+/// The adaptive sampler over `rect`.
+///
+/// With a smoothness test, every pixel of the rect first traces its first ray alone (its
+/// *probe*); a pixel ends there, with that one ray, when no neighbour whose probe saw the
+/// same object differs from it by more than `threshold` (a steep shading gradient) and the
+/// test says it is smooth. Every other pixel takes its four-ray first pass, the probe's ray
+/// being the first of them, and goes on as without a test. A pixel that goes on compares its
+/// first pass with its neighbours', and whether a neighbour has one depends on that
+/// neighbour's own neighbours' probes: so the decision is made, the same way, for the
+/// border pixels next to a pixel that goes on, with probes up to two pixels beyond the
+/// rect ([`PROBE_BORDER`]). Every pixel's rays are thus what they would be in any other
+/// tile.
+pub(super) fn adaptive<F, G>(
+    rect: Rect,
+    max: u32,
+    threshold: f64,
+    trace: &F,
+    geometry: Option<&G>,
+    out: &mut [Color],
+) where
+    F: Fn(f64, f64) -> Sample,
+    G: PixelGeometry,
+{
+    let order = max.is_multiple_of(2).then(|| QuadrantOrder::new(max / 2));
+    let order = order.as_ref();
+    // Pixels are indexed in the rect grown by two on every side; `(bx, by)` is the rect's
+    // `(bx - 2, by - 2)`. Border pixels outside the image are traced like any others (the
+    // camera extends past the image), so a pixel at the image's edge is treated exactly like
+    // one inside.
+    let (w, h) = (rect.width as usize, rect.height as usize);
+    let (pw, ph) = (w + 4, h + 4);
+    let at = |bx: usize, by: usize| by * pw + bx;
+    let pixel = |bx: usize, by: usize| {
+        (
+            i64::from(rect.x) + bx as i64 - 2,
+            i64::from(rect.y) + by as i64 - 2,
+        )
+    };
+    let neighbours =
+        |bx: usize, by: usize| [(bx - 1, by), (bx + 1, by), (bx, by - 1), (bx, by + 1)];
+
+    // Which inner pixels end after their probe, decided where needed: for every pixel of
+    // the rect, and for a border pixel next to one that goes on (its first pass is compared
+    // with). A pixel's probe is traced when first needed, and its neighbours' only once its
+    // own is smooth, so a region nothing can end in (a mirror) traces no probes beyond the
+    // first passes' first rays.
+    let mut ends = vec![false; pw * ph];
+    let mut probes: Vec<Option<((f64, f64), Sample)>> = vec![None; pw * ph];
+    if let Some(geometry) = geometry {
+        let probe = |probes: &mut Vec<Option<((f64, f64), Sample)>>, bx: usize, by: usize| {
+            let i = at(bx, by);
+            if let Some(p) = probes[i] {
+                return p;
+            }
+            let (x, y) = pixel(bx, by);
+            let hashes = FirstHashes::new(x, y);
+            let ((sx, sy), _) = first_position(x, y, max, order, 0, &hashes);
+            let p = ((sx, sy), trace(sx, sy));
+            probes[i] = Some(p);
+            p
+        };
+        let decide = |probes: &mut Vec<Option<((f64, f64), Sample)>>, bx: usize, by: usize| {
+            let ((sx, sy), p) = probe(probes, bx, by);
+            let (x, y) = pixel(bx, by);
+            let gentle = |q: &Sample| {
+                q.object != p.object || (q.color - p.color).abs().max_element() <= threshold
+            };
+            // The neighbours already traced first, then the test, then the rest: each step
+            // is only taken if the ones before allow the pixel to end.
+            neighbours(bx, by)
+                .into_iter()
+                .all(|(nx, ny)| probes[at(nx, ny)].is_none_or(|(_, q)| gentle(&q)))
+                && geometry.is_smooth(x, y, sx, sy, &p)
+                && neighbours(bx, by)
+                    .into_iter()
+                    .all(|(nx, ny)| gentle(&probe(probes, nx, ny).1))
+        };
+        let mut decided = vec![false; pw * ph];
+        for by in 2..h + 2 {
+            for bx in 2..w + 2 {
+                ends[at(bx, by)] = decide(&mut probes, bx, by);
+                decided[at(bx, by)] = true;
+            }
+        }
+        for by in 2..h + 2 {
+            for bx in 2..w + 2 {
+                if ends[at(bx, by)] {
+                    continue;
+                }
+                for (nx, ny) in neighbours(bx, by) {
+                    if !decided[at(nx, ny)] {
+                        ends[at(nx, ny)] = decide(&mut probes, nx, ny);
+                        decided[at(nx, ny)] = true;
+                    }
+                }
+            }
+        }
+    }
+
+    // First passes where the rect's decisions need them: its pixels that go on, and their
+    // neighbours that go on (`slot` indexes `passes`, NONE where a pixel has none).
+    const NONE: u32 = u32::MAX;
+    let mut slot = vec![NONE; pw * ph];
+    let mut passes: Vec<FirstPass> = Vec::new();
+    for by in 2..h + 2 {
+        for bx in 2..w + 2 {
+            if ends[at(bx, by)] {
+                continue;
+            }
+            for (qx, qy) in std::iter::once((bx, by)).chain(neighbours(bx, by)) {
+                let i = at(qx, qy);
+                if slot[i] == NONE && !ends[i] {
+                    let (x, y) = pixel(qx, qy);
+                    let probed = probes[i].map(|(_, p)| p);
+                    // At most one pass per pixel of the grown rect, whose size is bounded
+                    // by the image's (`Limits`) and far below u32::MAX.
+                    slot[i] = passes.len() as u32;
+                    passes.push(first_pass(x, y, max, order, trace, probed));
+                }
+            }
+        }
+    }
+    // What a pixel's neighbours compare with: its first pass's tally (whether it met two
+    // objects, its first object, its mean and the range of its samples); for a pixel that
+    // ended, its probe's.
+    let seen = |i: usize| -> Tally {
+        match (slot[i], probes[i]) {
+            (NONE, Some((_, p))) => Tally::of(p),
+            (NONE, None) => Tally::of(Sample {
+                color: Color::ZERO,
+                object: Sample::BACKGROUND,
+            }),
+            (k, _) => passes[k as usize].tally,
+        }
+    };
+
+    let mut i = 0;
+    for by in 2..h + 2 {
+        for bx in 2..w + 2 {
+            let here = at(bx, by);
+            let (x, y) = (rect.x + (bx - 2) as u32, rect.y + (by - 2) as u32);
+            out[i] = match (ends[here], probes[here], slot[here]) {
+                (true, Some((_, p)), _) => p.color,
+                // Unreachable: a pixel that does not end has its first pass.
+                (_, _, NONE) => Color::ZERO,
+                (_, _, k) => {
+                    let fp = &passes[k as usize];
+                    let c = &fp.tally;
+                    // More samples where the pixel's own samples disagree (contrast or a
+                    // second object) or the geometry says a solid they did not see may show
+                    // in it (one thinner than their spacing, slipped between them: refined
+                    // as if they had seen it), or where a neighbour saw an edge, a different
+                    // object or a different mean: an edge or a thin feature there may reach
+                    // into this pixel between its own samples, and four samples that happen
+                    // to agree inside fine texture (a checker near the horizon) still
+                    // disagree with their neighbours'.
+                    //
+                    // A neighbour whose mean differs by more than `threshold` while the
+                    // ranges of the two first passes stay apart by most of that difference
+                    // (see `Tally::unseen_step`) has a step between them that neither saw,
+                    // in one of the two: a sliver of one pixel that four rays, and eight, can all
+                    // miss. Both take every ray (`Ask::Unseen`): stopping at eight agreeing
+                    // rays there made `adaptive` 8×8 to 32×32 worse than `jitter` 4×4 along
+                    // checker edges (a sixth of a pixel lost, 56 to 73 steps off). A step
+                    // between two objects of like colours costs less than the threshold if
+                    // missed, so only colours count here.
+                    let mean = c.mean();
+                    let own = c.contrast(threshold)
+                        || geometry
+                            .is_some_and(|g| g.may_hide(i64::from(x), i64::from(y), c.object));
+                    let (mut near, mut unseen) = (false, false);
+                    for (nx, ny) in neighbours(bx, by) {
+                        let nb = seen(at(nx, ny));
+                        let nb_mean = nb.mean();
+                        let other_object = nb.object != c.object;
+                        let other_mean = (nb_mean - mean).abs().max_element() > threshold;
+                        near |= nb.mixed || other_object || other_mean;
+                        unseen |= c.unseen_step(&nb, threshold);
+                    }
+                    // Where nothing but smooth shading and a checker's cells can change in
+                    // the pixel, an unseen step beside it is a cell edge: the pattern's own
+                    // bound below decides how far this pixel is searched, and an edge that
+                    // lies in the neighbour costs this pixel nothing.
+                    let (px, py) = (i64::from(x), i64::from(y));
+                    if unseen && !c.mixed {
+                        let (sx, sy) = fp.positions[0];
+                        unseen =
+                            !geometry.is_some_and(|g| g.pattern_alone(px, py, sx, sy, c.object));
+                    }
+                    // Rays that all saw one object may have fallen on one side of an edge of
+                    // its pattern (a checker's corner in the pixel, a diagonal edge past
+                    // them, cells finer than their spacing): agreeing, or differing only by
+                    // shading, they bound nothing about the other side, and the early stops
+                    // would end the pixel on theirs. The geometry knows where a checker
+                    // plane's cells meet and which cells the rays met.
+                    //
+                    // The first pass is itself a stratified set over the 2 × 2 quadrants:
+                    // where that already bounds the edges' error, nothing changes.
+                    let pattern = (!unseen && !c.mixed)
+                        .then(|| geometry?.unseen_pattern(px, py, c.object, &fp.positions))
+                        .flatten()
+                        .filter(|p| p.error_bound(2) > threshold);
+                    let ask = if unseen {
+                        Ask::Unseen
+                    } else if let Some(p) = pattern {
+                        Ask::Pattern(p)
+                    } else if own {
+                        Ask::Own
+                    } else {
+                        Ask::Neighbour
+                    };
+                    if own || near || pattern.is_some() {
+                        refine(x, y, max, threshold, ask, fp, order, trace)
+                    } else {
+                        mean
+                    }
+                }
+            };
+            i += 1;
+        }
+    }
+}
