@@ -1364,10 +1364,10 @@ fn fake_service(asset_status: &'static str) -> (String, std::sync::Arc<std::sync
 }
 
 /// A worker that cannot fetch a job's texture (the service answers `500` for it) gives each
-/// tile back and backs off, so that healthy workers get them at once: it took the job's
-/// every tile in turn, each held until its lease ran out, and gave none back. The back-off
-/// grows from one give-back to the next (a review found it reset by each successful claim:
-/// a claim and a give-back every 50 ms, for ever).
+/// tile back and backs off, so that healthy workers get them at once, rather than taking the
+/// job's every tile in turn and holding each until its lease runs out. The back-off grows
+/// from one give-back to the next, and a successful claim does not reset it (that would be a
+/// claim and a give-back every 50 ms, for ever).
 #[test]
 fn a_worker_that_cannot_fetch_a_texture_gives_the_tile_back() {
     let (url, seen) = fake_service("500 Internal Server Error");
