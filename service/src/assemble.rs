@@ -35,14 +35,27 @@ use crate::store::{Store, StoreError};
 /// to a small, fixed amount of memory each (about 1.5 chunks, with the allocator's share).
 pub const CHUNK: usize = 64 << 10;
 
+/// Why a job's image could not be assembled (or not yet).
 #[derive(Debug, thiserror::Error)]
 pub enum AssembleError {
+    /// The store failed, or lost tiles' pixels ([`StoreError::Lost`]).
     #[error(transparent)]
     Store(#[from] StoreError),
+    /// The encoder refused a row or its output failed.
     #[error("PNG encoding: {0}")]
     Png(#[from] tessera_tracer::PngError),
+    /// The stored tiles of a band leave pixels of its rows uncovered: no PNG is written
+    /// with a hole in it.
     #[error("tiles of rows {y}.. do not cover the image width ({covered} of {width} pixels)")]
-    Gap { y: u32, covered: u64, width: u32 },
+    Gap {
+        /// The band's first row.
+        y: u32,
+        /// The pixels of a row that its tiles cover, side by side from the left edge.
+        covered: u64,
+        /// The image's width.
+        width: u32,
+    },
+    /// The job was deleted while its image was assembled.
     #[error("job vanished while its image was assembled")]
     Vanished,
     /// Some of the job's tiles are not done (any more): their pixels were lost while its

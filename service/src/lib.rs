@@ -28,9 +28,8 @@
 
 #![warn(missing_docs)]
 
-// The storage modules are public: the store's own tests (`tests/store.rs`) and the farm
+// `assemble` and `store` are public: the store's own tests (`tests/store.rs`) and the farm
 // bench drive them directly, without HTTP.
-#[allow(missing_docs)]
 pub mod assemble;
 mod auth;
 mod cli;
@@ -49,7 +48,6 @@ mod rlimit;
 mod routes;
 mod startup;
 mod state;
-#[allow(missing_docs)]
 pub mod store;
 mod tiling;
 mod upload;
