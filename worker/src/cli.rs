@@ -42,6 +42,7 @@ struct Args {
           value_parser = clap::value_parser!(u64).range(0..=86_400))]
     grace_secs: u64,
     /// Benchmarking only: skip tracing and post black tiles (measures the queue).
+    #[cfg(feature = "bench")]
     #[arg(long, hide = true)]
     noop: bool,
 }
@@ -86,7 +87,10 @@ pub fn main() -> ExitCode {
     cfg.name = args.name.unwrap_or_else(default_name);
     cfg.idle_max = Duration::from_millis(args.idle_max_ms);
     cfg.grace = Duration::from_secs(args.grace_secs);
-    cfg.noop = args.noop;
+    #[cfg(feature = "bench")]
+    {
+        cfg.noop = args.noop;
+    }
     let runtime = match tokio::runtime::Runtime::new() {
         Ok(r) => r,
         Err(e) => {

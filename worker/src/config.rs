@@ -18,7 +18,9 @@ pub struct WorkerConfig {
     pub threads: usize,
     /// This worker's name as the service sees it.
     pub name: String,
-    /// Skip tracing and post black tiles: for measuring the queue, never for images.
+    /// Skip tracing and post black tiles: for measuring the queue, never for images (cargo
+    /// feature `bench` only, so that no shipped worker can post a wrong image).
+    #[cfg(feature = "bench")]
     pub noop: bool,
     /// How long a claim waits at the service for work to appear (and the longest back-off
     /// while the service is unreachable is twice that, at least 2 s).
@@ -28,6 +30,14 @@ pub struct WorkerConfig {
 }
 
 impl WorkerConfig {
+    /// Whether tiles are posted black without tracing: never without the `bench` feature.
+    pub(crate) fn noop(&self) -> bool {
+        #[cfg(feature = "bench")]
+        return self.noop;
+        #[cfg(not(feature = "bench"))]
+        false
+    }
+
     /// The defaults for a worker of the service at `server`: one thread per core, the
     /// [`default_name`], claims that wait up to 1 s, a grace period of 30 s.
     pub fn new(server: impl Into<String>) -> WorkerConfig {
@@ -36,6 +46,7 @@ impl WorkerConfig {
             token: None,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             name: default_name(),
+            #[cfg(feature = "bench")]
             noop: false,
             idle_max: Duration::from_millis(1000),
             grace: Duration::from_secs(30),

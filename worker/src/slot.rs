@@ -172,7 +172,7 @@ async fn submit(
     renderer: &RenderPool,
     c: Claim,
 ) -> Result<Submitted, ClientError> {
-    if shared.cfg.noop {
+    if shared.cfg.noop() {
         return Ok(Submitted::Queued(renderer.submit(c, None)));
     }
     match shared.cache.prepared(&shared.client, &c.job).await {
@@ -211,7 +211,7 @@ async fn work(
 ) -> Result<(), ClientError> {
     let client = &shared.client;
     // A no-op tile is "rendered" already: its next claim rides on its post instead.
-    if !shared.cfg.noop
+    if !shared.cfg.noop()
         && pipe.claim.is_none()
         && pipe.next.is_none()
         && pipe.queued.is_none()
