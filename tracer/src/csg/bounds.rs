@@ -113,3 +113,6 @@ pub(super) fn line_meets(b: &Aabb, ray: &Ray, inv: DVec3) -> bool {
     }
     t0 <= t1
 }
+
+#[cfg(test)]
+mod tests;
