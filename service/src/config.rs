@@ -1,5 +1,5 @@
 //! The service's configuration: flags with environment fallbacks, and the limits derived
-//! from them. Every limit has a safe default; `README.md` lists them all.
+//! from them. Every limit has a safe default; docs/OPERATIONS.md lists them all.
 
 use clap::Parser;
 use tessera_tracer::{Limits, MAX_THREADS, TextureLimits};

@@ -13,13 +13,13 @@ pub const MAX_TILE: u32 = 1024;
 
 /// Primary rays a tile should carry when the service picks its size: enough tracing that
 /// the fixed cost the service and the worker spend per tile (claim, post, store) is a small
-/// share of it (the figures are in docs/PERFORMANCE.md, "The farm's figures").
+/// share of it (docs/PERFORMANCE.md, "The farm", has the figures).
 pub const TILE_RAYS: u64 = 262_144;
 
 /// Tiles a job should have at least when the service picks their size, so that a handful of
 /// workers can share even a small image and finish together. Twelve lets a 1080p frame at
 /// one ray per pixel have 512 px tiles (4 × 3), whose per-tile cost is the smallest share
-/// (docs/PERFORMANCE.md, "Larger tiles at one ray per pixel").
+/// (docs/PERFORMANCE.md, "The farm", compares the tile sizes).
 pub const MIN_AUTO_TILES: u64 = 12;
 
 /// The tile edges the service picks from.
