@@ -1121,7 +1121,7 @@ async fn scenes_move_out_of_the_jobs_rows_when_an_older_database_opens() {
         .connect_with(opts.create_if_missing(true))
         .await
         .expect("pool");
-    let mut before = sqlx::migrate!("../migrations");
+    let mut before = sqlx::migrate!("../migrations/sqlite");
     before.migrations = before
         .migrations
         .iter()

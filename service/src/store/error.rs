@@ -39,6 +39,16 @@ pub enum StoreError {
         /// What the driver said.
         source: sqlx::Error,
     },
+    /// A PostgreSQL database cannot be used: no server answers, the credentials or the
+    /// database name are refused, or the database is another application's or has a newer
+    /// schema.
+    #[error("cannot use the database `{url}`: {problem}")]
+    Postgres {
+        /// The URL as given, its password hidden.
+        url: String,
+        /// What is wrong, and what to do.
+        problem: String,
+    },
     /// A write waited longer than it may for the database.
     #[error("the database took no write within {0:?}")]
     WriteTimeout(Duration),
@@ -58,15 +68,25 @@ pub enum StoreError {
 
 impl StoreError {
     /// Whether this is the storage failing (a full disk, an I/O error, a file gone
-    /// read-only) rather than anything a request did: SQLite's `SQLITE_FULL`, `SQLITE_IOERR`
-    /// (with its extended codes) and `SQLITE_READONLY`, or the tile spool's writes.
+    /// read-only, a database server gone) rather than anything a request did: SQLite's
+    /// `SQLITE_FULL`, `SQLITE_IOERR` (with its extended codes) and `SQLITE_READONLY`;
+    /// PostgreSQL's classes 08 (connection), 53 (insufficient resources: a full disk), 57P
+    /// (the server shutting down or starting) and 58 (system errors); a lost connection;
+    /// or the tile spool's writes.
     pub fn is_storage(&self) -> bool {
         match self {
+            StoreError::Db(sqlx::Error::Database(e))
+                if e.try_downcast_ref::<sqlx::postgres::PgDatabaseError>().is_some() =>
+            {
+                e.code().is_some_and(|c| {
+                    ["08", "53", "57P", "58"].iter().any(|class| c.starts_with(class))
+                })
+            }
             StoreError::Db(sqlx::Error::Database(e)) => e
                 .code()
                 .and_then(|c| c.parse::<i32>().ok())
                 .is_some_and(|c| matches!(c & 0xff, 8 | 10 | 13)),
-            StoreError::Db(sqlx::Error::Io(_)) => true,
+            StoreError::Db(sqlx::Error::Io(_) | sqlx::Error::PoolClosed) => true,
             StoreError::Spool(SpoolError::Io { .. } | SpoolError::Unwritable { .. }) => true,
             _ => false,
         }

@@ -1,12 +1,14 @@
 //! The storage seam: [`Store`], the one type the handlers, the reaper and the image
 //! assembly talk to for jobs, tiles, leases, results, images and workers.
 //!
-//! `Store` is an enum over backends, with SQLite ([`SqliteStore`], `store/sqlite/`) its one
-//! variant so far. An enum rather than a trait: every call is a static `match` with no boxed
+//! `Store` is an enum over backends: SQLite ([`SqliteStore`], `store/sqlite/`), the
+//! one-command default for one service process, and PostgreSQL ([`PgStore`],
+//! `store/postgres/`), which several service processes (replicas) share. An enum rather
+//! than a trait: every call is a static `match` with no boxed
 //! futures (a trait object could not have `async fn`s without them), the handlers name one
 //! concrete type instead of carrying a type parameter through `AppState` and every route,
-//! and a new backend (PostgreSQL) is a variant that every `match` here must then handle, so
-//! the compiler lists what it has to provide.
+//! and a new backend is a variant that every `match` here must then handle, so the
+//! compiler lists what it has to provide.
 //!
 //! What lives here and not in the handlers: every guarantee about tiles and leases (one
 //! holder per tile, stale leases change nothing, failures counted and bounded), and the
@@ -26,6 +28,7 @@
 //! `error`; none of them depends on a backend. This module knows nothing of HTTP.
 
 mod error;
+mod postgres;
 mod sqlite;
 mod state;
 mod types;
@@ -37,6 +40,7 @@ use tessera_protocol::{Claim, JobSpec};
 use tessera_tracer::Rect;
 
 pub use error::{SpoolError, StoreError};
+pub use postgres::PgStore;
 pub use sqlite::SqliteStore;
 pub use state::{JobState, TileState, UnknownState};
 pub use types::{
@@ -44,7 +48,11 @@ pub use types::{
     WorkerSeen,
 };
 
+pub(crate) use postgres::is_postgres;
 pub(crate) use sqlite::is_sqlite;
+
+/// The service's default `--max-attempts`, which a store uses until told otherwise.
+const DEFAULT_MAX_ATTEMPTS: u32 = 4;
 
 /// Tile and image bytes written between two background WAL checkpoints of a SQLite store.
 #[cfg(feature = "bench")]
@@ -67,49 +75,123 @@ type Result<T> = std::result::Result<T, StoreError>;
 pub enum Store {
     /// A SQLite database file (or an in-memory database).
     Sqlite(SqliteStore),
+    /// A PostgreSQL database, shared by any number of service processes.
+    Postgres(PgStore),
 }
+
+/// Held while this process writes a job's PNG (see [`Store::assembling`]).
+#[derive(Debug)]
+pub struct AssemblyLock(#[allow(dead_code)] Option<postgres::AssemblyLock>);
 
 /// Runs `$e` with `$s` bound to the backend.
 macro_rules! on {
     ($self:expr, $s:ident => $e:expr) => {
         match $self {
             Store::Sqlite($s) => $e,
+            Store::Postgres($s) => $e,
         }
     };
 }
 
 impl Store {
-    /// Opens (creating if missing) the database at `url` and brings its schema up to date:
-    /// `sqlite://PATH`, a bare path, or `sqlite::memory:`. Any other URL is refused with
+    /// Opens the database at `url` and brings its schema up to date: `sqlite://PATH`, a
+    /// bare path or `sqlite::memory:` (created if missing), or `postgres://…` (also
+    /// `postgresql://`), which must exist. Any other URL is refused with
     /// [`StoreError::Url`], saying what is taken.
     pub async fn open(url: &str) -> Result<Store> {
+        if is_postgres(url) {
+            return Ok(Store::Postgres(PgStore::open(url).await?));
+        }
         Ok(Store::Sqlite(SqliteStore::open(url).await?))
     }
 
     /// The same store, failing a job whose tile lost its pixels `n` times (the service's
     /// `--max-attempts`; 4 until set).
     pub fn max_attempts(self, n: u32) -> Store {
-        on!(self, s => Store::Sqlite(s.max_attempts(n)))
+        match self {
+            Store::Sqlite(s) => Store::Sqlite(s.max_attempts(n)),
+            Store::Postgres(s) => Store::Postgres(s.max_attempts(n)),
+        }
+    }
+
+    /// Whether other service processes may use this database at the same time (a
+    /// PostgreSQL store): then what one process remembers of a job (the bands it encoded
+    /// ahead) does not see the tiles the others store.
+    pub fn is_shared(&self) -> bool {
+        matches!(self, Store::Postgres(_))
+    }
+
+    /// Whether this process runs the periodic maintenance now (reaping, sweeping, failing
+    /// unservable jobs, assembling images no one assembles): always for SQLite, whose
+    /// database has one process; for PostgreSQL, the one replica holding the maintenance
+    /// lock, checked on every call.
+    pub async fn maintains(&self) -> bool {
+        match self {
+            Store::Sqlite(_) => true,
+            Store::Postgres(s) => s.maintains().await,
+        }
+    }
+
+    /// Writes what this process noted for the other processes on the database (the
+    /// workers it heard from, the leases it refused while the storage failed) and reads
+    /// what they shared; nothing for SQLite.
+    pub async fn share(&self, now: i64) -> Result<()> {
+        match self {
+            Store::Sqlite(_) => Ok(()),
+            Store::Postgres(s) => s.share(now).await,
+        }
+    }
+
+    /// Wakes `work` and `ended` when another process on the database makes work or ends a
+    /// job, until `stop` turns true; returns at once for SQLite.
+    pub async fn listen(
+        &self,
+        work: std::sync::Arc<tokio::sync::Notify>,
+        ended: std::sync::Arc<tokio::sync::Notify>,
+        stop: tokio::sync::watch::Receiver<bool>,
+    ) {
+        if let Store::Postgres(s) = self {
+            s.listen(work, ended, stop).await;
+        }
+    }
+
+    /// The right to write job `id`'s PNG, held until dropped; `None` while another process
+    /// (or task) writes it. SQLite's one process always gets it (its assemblies are kept
+    /// apart in memory, by `assemble`).
+    pub async fn assembling(&self, id: &str) -> Result<Option<AssemblyLock>> {
+        match self {
+            Store::Sqlite(_) => Ok(Some(AssemblyLock(None))),
+            Store::Postgres(s) => Ok(s.assembling(id).await?.map(|l| AssemblyLock(Some(l)))),
+        }
     }
 
     /// The same store, checkpointing a SQLite WAL after every `bytes` of tiles and images
     /// instead of [`CHECKPOINT_EVERY_BYTES`].
     #[cfg(feature = "bench")]
     pub fn checkpoint_every(self, bytes: u64) -> Store {
-        on!(self, s => Store::Sqlite(s.checkpoint_every(bytes)))
+        match self {
+            Store::Sqlite(s) => Store::Sqlite(s.checkpoint_every(bytes)),
+            other => other,
+        }
     }
 
     /// Copies a SQLite WAL's committed pages into the database file without blocking the
     /// writer; `None` for an in-memory database.
     #[cfg(feature = "bench")]
     pub async fn checkpoint(&self) -> Result<Option<Checkpoint>> {
-        on!(self, s => s.checkpoint().await)
+        match self {
+            Store::Sqlite(s) => s.checkpoint().await,
+            Store::Postgres(_) => Ok(None),
+        }
     }
 
     /// Background checkpoints finished so far, as a watch; `None` without a WAL.
     #[cfg(feature = "bench")]
     pub fn checkpoints(&self) -> Option<tokio::sync::watch::Receiver<u64>> {
-        on!(self, s => s.checkpoints())
+        match self {
+            Store::Sqlite(s) => s.checkpoints(),
+            Store::Postgres(_) => None,
+        }
     }
 
     /// Answers when the database does.
@@ -245,7 +327,11 @@ impl Store {
     /// Why tile pixels cannot be stored now, if a write of them failed for want of room
     /// less than `within` before `now` and none has succeeded since.
     pub fn storage_trouble(&self, now: i64, within: Duration) -> Option<String> {
-        on!(self, s => s.storage_trouble(now, within))
+        match self {
+            Store::Sqlite(s) => s.storage_trouble(now, within),
+            // No spool: pixels go into the database, whose failures are its errors.
+            Store::Postgres(_) => None,
+        }
     }
 
     /// Requeues tiles whose lease expired before `now`, charging the stalls to their tiles
@@ -264,8 +350,14 @@ impl Store {
     /// At start: requeues, uncharged, the tiles held by the local workers of the process
     /// that last started on this database, and stores `prefix`, the name prefix of this
     /// process's local workers. Returns how many tiles were requeued.
+    ///
+    /// With PostgreSQL, nothing: the replica that last started is not the one whose
+    /// local workers ended (the others run on), so their leases run out as any worker's.
     pub async fn forget_local_workers(&self, prefix: Option<&str>) -> Result<u64> {
-        on!(self, s => s.forget_local_workers(prefix).await)
+        match self {
+            Store::Sqlite(s) => s.forget_local_workers(prefix).await,
+            Store::Postgres(_) => Ok(0),
+        }
     }
 
     /// [`Store::noted`], for a renewal or a result under `lease` that failed: while the
@@ -313,13 +405,19 @@ impl Store {
     /// Deletes the tile pixels kept for jobs that have ended (a SQLite store's spool
     /// files); returns how many files went.
     pub async fn sweep_spool(&self) -> Result<usize> {
-        on!(self, s => s.sweep_spool().await)
+        match self {
+            Store::Sqlite(s) => s.sweep_spool().await,
+            Store::Postgres(_) => Ok(0),
+        }
     }
 
     /// The folder where a SQLite store keeps tile pixels; `None` for one that keeps them in
     /// the database.
     pub fn spool_dir(&self) -> Option<&Path> {
-        on!(self, s => s.spool_dir())
+        match self {
+            Store::Sqlite(s) => s.spool_dir(),
+            Store::Postgres(_) => None,
+        }
     }
 
     /// Jobs whose tiles are all in but whose image is not yet assembled (after a restart).
@@ -364,7 +462,7 @@ impl Store {
 
     /// Stores a chunk of a job's PNG, unless the job has ended meanwhile.
     pub async fn put_image_chunk(&self, id: &str, seq: u32, bytes: &[u8]) -> Result<()> {
-        on!(self, s => s.put_image_chunk(id, seq, bytes).await)
+        on!(self, s => s.put_image_chunks(id, seq, &[bytes]).await)
     }
 
     /// Stores `pieces` as the job's PNG chunks from `first_seq` on, unless the job has
@@ -407,6 +505,11 @@ impl Store {
 
     /// The names of the workers heard from at or after `since`.
     pub async fn live_workers(&self, since: i64) -> Result<Vec<String>> {
-        on!(self, s => s.live_workers(since).await)
+        Ok(self
+            .workers(since)
+            .await?
+            .into_iter()
+            .map(|w| w.name)
+            .collect())
     }
 }

@@ -150,14 +150,9 @@ impl SqliteStore {
         Ok(())
     }
 
-    /// Stores a chunk of a job's PNG, unless the job has ended meanwhile (a cancelled job's
-    /// chunks are dropped with it and must not come back).
-    pub(crate) async fn put_image_chunk(&self, id: &str, seq: u32, bytes: &[u8]) -> Result<()> {
-        self.put_image_chunks(id, seq, &[bytes]).await
-    }
-
     /// Stores `pieces` as the job's PNG chunks `first_seq`, `first_seq + 1`, …, a hundred to
-    /// a statement, unless the job has ended meanwhile (as [`SqliteStore::put_image_chunk`]).
+    /// a statement, unless the job has ended meanwhile (a cancelled job's chunks are dropped with it and
+    /// must not come back).
     pub(crate) async fn put_image_chunks(
         &self,
         id: &str,

@@ -185,8 +185,6 @@ type Issued = HashMap<(String, u32), (String, Rect)>;
 /// it would be without the record if the storage fails while its lease runs out.
 pub(crate) const HEARD_LEASES: usize = 1 << 16;
 
-/// [`SqliteStore::max_attempts`] until set: the service's default `--max-attempts`.
-const DEFAULT_MAX_ATTEMPTS: u32 = 4;
 
 impl SqliteStore {
     /// A reading connection (see [`Reader`]).

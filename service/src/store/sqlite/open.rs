@@ -10,10 +10,11 @@ use tokio::sync::Mutex;
 
 use super::checkpoint::{CHECKPOINT_EVERY_BYTES, WRITER_CHECKPOINT_PAGES, WalKeeper};
 use super::spool::{self, Spool};
-use super::{DEFAULT_MAX_ATTEMPTS, Result, SqliteStore, Writer};
+use super::{Result, SqliteStore, Writer};
+use crate::store::DEFAULT_MAX_ATTEMPTS;
 use crate::store::error::StoreError;
 
-static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
+static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations/sqlite");
 
 /// Whether `url` can name a SQLite database: `sqlite:` or no scheme at all (a bare path),
 /// but not a SQLite URI file name (`file:…`, see [`SqliteStore::open`]).
@@ -50,8 +51,8 @@ impl SqliteStore {
         if !is_sqlite(url) {
             return Err(StoreError::Url {
                 url: url.to_string(),
-                reason: "the queue is SQLite only: give sqlite://PATH (for example \
-                         sqlite://tessera.db, or sqlite:///var/lib/tessera/queue.db)"
+                reason: "give sqlite://PATH (for example sqlite://tessera.db, or \
+                         sqlite:///var/lib/tessera/queue.db) or postgres://USER@HOST:PORT/DB"
                     .into(),
             });
         }

@@ -67,16 +67,6 @@ impl SqliteStore {
         Ok(list)
     }
 
-    /// The names of the workers heard from at or after `since`.
-    pub(crate) async fn live_workers(&self, since: i64) -> Result<Vec<String>> {
-        Ok(self
-            .workers(since)
-            .await?
-            .into_iter()
-            .map(|w| w.name)
-            .collect())
-    }
-
     /// Writes what was heard since the last write. On failure (a full disk) it is kept for
     /// the next, and reads add it meanwhile: the roster is informational, and its write
     /// must not fail the request that reads it.
