@@ -139,8 +139,13 @@ impl PgStore {
             .map_err(|e| StoreError::Url {
                 url: redacted(url),
                 reason: e.to_string(),
-            })?
-            .application_name("tessera-service");
+            })?;
+        // Named in the server's activity views, unless the URL names it otherwise.
+        let opts = if url.contains("application_name=") {
+            opts
+        } else {
+            opts.application_name("tessera-service")
+        };
         // One connection first, so that a refused one is told at once and named (a pool
         // retries until its timeout, and then says only that it timed out).
         let first = tokio::time::timeout(CONNECT_WAIT, PgConnection::connect_with(&opts))
