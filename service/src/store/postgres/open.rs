@@ -163,10 +163,8 @@ impl PgStore {
             opts,
             max_attempts: super::super::DEFAULT_MAX_ATTEMPTS,
             leader: Arc::default(),
-            storage_failed: Arc::default(),
+            failures: Arc::default(),
             shared_failed: Arc::new(AtomicI64::new(i64::MIN)),
-            heard: Arc::default(),
-            seen: Arc::default(),
             roster: Arc::default(),
         })
     }
