@@ -66,7 +66,7 @@ pub struct PgStore {
     /// The pool every operation runs on.
     pool: PgPool,
     /// How to open a connection of its own (the maintenance and assembly locks, `LISTEN`).
-    opts: PgConnectOptions,
+    opts: Arc<PgConnectOptions>,
     /// The service's `--max-attempts`, for tiles whose pixels keep being lost.
     max_attempts: u32,
     /// The connection that holds (`true`) or asks for the maintenance lock (see

@@ -160,7 +160,7 @@ impl PgStore {
         })?;
         Ok(PgStore {
             pool,
-            opts,
+            opts: Arc::new(opts),
             max_attempts: super::super::DEFAULT_MAX_ATTEMPTS,
             leader: Arc::default(),
             failures: Arc::default(),
