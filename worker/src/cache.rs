@@ -11,7 +11,8 @@ use tessera_tracer::{Limits, MemoryAssets, Sampler, Scene, TextureLimits};
 use tokio::sync::Mutex;
 use tracing::info;
 
-use crate::client::{Client, ClientError};
+use crate::client::ClientError;
+use crate::servers::Servers;
 
 /// Scenes a cache keeps: a worker renders few jobs at once, and a job's scene may be large.
 const CACHE_SCENES: usize = 4;
@@ -35,7 +36,8 @@ pub(crate) enum Unusable {
 /// Built scenes by job id, most recently used last: shared by the slots of one worker, and
 /// by several workers of one service (the service's `--local-workers`), so that a job's
 /// scene is fetched and built once however many of them render its tiles. Job ids are one
-/// service's own, so a cache must not be shared by workers of different services.
+/// farm's own (its replicas share them), so a cache must not be shared by workers of
+/// different farms.
 ///
 /// An async mutex guards it and is held while a missing scene is fetched and built, so no
 /// two users fetch the same scene at once; a user wanting another job's scene waits for
@@ -55,10 +57,13 @@ impl std::fmt::Debug for SceneCache {
 }
 
 impl SceneCache {
-    /// The scene of `job`, from the cache or fetched through `client` and built.
+    /// The scene of `job`, from the cache or fetched and built: asked of server `from`
+    /// (the one that handed out the tile) first, then of the others while it does not
+    /// answer.
     pub(crate) async fn prepared(
         &self,
-        client: &Client,
+        servers: &Servers,
+        from: usize,
         job: &str,
     ) -> Result<Arc<Prepared>, Unusable> {
         let mut cache = self.scenes.lock().await;
@@ -68,7 +73,7 @@ impl SceneCache {
             cache.push(entry);
             return Ok(p);
         }
-        let spec = match client.job(job).await {
+        let spec = match servers.job(from, job).await {
             Ok(s) => s,
             Err(ClientError::Status { status: 404, .. })
             | Err(ClientError::Status { status: 410, .. }) => {
@@ -78,7 +83,7 @@ impl SceneCache {
         };
         let mut assets = MemoryAssets::new();
         for name in &spec.assets {
-            let bytes = match client.asset(job, name).await {
+            let bytes = match servers.asset(from, job, name).await {
                 Ok(bytes) => bytes,
                 // Not found: the job has been deleted since the worker fetched its scene, or
                 // a proxy in front of the service refuses the texture's URL (some refuse the `%2F` of

@@ -10,7 +10,7 @@ use std::time::Duration;
 use clap::{CommandFactory, Parser};
 use tessera_tracer::MAX_THREADS;
 
-use crate::client::service_url;
+use crate::client::service_urls;
 use crate::config::{WorkerConfig, default_name};
 use crate::worker::run;
 
@@ -18,7 +18,9 @@ use crate::worker::run;
 #[derive(Debug, Parser)]
 #[command(name = "tessera-worker", version, about)]
 struct Args {
-    /// The service's base URL, http:// (this worker speaks plain HTTP, no TLS).
+    /// The service's base URL, http:// (this worker speaks plain HTTP, no TLS); or several,
+    /// comma-separated, of replicas of one farm: claims are spread over them, and one that
+    /// stops answering is skipped until it answers again.
     #[arg(long, env = "TESSERA_SERVER", default_value = "http://127.0.0.1:8080")]
     server: String,
     /// Tiles rendered at once, 1 to 1024 (default: one per core).
@@ -61,7 +63,7 @@ pub fn main() -> ExitCode {
             .error(clap::error::ErrorKind::ValueValidation, msg)
             .exit()
     };
-    if let Err(e) = service_url(&args.server) {
+    if let Err(e) = service_urls(&args.server) {
         refuse(format!("--server: {e}"));
     }
     if let Some(why) = args

@@ -136,6 +136,33 @@ pub(crate) fn service_url(server: &str) -> Result<Url> {
     Ok(url)
 }
 
+/// A `--server` list: one URL, or several separated by commas (replicas of one farm), each
+/// checked by [`service_url`]. An empty entry and a URL given twice are refused.
+pub(crate) fn service_urls(list: &str) -> Result<Vec<Url>> {
+    let mut urls: Vec<Url> = Vec::new();
+    for item in list.split(',') {
+        if item.is_empty() {
+            return Err(ClientError::BadUrl {
+                url: list
+                    .split(',')
+                    .map(without_password)
+                    .collect::<Vec<_>>()
+                    .join(","),
+                why: "an empty entry in the list (URLs are separated by single commas)",
+            });
+        }
+        let url = service_url(item)?;
+        if urls.contains(&url) {
+            return Err(ClientError::BadUrl {
+                url: without_password(item),
+                why: "given twice in the list",
+            });
+        }
+        urls.push(url);
+    }
+    Ok(urls)
+}
+
 /// `server` as a message may show it: whatever stands between `://` and the last `@`
 /// before the host's end (a user name and password) as `***`, whether or not the rest
 /// parses.
@@ -168,7 +195,7 @@ pub(crate) enum Posted {
     Stale(String),
 }
 
-/// A client for one service.
+/// A client for one service (one of a worker's servers: `servers.rs` holds them all).
 #[derive(Debug, Clone)]
 pub(crate) struct Client {
     http: reqwest::Client,
@@ -178,25 +205,44 @@ pub(crate) struct Client {
 
 type Result<T> = std::result::Result<T, ClientError>;
 
+/// How much longer than its `wait_ms` a claim may take before it is given up: a service
+/// that answers a claim this late is frozen or overloaded, and a worker with several
+/// servers asks another meanwhile.
+const CLAIM_MARGIN: Duration = Duration::from_secs(10);
+
+/// The longest a renewal may take: one stuck longer holds up its slot (it waits for the
+/// answer before it takes the render's), and a renewal that does not get through is
+/// harmless (the next one, or the post, comes soon).
+const RENEW_WAIT: Duration = Duration::from_secs(10);
+
+/// The HTTP client every [`Client`] of one worker shares (its connection pool holds each
+/// server's connections).
+pub(crate) fn http_client() -> Result<reqwest::Client> {
+    reqwest::Client::builder()
+        .connect_timeout(Duration::from_secs(5))
+        .timeout(Duration::from_secs(120))
+        // Below the service's idle timeout (120 s by default, to be kept above 60), so
+        // that an idle connection is dropped here before the service closes it under a
+        // request about to be sent.
+        .pool_idle_timeout(Duration::from_secs(50))
+        .build()
+        .map_err(ClientError::Unreachable)
+}
+
 impl Client {
-    /// A client for the service at `server` (checked by [`service_url`]), sending `token`
+    /// A client for the service at `base` (checked by [`service_url`]), sending `token`
     /// with every request when given.
-    pub(crate) fn new(server: &str, token: Option<String>) -> Result<Client> {
-        let mut base = service_url(server)?;
+    pub(crate) fn new(http: reqwest::Client, mut base: Url, token: Option<String>) -> Client {
         if !base.path().ends_with('/') {
             let p = format!("{}/", base.path());
             base.set_path(&p);
         }
-        let http = reqwest::Client::builder()
-            .connect_timeout(Duration::from_secs(5))
-            .timeout(Duration::from_secs(120))
-            // Below the service's idle timeout (120 s by default, to be kept above 60), so
-            // that an idle connection is dropped here before the service closes it under a
-            // request about to be sent.
-            .pool_idle_timeout(Duration::from_secs(50))
-            .build()
-            .map_err(ClientError::Unreachable)?;
-        Ok(Client { http, base, token })
+        Client { http, base, token }
+    }
+
+    /// The service's base URL, for logs.
+    pub(crate) fn base(&self) -> &Url {
+        &self.base
     }
 
     /// `segments` are appended to the base URL, each percent-encoded as one path segment.
@@ -266,9 +312,13 @@ impl Client {
         let mut url = self.url(&["worker", "claim"], None);
         url.query_pairs_mut()
             .append_pair("wait_ms", &wait.as_millis().to_string());
-        let req = self.http.post(url).json(&ClaimRequest {
-            worker: worker.to_string(),
-        });
+        let req = self
+            .http
+            .post(url)
+            .timeout(wait + CLAIM_MARGIN)
+            .json(&ClaimRequest {
+                worker: worker.to_string(),
+            });
         let resp = self.send(req).await?;
         match resp.status() {
             StatusCode::NO_CONTENT => Ok(None),
@@ -325,7 +375,7 @@ impl Client {
         if rendering {
             url.query_pairs_mut().append_pair("rendering", "true");
         }
-        let resp = self.send(self.http.post(url)).await?;
+        let resp = self.send(self.http.post(url).timeout(RENEW_WAIT)).await?;
         match resp.status() {
             StatusCode::OK => {
                 let _: Renewed = resp
@@ -404,6 +454,50 @@ impl Client {
             StatusCode::OK => Ok(true),
             StatusCode::CONFLICT | StatusCode::NOT_FOUND => Ok(false),
             _ => Err(Self::fail_status(what, resp).await),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn refusal(list: &str) -> String {
+        match service_urls(list) {
+            Err(e) => e.to_string(),
+            Ok(urls) => panic!("{list:?} accepted as {urls:?}"),
+        }
+    }
+
+    #[test]
+    fn one_url_or_several_comma_separated() {
+        let one = service_urls("http://127.0.0.1:8080").expect("one URL");
+        assert_eq!(one.len(), 1);
+        assert_eq!(one[0].as_str(), "http://127.0.0.1:8080/");
+        let three = service_urls("http://a:1,http://b:2/farm,http://c:3").expect("three replicas");
+        let hosts: Vec<_> = three.iter().map(|u| u.host_str().unwrap_or("")).collect();
+        assert_eq!(hosts, ["a", "b", "c"]);
+        assert_eq!(three[1].path(), "/farm");
+    }
+
+    #[test]
+    fn a_list_refuses_what_one_url_refuses_and_names_the_entry() {
+        assert!(refusal("http://a:1,https://b:2").contains("`https://b:2`"));
+        assert!(refusal("http://a:1, http://b:2").contains("white space"));
+        assert!(refusal("http://a:1,,http://b:2").contains("empty entry"));
+        assert!(refusal("http://a:1,").contains("empty entry"));
+        assert!(refusal("http://a:1,http://a:1/").contains("given twice"));
+    }
+
+    #[test]
+    fn a_refused_list_never_shows_a_password() {
+        for list in [
+            "http://a:1,,http://u:secret@b:2",
+            "http://u:secret@a:1,http://b:2",
+            "http://b:2,http://u:secret@a:1",
+        ] {
+            let e = refusal(list);
+            assert!(!e.contains("secret"), "{e}");
         }
     }
 }

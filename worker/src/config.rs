@@ -10,7 +10,9 @@ use crate::backoff::seed;
 /// How a worker runs.
 #[derive(Debug, Clone)]
 pub struct WorkerConfig {
-    /// The service's base URL, e.g. `http://127.0.0.1:8080`.
+    /// The service's base URL, e.g. `http://127.0.0.1:8080`; or several, separated by
+    /// commas, of replicas of one farm (one database): claims are spread over them, and a
+    /// request goes to another while one does not answer.
     pub server: String,
     /// Bearer token for the worker routes, when the service requires one.
     pub token: Option<String>,

@@ -9,7 +9,8 @@ use std::time::Duration;
 use tessera_protocol::Claim;
 use tracing::{debug, warn};
 
-use crate::client::{Client, ClientError, ignore_transient};
+use crate::client::{ClientError, ignore_transient};
+use crate::servers::{Claimed, Servers};
 use crate::shared::Shared;
 use crate::ticket::Ticket;
 
@@ -24,22 +25,23 @@ pub(crate) fn renew_every(c: &Claim) -> Duration {
 
 /// Whether the tile being rendered is still this worker's after a renewal.
 pub(crate) enum Held {
-    /// Renewed, or the service could not be reached (it extends leases when it restarts).
+    /// Renewed, or no server could be reached (a service extends leases when it restarts).
     Yes,
     /// The lease is lost: the tile is cancelled, and is someone else's business now.
     Lost,
 }
 
 /// Renews the lease of the tile being rendered (`t`) and of the tile queued after it, if
-/// any. A queued tile whose lease is lost is cancelled and taken out of `queued`. A refusal
-/// that retrying cannot fix is passed on.
+/// any, each at the server that handed it out or, when that one does not answer, another.
+/// A queued tile whose lease is lost is cancelled and taken out of `queued`. A refusal that
+/// retrying cannot fix is passed on.
 pub(crate) async fn renew(
-    client: &Client,
+    servers: &Servers,
     t: &Ticket,
     queued: &mut Option<Ticket>,
 ) -> Result<Held, ClientError> {
     let c = &t.claim;
-    match client.renew(c, t.started.load(Ordering::Relaxed)).await {
+    match servers.renew(c, t.started.load(Ordering::Relaxed)).await {
         Ok(true) => {}
         Ok(false) => {
             debug!(job = %c.job, tile = c.idx, "lease lost; dropping the tile");
@@ -47,7 +49,7 @@ pub(crate) async fn renew(
             // The tile held ahead is most likely of the same (cancelled) job: ask now, not
             // a renewal period from now, before it starts rendering.
             if let Some(next) = queued.as_ref()
-                && let Ok(false) = client
+                && let Ok(false) = servers
                     .renew(&next.claim, next.started.load(Ordering::Relaxed))
                     .await
                 && let Some(lost) = queued.take()
@@ -61,7 +63,7 @@ pub(crate) async fn renew(
         Err(e) => return Err(e),
     }
     if let Some(next) = queued.as_ref() {
-        match client
+        match servers
             .renew(&next.claim, next.started.load(Ordering::Relaxed))
             .await
         {
@@ -88,10 +90,10 @@ pub(crate) async fn release(shared: &Shared, t: Ticket) -> Result<(), ClientErro
 
 /// Gives a tile back, counting it in `released` only if the service took it back (not if
 /// it is unreachable, or the lease is not this worker's any more).
-pub(crate) async fn give_back(shared: &Shared, c: &Claim) -> Result<(), ClientError> {
+pub(crate) async fn give_back(shared: &Shared, c: &Claimed) -> Result<(), ClientError> {
     // Given back while stopping: a service that does not answer (frozen) is not waited for
     // past `GIVE_BACK_WAIT`; the tile comes back when its lease runs out.
-    let Ok(answer) = tokio::time::timeout(GIVE_BACK_WAIT, shared.client.release(c)).await else {
+    let Ok(answer) = tokio::time::timeout(GIVE_BACK_WAIT, shared.servers.release(c)).await else {
         warn!(job = %c.job, tile = c.idx, "no answer to the give-back; the lease will run out");
         return Ok(());
     };

@@ -1,5 +1,6 @@
-//! The Tessera render worker: a stateless loop that claims tiles from a service over HTTP,
-//! traces them with the tracer crate and posts their pixels back.
+//! The Tessera render worker: a stateless loop that claims tiles from a service over HTTP
+//! (one, or several replicas of one farm), traces them with the tracer crate and posts
+//! their pixels back.
 //!
 //! A worker holds nothing the service cannot lose: its only state is a small cache of parsed
 //! scenes. It runs one claim-render-post loop per thread ("slot"), backs off with jitter when
@@ -17,8 +18,10 @@
 //!   the graceful stop.
 //! - `ticket`, `shared`, `cache`, `config`: a queued tile, a worker's shared state, built
 //!   scenes ([`SceneCache`]), settings ([`WorkerConfig`]).
-//! - `client`, `pool`, `backoff`: the HTTP client, the render threads ([`RenderPool`]),
-//!   jittered back-off.
+//! - `servers`, `health`: the worker's servers, requests that move to another when one
+//!   does not answer, and which answer.
+//! - `client`, `pool`, `backoff`: the HTTP client of one server, the render threads
+//!   ([`RenderPool`]), jittered back-off.
 
 #![warn(missing_docs)]
 
@@ -27,10 +30,12 @@ mod cache;
 mod cli;
 mod client;
 mod config;
+mod health;
 mod lease;
 mod pipeline;
 mod pool;
 mod post;
+mod servers;
 mod shared;
 mod shutdown;
 mod slot;

@@ -8,13 +8,13 @@ use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use bytes::Bytes;
-use tessera_protocol::Claim;
 use tokio::sync::{oneshot, watch};
 use tokio::task::JoinHandle;
 use tracing::{debug, warn};
 
 use crate::backoff::{backoff, seed};
 use crate::client::{ClientError, Posted};
+use crate::servers::Claimed;
 use crate::shared::Shared;
 use crate::shutdown::grace_over;
 
@@ -23,14 +23,15 @@ pub(crate) type PostTask = JoinHandle<Result<(), ClientError>>;
 
 /// The claim a post may carry: the post's answer, or nothing (the post fails, is refused,
 /// or the service has no work at that moment).
-pub(crate) type Ride = oneshot::Sender<Option<Claim>>;
+pub(crate) type Ride = oneshot::Sender<Option<Claimed>>;
 
-/// Posts a rendered tile, riding through a service restart (it extends leases when it
-/// comes back). With `ride`, the first attempt also asks for the slot's next tile and hands
-/// the answer over; later attempts do not (the slot claims on its own then).
+/// Posts a rendered tile, to the server that handed it out or, when that one does not
+/// answer, another, riding through a service restart (it extends leases when it comes
+/// back). With `ride`, the first attempt also asks for the slot's next tile and hands the
+/// answer over; later attempts do not (the slot claims on its own then).
 pub(crate) async fn post(
     shared: Arc<Shared>,
-    c: Claim,
+    c: Claimed,
     blob: Bytes,
     ride: Option<Ride>,
     stop: watch::Receiver<bool>,
@@ -48,11 +49,11 @@ pub(crate) async fn post(
     }
 }
 
-/// Posts the tile, retrying with back-off for up to four leases while the service cannot
-/// be reached.
+/// Posts the tile, retrying with back-off for up to four leases while no server can be
+/// reached.
 async fn post_retrying(
     shared: &Shared,
-    c: &Claim,
+    c: &Claimed,
     blob: Bytes,
     mut ride: Option<Ride>,
 ) -> Result<(), ClientError> {
@@ -61,11 +62,11 @@ async fn post_retrying(
     let mut streak = 0;
     loop {
         let next = ride.is_some().then_some(shared.cfg.name.as_str());
-        let answer = shared.client.post_tile(c, blob.clone(), next).await;
+        let answer = shared.servers.post_tile(c, blob.clone(), next).await;
         if let Some(tx) = ride.take() {
             let claim = match &answer {
-                Ok(Posted::Accepted { next, .. }) => next.clone(),
-                _ => None,
+                Ok((_, next)) => next.clone(),
+                Err(_) => None,
             };
             // The claim task ends only after hearing from here, and the slot's `drain` waits
             // for it (to give back what it brought); the send fails only if that wait timed
@@ -73,11 +74,11 @@ async fn post_retrying(
             let _ = tx.send(claim);
         }
         match answer {
-            Ok(Posted::Accepted { .. }) => {
+            Ok((Posted::Accepted { .. }, _)) => {
                 shared.tiles.fetch_add(1, Ordering::Relaxed);
                 return Ok(());
             }
-            Ok(Posted::Stale(why)) => {
+            Ok((Posted::Stale(why), _)) => {
                 debug!(job = %c.job, tile = c.idx, "result refused: {why}");
                 return Ok(());
             }

@@ -1,4 +1,4 @@
-//! What the slots of one worker share: its configuration, client, scene cache, counters
+//! What the slots of one worker share: its configuration, servers, scene cache, counters
 //! and the moment its stop began.
 //!
 //! State only; the loops that use it live in `slot.rs`, `lease.rs`, `post.rs` and
@@ -9,13 +9,13 @@ use std::sync::atomic::AtomicU64;
 use std::time::Instant;
 
 use crate::cache::SceneCache;
-use crate::client::Client;
 use crate::config::WorkerConfig;
+use crate::servers::Servers;
 
 /// One worker's state, shared by its slots and its tasks.
 pub(crate) struct Shared {
     pub(crate) cfg: WorkerConfig,
-    pub(crate) client: Client,
+    pub(crate) servers: Servers,
     pub(crate) cache: SceneCache,
     /// Tiles the service stored.
     pub(crate) tiles: AtomicU64,

@@ -1,17 +1,18 @@
 //! One slot's claim-render-post loop: a slot claims a tile, has it rendered on the render
 //! threads while it renews the lease and claims the next, posts the pixels, and repeats,
-//! backing off when there is no work or the service cannot be reached.
+//! backing off when there is no work or no server can be reached.
 //!
 //! A worker runs one slot per thread (`worker.rs`). The pieces a slot uses live below it:
 //! the in-flight bookkeeping (`pipeline.rs`), leases (`lease.rs`), posts (`post.rs`), the
-//! stop (`shutdown.rs`) and the scenes (`cache.rs`).
+//! stop (`shutdown.rs`), the scenes (`cache.rs`) and the servers (`servers.rs`), which
+//! wait out a server that does not answer.
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use bytes::Bytes;
-use tessera_protocol::{Claim, encode_tile};
+use tessera_protocol::encode_tile;
 use tokio::sync::{oneshot, watch};
 use tracing::{debug, info, warn};
 
@@ -22,6 +23,7 @@ use crate::lease::{self, Held, give_back, renew_every};
 use crate::pipeline::{ClaimTask, Pipeline};
 use crate::pool::RenderPool;
 use crate::post::post;
+use crate::servers::Claimed;
 use crate::shared::Shared;
 use crate::shutdown::pause;
 use crate::ticket::Ticket;
@@ -36,12 +38,13 @@ pub(crate) async fn slot(
 ) -> Result<(), ClientError> {
     let mut rng = seed().wrapping_add(index as u64 * 0x9E37_79B9_7F4A_7C15) | 1;
     let mut idle = 0u32;
-    let mut failing_since: Option<Instant> = None;
     // Tiles given back in a row because their scene or textures could not be fetched: the
     // back-off grows with them, as with a failing service (a claim that succeeds between
     // them does not reset it, or the slot would claim and give back ten times a second).
     let mut unfetched = 0u32;
     let mut pipe = Pipeline::default();
+    // Slots start at different servers, so that a worker's first claims are spread too.
+    pipe.turn = index % shared.servers.len();
     let outcome = loop {
         if *stop.borrow() {
             break Ok(());
@@ -72,19 +75,15 @@ pub(crate) async fn slot(
                 _ = stop.changed() => break Ok(()),
             }
         } else {
+            let first = pipe.next_turn(shared.servers.len());
+            let (name, wait) = (&shared.cfg.name, shared.cfg.idle_max);
             tokio::select! {
-                c = shared.client.claim(&shared.cfg.name, shared.cfg.idle_max) => c,
+                c = shared.servers.claim(first, name, wait, stop.clone()) => c,
                 _ = stop.changed() => break Ok(()),
             }
         };
         match claimed {
             Ok(Some(c)) => {
-                if let Some(since) = failing_since.take() {
-                    info!(
-                        "the service answers again after {:.1} s",
-                        since.elapsed().as_secs_f64()
-                    );
-                }
                 idle = 0;
                 let ticket = match submit(&shared, &renderer, c).await {
                     Ok(Submitted::Queued(t)) => t,
@@ -103,17 +102,15 @@ pub(crate) async fn slot(
                 // The service already waited `idle_max` for work (or, a service that does
                 // not wait, answered at once): a short jittered pause keeps idle workers
                 // out of step.
-                failing_since = None;
                 idle = idle.saturating_add(1);
                 if pause(backoff(0, shared.cfg.idle_max, &mut rng), &mut stop).await {
                     break Ok(());
                 }
             }
+            // `Servers::claim` waits out servers that do not answer (and logs it), so an
+            // error that waiting may mend does not come here; were one to, it is waited
+            // out all the same rather than stopping the worker.
             Err(e) if e.is_transient() => {
-                if failing_since.is_none() {
-                    warn!("{e}; retrying with back-off");
-                    failing_since = Some(Instant::now());
-                }
                 idle = idle.saturating_add(1);
                 let max = shared.cfg.idle_max.max(Duration::from_secs(2));
                 // At least as long as the service asked (a farm paused for a full disk).
@@ -170,19 +167,19 @@ enum Submitted {
 async fn submit(
     shared: &Shared,
     renderer: &RenderPool,
-    c: Claim,
+    c: Claimed,
 ) -> Result<Submitted, ClientError> {
     if shared.cfg.noop() {
         return Ok(Submitted::Queued(renderer.submit(c, None)));
     }
-    match shared.cache.prepared(&shared.client, &c.job).await {
+    match shared.cache.prepared(&shared.servers, c.from, &c.job).await {
         Ok(p) => Ok(Submitted::Queued(renderer.submit(c, Some(p)))),
         Err(Unusable::Gone) => Ok(Submitted::Dropped),
         Err(Unusable::Invalid(reason)) => {
             warn!(job = %c.job, "cannot build scene: {reason}");
             shared.failed.fetch_add(1, Ordering::Relaxed);
             shared
-                .client
+                .servers
                 .fail(&c, &shared.cfg.name, &reason)
                 .await
                 .or_else(ignore_transient)?;
@@ -209,7 +206,7 @@ async fn work(
     stop: &mut watch::Receiver<bool>,
     pipe: &mut Pipeline,
 ) -> Result<(), ClientError> {
-    let client = &shared.client;
+    let servers = &shared.servers;
     // A no-op tile is "rendered" already: its next claim rides on its post instead.
     if !shared.cfg.noop()
         && pipe.claim.is_none()
@@ -217,7 +214,8 @@ async fn work(
         && pipe.queued.is_none()
         && !*stop.borrow()
     {
-        pipe.claim = Some(spawn_claim(shared, None, stop.clone()));
+        let first = pipe.next_turn(servers.len());
+        pipe.claim = Some(spawn_claim(shared, None, stop.clone(), first));
     }
 
     let c = t.claim.clone();
@@ -249,7 +247,7 @@ async fn work(
                 }
             }
             _ = ticker.tick() => {
-                if let Held::Lost = lease::renew(client, &t, &mut pipe.queued).await? {
+                if let Held::Lost = lease::renew(servers, &t, &mut pipe.queued).await? {
                     return Ok(());
                 }
             }
@@ -277,7 +275,7 @@ async fn work(
             };
             warn!(job = %c.job, tile = c.idx, "{reason}");
             shared.failed.fetch_add(1, Ordering::Relaxed);
-            return client
+            return servers
                 .fail(&c, &shared.cfg.name, &reason)
                 .await
                 .or_else(ignore_transient);
@@ -288,10 +286,17 @@ async fn work(
     let blob = Bytes::from(encode_tile(c.rect(), &rgb));
     // Unless a claim is already under way or answered, this post also asks for the slot's
     // next tile: one round trip instead of two. The tile after the one now queued is thus
-    // asked for as soon as this one is rendered, as it would be by a separate claim.
-    let ride = if pipe.claim.is_none() && pipe.next.is_none() && !*stop.borrow() {
+    // asked for as soon as this one is rendered, as it would be by a separate claim. Only
+    // when the slot's next claim is this server's turn, though: a post carrying every claim
+    // would keep a slot on the server its first tile came from.
+    let ride = if pipe.claim.is_none()
+        && pipe.next.is_none()
+        && !*stop.borrow()
+        && pipe.turn % servers.len() == c.from
+    {
         let (tx, rx) = oneshot::channel();
-        pipe.claim = Some(spawn_claim(shared, Some(rx), stop.clone()));
+        let first = pipe.next_turn(servers.len());
+        pipe.claim = Some(spawn_claim(shared, Some(rx), stop.clone(), first));
         Some(tx)
     } else {
         None
@@ -307,24 +312,22 @@ async fn work(
 }
 
 /// A claim for the slot's next tile, as its own task: the one a post brings back (`ride`),
-/// or else an ordinary claim, which waits up to `idle_max` at the service for work. Nothing
-/// is claimed once the worker is stopping.
+/// or else an ordinary claim of server `first` (or the next that answers), which waits up
+/// to `idle_max` at the service for work. Nothing is claimed once the worker is stopping.
 fn spawn_claim(
     shared: &Arc<Shared>,
-    ride: Option<oneshot::Receiver<Option<Claim>>>,
+    ride: Option<oneshot::Receiver<Option<Claimed>>>,
     stop: watch::Receiver<bool>,
+    first: usize,
 ) -> ClaimTask {
-    let client = shared.client.clone();
-    let (name, wait) = (shared.cfg.name.clone(), shared.cfg.idle_max);
+    let shared = shared.clone();
     tokio::spawn(async move {
         if let Some(ride) = ride
             && let Ok(Some(c)) = ride.await
         {
             return Ok(Some(c));
         }
-        if *stop.borrow() {
-            return Ok(None);
-        }
-        client.claim(&name, wait).await
+        let (name, wait) = (&shared.cfg.name, shared.cfg.idle_max);
+        shared.servers.claim(first, name, wait, stop).await
     })
 }

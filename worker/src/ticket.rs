@@ -6,16 +6,16 @@
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
-use tessera_protocol::Claim;
 use tessera_tracer::Sampler;
 use tokio::sync::oneshot;
 
 use crate::cache::Prepared;
 use crate::pool::{RenderPool, Rendered, TileWork};
+use crate::servers::Claimed;
 
 /// A claimed tile in a render thread's queue.
 pub(crate) struct Ticket {
-    pub(crate) claim: Claim,
+    pub(crate) claim: Claimed,
     pub(crate) rendered: oneshot::Receiver<Rendered>,
     /// Set to give the tile up: the render threads skip it, or stop mid-strip.
     pub(crate) cancel: Arc<AtomicBool>,
@@ -28,7 +28,7 @@ pub(crate) struct Ticket {
 impl RenderPool {
     /// Puts a claimed tile in line; a no-op worker's black tile (`scene` is `None`) is
     /// answered at once, without a trip through a thread.
-    pub(crate) fn submit(&self, claim: Claim, scene: Option<Arc<Prepared>>) -> Ticket {
+    pub(crate) fn submit(&self, claim: Claimed, scene: Option<Arc<Prepared>>) -> Ticket {
         let (reply, rendered) = oneshot::channel();
         let cancel = Arc::new(AtomicBool::new(false));
         let started = Arc::new(AtomicBool::new(false));

@@ -11,9 +11,10 @@ use tokio::sync::watch;
 use tracing::{info, warn};
 
 use crate::cache::SceneCache;
-use crate::client::{Client, ClientError};
+use crate::client::ClientError;
 use crate::config::WorkerConfig;
 use crate::pool::RenderPool;
+use crate::servers::Servers;
 use crate::shared::Shared;
 use crate::shutdown::on_shutdown;
 use crate::slot::slot;
@@ -70,14 +71,14 @@ pub async fn run_with(
         Some(p) => p,
         None => RenderPool::new(cfg.threads).map_err(WorkerError::Thread)?,
     };
-    let client = Client::new(&cfg.server, cfg.token.clone())?;
+    let servers = Servers::new(&cfg.server, cfg.token.clone(), cfg.idle_max)?;
     let (stop_tx, stop_rx) = watch::channel(false);
     info!(
         name = %cfg.name, server = %cfg.server, threads = cfg.threads,
         "worker started"
     );
     let shared = Arc::new(Shared {
-        client,
+        servers,
         cache: scenes,
         tiles: AtomicU64::new(0),
         released: AtomicU64::new(0),
