@@ -76,10 +76,13 @@ impl StoreError {
     pub fn is_storage(&self) -> bool {
         match self {
             StoreError::Db(sqlx::Error::Database(e))
-                if e.try_downcast_ref::<sqlx::postgres::PgDatabaseError>().is_some() =>
+                if e.try_downcast_ref::<sqlx::postgres::PgDatabaseError>()
+                    .is_some() =>
             {
                 e.code().is_some_and(|c| {
-                    ["08", "53", "57P", "58"].iter().any(|class| c.starts_with(class))
+                    ["08", "53", "57P", "58"]
+                        .iter()
+                        .any(|class| c.starts_with(class))
                 })
             }
             StoreError::Db(sqlx::Error::Database(e)) => e

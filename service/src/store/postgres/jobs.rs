@@ -18,7 +18,11 @@ impl PgStore {
         todo!("{job:?} {tiles:?} {assets:?}")
     }
 
-    pub(crate) async fn jobs(&self, limit: u32, before: Option<&str>) -> Result<Option<Vec<JobRow>>> {
+    pub(crate) async fn jobs(
+        &self,
+        limit: u32,
+        before: Option<&str>,
+    ) -> Result<Option<Vec<JobRow>>> {
         todo!("{limit} {before:?}")
     }
 

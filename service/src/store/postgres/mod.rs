@@ -47,7 +47,7 @@ use super::state::{JobState, TileState};
 use super::types::WorkerSeen;
 
 pub use notify::AssemblyLock;
-pub(crate) use open::is_postgres;
+pub(crate) use open::{is_postgres, redacted};
 
 type Result<T> = std::result::Result<T, StoreError>;
 

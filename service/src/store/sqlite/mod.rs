@@ -185,7 +185,6 @@ type Issued = HashMap<(String, u32), (String, Rect)>;
 /// it would be without the record if the storage fails while its lease runs out.
 pub(crate) const HEARD_LEASES: usize = 1 << 16;
 
-
 impl SqliteStore {
     /// A reading connection (see [`Reader`]).
     async fn reader(&self) -> Result<Reader<'_>> {
