@@ -28,6 +28,7 @@
 //! `error`; none of them depends on a backend. This module knows nothing of HTTP.
 
 mod error;
+mod memo;
 mod postgres;
 mod sqlite;
 mod state;
@@ -60,7 +61,7 @@ pub const CHECKPOINT_EVERY_BYTES: u64 = sqlite::CHECKPOINT_EVERY_BYTES;
 
 /// The most leases a store's record of refused requests holds at once (see
 /// [`Store::heard_refused`]).
-pub const HEARD_LEASES: usize = sqlite::HEARD_LEASES;
+pub const HEARD_LEASES: usize = memo::HEARD_LEASES;
 
 /// Where a tile's bytes lie in its job's spool file, `(offset, length)` (tests spoil them).
 #[cfg(feature = "bench")]

@@ -34,7 +34,6 @@ mod open;
 mod reap;
 mod workers;
 
-use std::collections::HashMap;
 use std::sync::Arc;
 use std::sync::atomic::AtomicI64;
 
@@ -43,8 +42,8 @@ use sqlx::postgres::{PgConnectOptions, PgConnection};
 use tokio::sync::Mutex;
 
 use super::error::StoreError;
+use super::memo::{FailureRecord, RosterBatch};
 use super::state::{JobState, TileState};
-use super::types::WorkerSeen;
 
 pub use notify::AssemblyLock;
 pub(crate) use open::{is_postgres, redacted};
@@ -67,22 +66,18 @@ pub struct PgStore {
     /// The pool every operation runs on.
     pool: PgPool,
     /// How to open a connection of its own (the maintenance and assembly locks, `LISTEN`).
-    opts: PgConnectOptions,
+    opts: Arc<PgConnectOptions>,
     /// The service's `--max-attempts`, for tiles whose pixels keep being lost.
     max_attempts: u32,
     /// The connection that holds (`true`) or asks for the maintenance lock (see
     /// [`PgStore::maintains`]).
     leader: Arc<Mutex<Option<(PgConnection, bool)>>>,
-    /// When (ms since the epoch) a database write of this replica last failed for the
-    /// storage's sake (see [`health`]).
-    storage_failed: Arc<std::sync::Mutex<Option<i64>>>,
+    /// When a database write of this replica last failed for the storage's sake, and the
+    /// leases whose requests it refused lately (see [`health`]).
+    failures: Arc<FailureRecord>,
     /// The latest such failure any replica shared, as last read ([`PgStore::share`]);
     /// `i64::MIN` for none.
     shared_failed: Arc<AtomicI64>,
-    /// Leases whose requests this replica refused lately, and when (see [`health`]).
-    heard: Arc<std::sync::Mutex<HashMap<String, i64>>>,
     /// What this replica heard of workers since it last wrote the roster (see [`workers`]).
-    seen: Arc<std::sync::Mutex<HashMap<String, WorkerSeen>>>,
-    /// Held while this replica writes and reads the roster.
-    roster: Arc<Mutex<()>>,
+    roster: Arc<RosterBatch>,
 }

@@ -24,6 +24,19 @@ pub(super) const ENDED: &str = "tessera_ended";
 /// The advisory lock key of the maintenance pass ("tessera\0" as a number).
 const MAINTENANCE_KEY: i64 = 0x7465_7373_6572_6100;
 
+/// A channel's name as a quoted SQL literal, for statements built with `concat!` that
+/// notify only when a step of theirs changed a row (`SELECT pg_notify(channel!(WORK), '')
+/// FROM changed`): `channel!(WORK)` is [`WORK`]'s, `channel!(ENDED)` [`ENDED`]'s.
+macro_rules! channel {
+    (WORK) => {
+        "'tessera_work'"
+    };
+    (ENDED) => {
+        "'tessera_ended'"
+    };
+}
+pub(super) use channel;
+
 /// The statement that tells `channel` (run inside the transaction whose commit it
 /// announces: PostgreSQL delivers it only if that commits).
 pub(super) fn notify_sql(channel: &str) -> &'static str {

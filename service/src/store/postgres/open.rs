@@ -174,13 +174,11 @@ impl PgStore {
         })?;
         Ok(PgStore {
             pool,
-            opts,
+            opts: Arc::new(opts),
             max_attempts: super::super::DEFAULT_MAX_ATTEMPTS,
             leader: Arc::default(),
-            storage_failed: Arc::default(),
+            failures: Arc::default(),
             shared_failed: Arc::new(AtomicI64::new(i64::MIN)),
-            heard: Arc::default(),
-            seen: Arc::default(),
             roster: Arc::default(),
         })
     }

@@ -5,26 +5,16 @@
 //! Kept in the process's memory, by design: the record is written exactly while the
 //! database refuses writes (a full disk under it), so a table would lose precisely the
 //! entries it exists for. It is this process's view: with several processes on one
-//! database, each would extend only the leases whose requests it refused itself, and a
-//! backend for several processes must say how their reapers share that. Times are
+//! database, each would extend only the leases whose requests it refused itself (the
+//! PostgreSQL backend shares the record through its database). The record itself is
+//! [`crate::store::memo`]'s, as both backends keep it. Times are
 //! milliseconds since the epoch, passed in; windows are measured against the `now` of the
 //! call that asks.
 
-use std::sync::PoisonError;
 use std::time::Duration;
 
-use super::{HEARD_LEASES, SqliteStore};
+use super::SqliteStore;
 use crate::store::error::StoreError;
-
-/// `d` in milliseconds, saturating.
-pub(super) fn millis(d: Duration) -> i64 {
-    i64::try_from(d.as_millis()).unwrap_or(i64::MAX)
-}
-
-/// Whether `at` is less than `within` before `now` (a clock set back counts as within).
-fn within(at: i64, now: i64, within: Duration) -> bool {
-    now.saturating_sub(at) < millis(within)
-}
 
 impl SqliteStore {
     /// Passes `e` through, noting at `now` when it is the database's storage failing (a
@@ -34,24 +24,14 @@ impl SqliteStore {
     /// own failures refuse no renewal (and their tiles are queued again at once), so they
     /// do not count.
     pub(crate) fn noted(&self, e: StoreError, now: i64) -> StoreError {
-        if matches!(e, StoreError::Db(_)) && e.is_storage() {
-            *self
-                .storage_failed
-                .lock()
-                .unwrap_or_else(PoisonError::into_inner) = Some(now);
-        }
-        e
+        self.failures.noted(e, now)
     }
 
     /// Whether a database write failed for the storage's sake less than `within` before
     /// `now` (as [`SqliteStore::noted`]): renewals may have been refused meanwhile, so the
     /// leases of workers that asked and were refused ran out through no fault of theirs.
     pub(crate) fn storage_failed_within(&self, now: i64, within: Duration) -> bool {
-        let noted = *self
-            .storage_failed
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner);
-        noted.is_some_and(|at| self::within(at, now, within))
+        self.failures.failed_within(now, within)
     }
 
     /// Why tile pixels cannot be stored now, if the spool failed to write a tile's pixels
@@ -66,8 +46,8 @@ impl SqliteStore {
     /// worker is alive and asked in time, so while the storage fails the reaper gives the
     /// lease a fresh term rather than reap it ([`SqliteStore::reap_unheard`]). Only refusals
     /// are noted (a renewal that went through has moved the lease on by itself), only what
-    /// could be a lease, and at most [`HEARD_LEASES`] at once: requests under made-up
-    /// leases cannot grow the record past that.
+    /// could be a lease, and at most [`crate::store::HEARD_LEASES`] at once: requests under
+    /// made-up leases cannot grow the record past that.
     pub(crate) fn heard_refused(&self, lease: &str, e: StoreError, now: i64) -> StoreError {
         self.heard(lease, now);
         self.noted(e, now)
@@ -75,34 +55,17 @@ impl SqliteStore {
 
     /// Notes a refused request under `lease` at `now` (see [`SqliteStore::heard_refused`]).
     pub(crate) fn heard(&self, lease: &str, now: i64) {
-        let plausible = lease.len() == 32
-            && lease
-                .bytes()
-                .all(|b| matches!(b, b'0'..=b'9' | b'a'..=b'f'));
-        if plausible {
-            let mut heard = self.heard.lock().unwrap_or_else(PoisonError::into_inner);
-            let room = heard.len() < HEARD_LEASES;
-            match heard.get_mut(lease) {
-                Some(at) => *at = now,
-                None if room => {
-                    heard.insert(lease.to_string(), now);
-                }
-                None => {}
-            }
-        }
+        self.failures.heard(lease, now);
     }
 
     /// Forgets the leases not heard from within `within` before `now` (the reaper's every
     /// pass, so that the record holds only the leases of workers still asking).
     pub(crate) fn forget_unheard(&self, now: i64, within: Duration) {
-        let mut heard = self.heard.lock().unwrap_or_else(PoisonError::into_inner);
-        heard.retain(|_, at| self::within(*at, now, within));
+        self.failures.forget_unheard(now, within);
     }
 
     /// The leases heard from within `within` before `now`, after forgetting the others.
     pub(super) fn heard_within(&self, now: i64, within: Duration) -> Vec<String> {
-        self.forget_unheard(now, within);
-        let heard = self.heard.lock().unwrap_or_else(PoisonError::into_inner);
-        heard.keys().cloned().collect()
+        self.failures.heard_within(now, within)
     }
 }

@@ -51,8 +51,8 @@ use tessera_tracer::Rect;
 use tokio::sync::{Mutex, MutexGuard};
 
 use super::error::StoreError;
+use super::memo::{FailureRecord, RosterBatch};
 use super::state::{JobState, TileState};
-use super::types::WorkerSeen;
 use checkpoint::WalKeeper;
 use spool::Spool;
 
@@ -163,27 +163,16 @@ pub struct SqliteStore {
     /// Per process by design: it guards this process's spool, and it is a copy of what the
     /// tiles' rows say, kept to save a read per result; the rows remain the record.
     issued: Arc<std::sync::Mutex<Issued>>,
-    /// When (ms since the epoch) a database write last failed for the storage's sake
-    /// ([`StoreError::is_storage`]), as noted by [`SqliteStore::noted`]. See [`health`] for
-    /// why this is kept in memory.
-    storage_failed: Arc<std::sync::Mutex<Option<i64>>>,
-    /// Leases whose renewal or result was refused lately for a failure of the service's,
-    /// and when (ms since the epoch): see [`SqliteStore::heard_refused`] and [`health`].
-    heard: Arc<std::sync::Mutex<HashMap<String, i64>>>,
+    /// The record of the storage failing and of the leases refused meanwhile (see
+    /// [`health`] for why it is kept in memory).
+    failures: Arc<FailureRecord>,
     /// What this process heard of workers since it last wrote the roster (see
     /// [`workers`]).
-    seen: Arc<std::sync::Mutex<HashMap<String, WorkerSeen>>>,
-    /// Held while the roster is written and read (see [`workers`]).
-    roster: Arc<Mutex<()>>,
+    roster: Arc<RosterBatch>,
 }
 
 /// Leases handed out and not yet stored: `(job, idx)` → `(lease, rectangle)`.
 type Issued = HashMap<(String, u32), (String, Rect)>;
-
-/// The most leases [`SqliteStore::heard`] keeps at once (a worker holds two per render thread):
-/// a few MB at most. Past it, a lease not yet heard from is not noted, and so is reaped as
-/// it would be without the record if the storage fails while its lease runs out.
-pub(crate) const HEARD_LEASES: usize = 1 << 16;
 
 impl SqliteStore {
     /// A reading connection (see [`Reader`]).

@@ -146,9 +146,7 @@ impl SqliteStore {
             spool,
             max_attempts: DEFAULT_MAX_ATTEMPTS,
             issued: Arc::default(),
-            storage_failed: Arc::default(),
-            heard: Arc::default(),
-            seen: Arc::default(),
+            failures: Arc::default(),
             roster: Arc::default(),
         })
     }
