@@ -73,6 +73,14 @@ impl AssembleError {
             AssembleError::Store(StoreError::Lost { .. }) | AssembleError::Unfinished
         )
     }
+
+    /// The database failed (gone, restarting, full): the image can be assembled again
+    /// once it answers, so the job does not fail for it where another process may assemble
+    /// it (see [`Store::is_shared`]).
+    pub fn transient(&self) -> bool {
+        matches!(self, AssembleError::Store(e) if e.is_storage()
+            || matches!(e, StoreError::Db(sqlx::Error::PoolTimedOut)))
+    }
 }
 
 /// A PNG being written band by band into the job's image chunks.
@@ -207,9 +215,20 @@ async fn store_chunks(
 }
 
 /// Encodes the job's whole PNG from its stored tiles, stores it, and marks the job done.
-/// Idempotent: run again after a crash, it starts over.
+/// Idempotent: run again after a crash, it starts over. Under the store's assembly lock,
+/// so that two processes on one database never write the same job's chunks at once: when
+/// another holds it, this does nothing (the holder finishes the image, or, if it dies, the
+/// maintenance pass assembles it again).
 pub async fn assemble(store: &Store, id: &str) -> Result<(), AssembleError> {
+    let Some(_lock) = store.assembling(id).await? else {
+        tracing::debug!(job = %id, "another process assembles the image");
+        return Ok(());
+    };
     let job = store.job(id).await?.ok_or(AssembleError::Vanished)?;
+    // Read under the lock: a holder that finished before it was taken leaves a done job.
+    if !job.state.is_active() {
+        return Ok(());
+    }
     if job.tiles_done < job.tiles_total {
         return Err(AssembleError::Unfinished);
     }

@@ -47,8 +47,12 @@ fn token_problem(s: &str) -> Option<&'static str> {
 /// The database: not blank, and a `sqlite:` URL names a file, as sqlx reads it (`sqlite:`
 /// or `//` dropped, then everything from `?`). `sqlite://` or `sqlite:?mode=rwc` would name
 /// a private temporary database per connection (reads then fail with "no such table:
-/// jobs"), and `' '` a file named by a space.
+/// jobs"), and `' '` a file named by a space. A `postgres://` or `postgresql://` URL is
+/// checked when the service opens it (sqlx parses it then, and says what is wrong).
 fn database(s: &str) -> Result<String, String> {
+    if crate::store::is_postgres(s) {
+        return Ok(s.to_string());
+    }
     let path = match s.strip_prefix("sqlite:") {
         Some(url) => {
             let url = url.strip_prefix("//").unwrap_or(url);
@@ -57,13 +61,18 @@ fn database(s: &str) -> Result<String, String> {
         None => s,
     };
     if path.trim().is_empty() || s.trim() != s {
-        Err("expected sqlite://PATH (or a file path), e.g. sqlite://tessera.db".to_string())
+        Err(
+            "expected sqlite://PATH (or a file path), e.g. sqlite://tessera.db, or \
+             postgres://USER@HOST:PORT/DB"
+                .to_string(),
+        )
     } else {
         Ok(s.to_string())
     }
 }
 
-/// The Tessera render service: HTTP API, SQLite job queue, web page, and local workers.
+/// The Tessera render service: HTTP API, job queue (SQLite, or PostgreSQL shared by several
+/// replicas), web page, and local workers.
 #[derive(Debug, Clone, Parser)]
 #[command(name = "tessera-service", version, about)]
 pub struct Config {
@@ -71,7 +80,8 @@ pub struct Config {
     #[arg(long, env = "TESSERA_LISTEN", default_value = "127.0.0.1:8080",
           value_parser = listen_addr)]
     pub listen: String,
-    /// The queue's database.
+    /// The queue's database: sqlite://PATH, or postgres://USER@HOST:PORT/DB (several
+    /// services on one PostgreSQL database serve one farm).
     #[arg(long, env = "TESSERA_DATABASE", default_value = "sqlite://tessera.db",
           value_parser = database)]
     pub database: String,

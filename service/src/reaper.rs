@@ -1,6 +1,11 @@
 //! The periodic maintenance pass: requeues expired leases (extending them instead after a
 //! pause of the service or while its storage fails), sweeps the tile spool, stops following
-//! ended jobs, and fails jobs that every live worker is kept away from.
+//! ended jobs, fails jobs that every live worker is kept away from, and (on a shared
+//! database) assembles the images of complete jobs that no process is assembling.
+//!
+//! Every process shares what it noted ([`crate::store::Store::share`]) on each pass; on a
+//! database several processes share, only the one holding the maintenance lock
+//! ([`crate::store::Store::maintains`]) does the rest, so that no two reap at once.
 //!
 //! It decides nothing the queue does not: it calls the queue with the time and the
 //! configuration's limits, and wakes waiting requests when something changed.
@@ -20,17 +25,57 @@ const HEARD_AT_LEAST: Duration = Duration::from_secs(5);
 /// How often the reaper deletes the spool files of ended jobs.
 const SWEEP_EVERY: Duration = Duration::from_secs(10);
 
+/// How often the maintaining process of a shared database looks for complete jobs whose
+/// image nobody assembles (their assembler died, or the database failed under it).
+const ASSEMBLE_EVERY: Duration = Duration::from_secs(2);
+
 /// Requeues expired leases a few times per lease period, and sweeps the tile spool.
 pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
     let every = Duration::from_millis((state.cfg.lease_ms / 4).clamp(25, 1000));
     let mut last = std::time::Instant::now();
     let mut swept = std::time::Instant::now();
+    let mut assembled = std::time::Instant::now();
     // Leases are being extended for the storage's failures (said once, not every pass).
     let mut extending = false;
+    // Sharing failed last pass (said once, not every pass).
+    let mut unshared = false;
     loop {
         tokio::select! {
             _ = tokio::time::sleep(every) => {}
             _ = stop.wait_for(|s| *s) => return,
+        }
+        match state.store.share(now_ms()).await {
+            Ok(()) if unshared => {
+                unshared = false;
+                info!("sharing this process's records through the database again");
+            }
+            Ok(()) => {}
+            Err(e) if !unshared => {
+                unshared = true;
+                warn!(
+                    "sharing this process's records: {}",
+                    state.store.noted(e, now_ms())
+                );
+            }
+            Err(e) => {
+                state.store.noted(e, now_ms());
+            }
+        }
+        // Jobs that ended without an image (cancelled, failed) are no longer followed.
+        let followed = state.progress.followed();
+        if !followed.is_empty() {
+            match state.store.active_jobs().await {
+                Ok(active) => followed
+                    .iter()
+                    .filter(|id| !active.contains(id))
+                    .for_each(|id| state.progress.forget(id)),
+                Err(e) => warn!("listing active jobs: {e}"),
+            }
+        }
+        if !state.store.maintains().await {
+            // Another process maintains the database; this one's pauses are its own.
+            last = std::time::Instant::now();
+            continue;
         }
         // A service that did not run for half a lease (suspended, frozen, its machine
         // asleep) could not take the renewals its workers sent meanwhile: their leases ran
@@ -118,15 +163,13 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                 warn!("sweeping the tile spool: {e}");
             }
         }
-        // Jobs that ended without an image (cancelled, failed) are no longer followed.
-        let followed = state.progress.followed();
-        if !followed.is_empty() {
-            match state.store.active_jobs().await {
-                Ok(active) => followed
-                    .iter()
-                    .filter(|id| !active.contains(id))
-                    .for_each(|id| state.progress.forget(id)),
-                Err(e) => warn!("listing active jobs: {e}"),
+        // Complete jobs whose assembler died or failed: assembled here (the store's
+        // assembly lock skips those another process is still writing).
+        if state.store.is_shared() && assembled.elapsed() >= ASSEMBLE_EVERY {
+            assembled = std::time::Instant::now();
+            match state.store.unassembled().await {
+                Ok(jobs) => jobs.into_iter().for_each(|job| state.spawn_assembly(job)),
+                Err(e) => warn!("listing complete jobs: {e}"),
             }
         }
         // Workers heard from within a lease period (plus slack for idle polling).

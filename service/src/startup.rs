@@ -95,7 +95,14 @@ pub async fn serve(
              requeued (they ended with it)"
         );
     }
-    let extended = store.extend_leases(now_ms(), cfg.lease_ms).await?;
+    // After a restart, the workers that rode through it get a fresh term. Not on a shared
+    // database: the other replicas took renewals meanwhile, and extending every lease at
+    // each replica's start would keep a dead worker's tiles from being reaped.
+    let extended = if store.is_shared() {
+        0
+    } else {
+        store.extend_leases(now_ms(), cfg.lease_ms).await?
+    };
     if extended > 0 {
         info!(
             "{extended} leases from before the restart extended by {} ms",
@@ -129,13 +136,17 @@ pub async fn serve(
         let _ = stop_tx.send(true);
     });
     tokio::spawn(reaper(state.clone(), stop_rx.clone()));
+    // Other replicas' submissions and requeues wake this one's waiting claims.
+    let (news, work, ended) = (store.clone(), state.work.clone(), state.ended.clone());
+    let stop_listening = stop_rx.clone();
+    tokio::spawn(async move { news.listen(work, ended, stop_listening).await });
 
     let locals = spawn_local_workers(&state.cfg, addr, local_count, &local_prefix, &stop_rx);
     println!("tessera-service listening on http://{addr}");
     info!(
         "listening on http://{addr} with {} local workers, database {}",
         locals.len(),
-        state.cfg.database
+        crate::store::redacted(&state.cfg.database)
     );
     let mut stop_for_server = stop_rx.clone();
     let (drain_tx, drain_rx) = tokio::sync::oneshot::channel::<()>();

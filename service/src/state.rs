@@ -89,6 +89,12 @@ impl AppState {
                     ended.notify_waiters();
                     return;
                 }
+                if e.transient() && store.is_shared() {
+                    // The maintenance pass of whichever replica holds it assembles the
+                    // job again once the database answers.
+                    warn!(job = %job, "assembling the image, to be retried: {e}");
+                    return;
+                }
                 error!(job = %job, "assembling the image failed: {e}");
                 let _ = store
                     .fail_job(&job, &format!("assembling the image failed: {e}"), now_ms())

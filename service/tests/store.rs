@@ -1,11 +1,23 @@
-//! The store's guarantees, against real SQLite files: atomic claims under contention, lease
+//! The store's guarantees, against real databases: atomic claims under contention, lease
 //! fencing, harmless repeats, bounded failures, keep-away, expiry.
+//!
+//! Each test of the store's API runs on both backends, as `NAME::sqlite` (a SQLite file of
+//! its own) and `NAME::postgres` (a database of its own on this test binary's throwaway
+//! PostgreSQL server, see `pg`): the same body, given its database as a [`Db`]. The tests
+//! of what only SQLite has (its WAL checkpoints, its tile spool, its migrations from older
+//! files) are plain tests, each marked "SQLite only" with the reason.
 
 use std::collections::HashSet;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use tessera_service::store::{Cancel, Completion, JobState, KeepAway, NewJob, Store, StoreError};
 use tessera_tracer::{Rect, tiles};
+
+/// The throwaway PostgreSQL server, shared with the end-to-end tests.
+#[allow(dead_code)]
+#[path = "../../tests/src/pg.rs"]
+mod pg;
 
 /// Opens the store at `url`: every test opens its store through here, so that the same
 /// tests can run against each backend, given its URL.
@@ -13,26 +25,127 @@ async fn open_store(url: &str) -> Result<Store, StoreError> {
     Store::open(url).await
 }
 
-/// A folder for a test's database, removed when the test ends.
-struct Db(std::path::PathBuf);
+/// Which backend a test's database is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Backend {
+    Sqlite,
+    Postgres,
+}
+
+/// A test's own database, removed when the test ends: a SQLite file in a folder of its
+/// own, or a database of its own on the test binary's PostgreSQL server.
+struct Db {
+    backend: Backend,
+    url: String,
+    /// The SQLite database's folder.
+    dir: Option<PathBuf>,
+    _pg: Option<pg::Database>,
+}
 
 impl Db {
-    fn new(tag: &str) -> Db {
+    /// A SQLite database `q.db` in a new folder named after `tag`.
+    fn sqlite(tag: &str) -> Db {
         let dir = std::env::temp_dir().join(format!("tessera-queue-{tag}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).expect("temp dir");
-        Db(dir)
+        Db {
+            backend: Backend::Sqlite,
+            url: format!("sqlite://{}", dir.join("q.db").display()),
+            dir: Some(dir),
+            _pg: None,
+        }
+    }
+
+    /// A new database on the test binary's PostgreSQL server.
+    fn postgres() -> Db {
+        let db = pg::database();
+        Db {
+            backend: Backend::Postgres,
+            url: db.url.clone(),
+            dir: None,
+            _pg: Some(db),
+        }
     }
 
     fn url(&self) -> String {
-        format!("sqlite://{}", self.0.join("q.db").display())
+        self.url.clone()
+    }
+
+    /// The SQLite database's folder (its file `q.db`, its spool `q.db-tiles`).
+    fn dir(&self) -> &Path {
+        self.dir.as_deref().expect("a SQLite database has a folder")
+    }
+
+    /// Runs `sql` (one or more statements) on the database beside the store.
+    async fn execute(&self, sql: &'static str) {
+        match self.backend {
+            Backend::Sqlite => {
+                let pool = sqlx::SqlitePool::connect(&self.url).await.expect("open");
+                sqlx::raw_sql(sql).execute(&pool).await.expect("SQL runs");
+                pool.close().await;
+            }
+            Backend::Postgres => {
+                let pool = sqlx::PgPool::connect(&self.url).await.expect("open");
+                sqlx::raw_sql(sql).execute(&pool).await.expect("SQL runs");
+                pool.close().await;
+            }
+        }
+    }
+
+    /// The one integer that `sql` selects, read beside the store.
+    async fn count(&self, sql: &'static str) -> i64 {
+        match self.backend {
+            Backend::Sqlite => {
+                let pool = sqlx::SqlitePool::connect(&self.url).await.expect("open");
+                let n = sqlx::query_scalar(sql)
+                    .fetch_one(&pool)
+                    .await
+                    .expect("read");
+                pool.close().await;
+                n
+            }
+            Backend::Postgres => {
+                let pool = sqlx::PgPool::connect(&self.url).await.expect("open");
+                let n = sqlx::query_scalar(sql)
+                    .fetch_one(&pool)
+                    .await
+                    .expect("read");
+                pool.close().await;
+                n
+            }
+        }
     }
 }
 
 impl Drop for Db {
     fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
+        if let Some(dir) = &self.dir {
+            let _ = std::fs::remove_dir_all(dir);
+        }
     }
+}
+
+/// Runs test function `$name` (an `async fn` taking a [`Db`]) on each backend: the tests
+/// `$name::sqlite` and `$name::postgres`, under `#[tokio::test]` or the attribute given.
+macro_rules! on_both {
+    ($name:ident) => {
+        on_both!($name, #[tokio::test]);
+    };
+    ($name:ident, #[$test:meta]) => {
+        mod $name {
+            use super::Db;
+
+            #[$test]
+            async fn sqlite() {
+                super::$name(Db::sqlite(stringify!($name))).await
+            }
+
+            #[$test]
+            async fn postgres() {
+                super::$name(Db::postgres()).await
+            }
+        }
+    };
 }
 
 const KEEP: KeepAway = KeepAway {
@@ -93,9 +206,7 @@ async fn band(q: &Store, id: &str, y: u32) -> Vec<(u32, u32, u32, Vec<u8>)> {
         .collect()
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
-async fn concurrent_claimers_never_share_a_tile() {
-    let db = Db::new("claims");
+async fn concurrent_claimers_never_share_a_tile(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     let rects = job(&q, "j", 160, 160, 8).await; // 400 tiles
     let claimed = Arc::new(std::sync::Mutex::new(Vec::new()));
@@ -136,10 +247,12 @@ async fn concurrent_claimers_never_share_a_tile() {
     let j = q.job("j").await.expect("read").expect("job");
     assert_eq!(j.tiles_done, rects.len() as i64);
 }
+on_both!(
+    concurrent_claimers_never_share_a_tile,
+    #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+);
 
-#[tokio::test]
-async fn stale_and_repeated_results_change_nothing() {
-    let db = Db::new("stale");
+async fn stale_and_repeated_results_change_nothing(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 16, 8, 8).await;
     let first = q
@@ -237,10 +350,9 @@ async fn stale_and_repeated_results_change_nothing() {
         .expect("complete");
     assert_eq!(missing, Completion::Missing);
 }
+on_both!(stale_and_repeated_results_change_nothing);
 
-#[tokio::test]
-async fn failing_tiles_move_to_other_workers_then_fail_the_job() {
-    let db = Db::new("fail");
+async fn failing_tiles_move_to_other_workers_then_fail_the_job(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 8, 8, 8).await; // one tile
     let max = 3;
@@ -281,14 +393,13 @@ async fn failing_tiles_move_to_other_workers_then_fail_the_job() {
     );
     assert!(q.claim("c", 40, 1_000, max).await.expect("claim").is_none());
 }
+on_both!(failing_tiles_move_to_other_workers_then_fail_the_job);
 
 /// A worker's two leases (the tile it renders, the one it holds ahead) run out a renewal
 /// period apart and are reaped in two passes: still one stall, one strike, and only the
 /// first tile charged. Counted twice, a lone worker would be kept away and its job failed,
 /// and the held tile, never begun, would run out of attempts with the next worker's loss.
-#[tokio::test]
-async fn a_stall_reaped_in_two_passes_is_one_strike_and_one_failure() {
-    let db = Db::new("stall-passes");
+async fn a_stall_reaped_in_two_passes_is_one_strike_and_one_failure(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 16, 8, 8).await; // tiles 0 and 1
     let max = 2;
@@ -352,17 +463,32 @@ async fn a_stall_reaped_in_two_passes_is_one_strike_and_one_failure() {
             .is_some()
     );
 }
+on_both!(a_stall_reaped_in_two_passes_is_one_strike_and_one_failure);
 
 /// Each tile's failures, read from the database beside the queue.
 async fn failures(db: &Db, job: &str) -> Vec<i64> {
-    let pool = sqlx::SqlitePool::connect(&db.url()).await.expect("open");
-    let rows: Vec<(i64,)> =
-        sqlx::query_as("SELECT failures FROM tiles WHERE job_id = ?1 ORDER BY idx")
-            .bind(job)
-            .fetch_all(&pool)
-            .await
-            .expect("read");
-    pool.close().await;
+    let rows: Vec<(i64,)> = match db.backend {
+        Backend::Sqlite => {
+            let pool = sqlx::SqlitePool::connect(&db.url()).await.expect("open");
+            let rows = sqlx::query_as("SELECT failures FROM tiles WHERE job_id = ?1 ORDER BY idx")
+                .bind(job)
+                .fetch_all(&pool)
+                .await
+                .expect("read");
+            pool.close().await;
+            rows
+        }
+        Backend::Postgres => {
+            let pool = sqlx::PgPool::connect(&db.url()).await.expect("open");
+            let rows = sqlx::query_as("SELECT failures FROM tiles WHERE job_id = $1 ORDER BY idx")
+                .bind(job)
+                .fetch_all(&pool)
+                .await
+                .expect("read");
+            pool.close().await;
+            rows
+        }
+    };
     rows.into_iter().map(|(f,)| f).collect()
 }
 
@@ -370,9 +496,7 @@ async fn failures(db: &Db, job: &str) -> Vec<i64> {
 /// are charged a failure each, the two it held ahead none, and the worker one strike.
 /// (Charging only the first to run out would leave a tile that crashes workers of many
 /// threads uncharged most of the time.)
-#[tokio::test]
-async fn a_stall_charges_the_tiles_being_rendered() {
-    let db = Db::new("stall-threads");
+async fn a_stall_charges_the_tiles_being_rendered(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 48, 8, 8).await; // tiles 0 to 5
     let max = 3;
@@ -410,14 +534,13 @@ async fn a_stall_charges_the_tiles_being_rendered() {
             .is_some()
     );
 }
+on_both!(a_stall_charges_the_tiles_being_rendered);
 
 /// The `rendering` flag is the holder's, not the tile's: a tile renewed as rendering, given
 /// back and claimed again to be held ahead is not charged when its new holder stalls, and
 /// the tile that holder renders is (the flag had stayed, charging the held tile and
 /// sparing the rendered one).
-#[tokio::test]
-async fn the_rendering_flag_does_not_pass_to_the_next_holder() {
-    let db = Db::new("flag-reset");
+async fn the_rendering_flag_does_not_pass_to_the_next_holder(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 32, 8, 8).await; // tiles 0 to 3
     let max = 4;
@@ -445,10 +568,9 @@ async fn the_rendering_flag_does_not_pass_to_the_next_holder() {
     assert_eq!(q.reap(1_500, max, KEEP).await.expect("reap"), 2);
     assert_eq!(failures(&db, "j").await, vec![0, 1, 0, 0]);
 }
+on_both!(the_rendering_flag_does_not_pass_to_the_next_holder);
 
-#[tokio::test]
-async fn lost_leases_count_as_failures() {
-    let db = Db::new("lost");
+async fn lost_leases_count_as_failures(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 8, 8, 8).await;
     let max = 2;
@@ -461,10 +583,9 @@ async fn lost_leases_count_as_failures() {
     assert_eq!(j.state, JobState::Failed);
     assert!(j.error.unwrap_or_default().contains("stopped answering"));
 }
+on_both!(lost_leases_count_as_failures);
 
-#[tokio::test]
-async fn a_job_no_live_worker_may_take_fails() {
-    let db = Db::new("unservable");
+async fn a_job_no_live_worker_may_take_fails(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 8, 8, 8).await;
     for _ in 0..2 {
@@ -485,13 +606,12 @@ async fn a_job_no_live_worker_may_take_fails() {
     assert_eq!(j.state, JobState::Failed);
     assert!(j.error.unwrap_or_default().contains("bad texture"));
 }
+on_both!(a_job_no_live_worker_may_take_fails);
 
 /// A job whose every tile is stored is not cancelled: its image is being written, and the
 /// worker that posted the last tile was told it was stored. (Else a cancel racing the last
 /// result would end such a job "cancelled" with all its tiles done and no image.)
-#[tokio::test]
-async fn a_job_with_every_tile_in_is_not_cancelled() {
-    let db = Db::new("complete");
+async fn a_job_with_every_tile_in_is_not_cancelled(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 16, 8, 8).await;
     for last in [false, true] {
@@ -511,10 +631,9 @@ async fn a_job_with_every_tile_in_is_not_cancelled() {
     assert_eq!(j.state, JobState::Running);
     assert_eq!(band(&q, "j", 0).await.len(), 2, "its pixels are kept");
 }
+on_both!(a_job_with_every_tile_in_is_not_cancelled);
 
-#[tokio::test]
-async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
-    let db = Db::new("ended");
+async fn a_job_that_ends_without_an_image_drops_what_it_stored(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     // A job of two tiles stores one of them, and the first chunk of its PNG.
     let store_one = async |id: &str| {
@@ -571,12 +690,11 @@ async fn a_job_that_ends_without_an_image_drops_what_it_stored() {
     assert!(band(&q, "failed", 0).await.is_empty());
     assert_eq!(q.image_chunks("failed").await.expect("count"), 0);
 }
+on_both!(a_job_that_ends_without_an_image_drops_what_it_stored);
 
 /// A job of more tiles than one insert statement holds (1,000) is stored tile for tile as
 /// the tiler cut it: every index once, each with its own rectangle, in claim order.
-#[tokio::test]
-async fn a_job_of_many_tiles_is_stored_as_the_tiler_cut_it() {
-    let db = Db::new("many");
+async fn a_job_of_many_tiles_is_stored_as_the_tiler_cut_it(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     // 51 × 50 = 2,550 tiles, so two full statements and part of a third; the last column
     // and the last row of tiles are 4 pixels.
@@ -593,12 +711,11 @@ async fn a_job_of_many_tiles_is_stored_as_the_tiler_cut_it() {
     let expected: Vec<(usize, Rect)> = rects.iter().copied().enumerate().collect();
     assert_eq!(claimed, expected);
 }
+on_both!(a_job_of_many_tiles_is_stored_as_the_tiler_cut_it);
 
 /// A band is read back left to right whatever order its tiles arrived in, each with its
 /// own pixels, and only once stored; the other bands' tiles stay out of it.
-#[tokio::test]
-async fn a_band_reads_back_its_stored_tiles_left_to_right() {
-    let db = Db::new("band");
+async fn a_band_reads_back_its_stored_tiles_left_to_right(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     // 3 tiles across (the last 4 pixels wide), 2 bands (the last 3 rows high).
     let rects = job(&q, "b", 20, 11, 8).await;
@@ -628,13 +745,16 @@ async fn a_band_reads_back_its_stored_tiles_left_to_right() {
     assert_eq!(bottom, expected);
     assert!(band(&q, "b", 4).await.is_empty(), "no band starts at row 4");
 }
+on_both!(a_band_reads_back_its_stored_tiles_left_to_right);
 
 /// Image chunks past the threshold start a checkpoint off the writer, which copies the
 /// pages committed before it from the WAL into the database file. (Tile pixels of a
 /// database file do not pass through SQLite: see the spool tests below.)
+///
+/// SQLite only: its WAL and file sizes.
 #[tokio::test]
 async fn stored_bytes_past_the_threshold_are_checkpointed_in_the_background() {
-    let db = Db::new("checkpoint");
+    let db = Db::sqlite("checkpoint");
     const EVERY: usize = 100_000;
     let q = open_store(&db.url())
         .await
@@ -642,7 +762,7 @@ async fn stored_bytes_past_the_threshold_are_checkpointed_in_the_background() {
         .checkpoint_every(EVERY as u64);
     let mut finished = q.checkpoints().expect("a database file has a WAL");
     job(&q, "c", 256, 256, 64).await;
-    let file = std::fs::metadata(db.0.join("q.db"))
+    let file = std::fs::metadata(db.dir().join("q.db"))
         .expect("database file")
         .len();
     assert!(file < 100_000, "a new database file is small: {file} bytes");
@@ -666,7 +786,7 @@ async fn stored_bytes_past_the_threshold_are_checkpointed_in_the_background() {
     .expect("the queue is alive");
     // Until a checkpoint, committed pages live in the WAL only; the database file holds the
     // bytes once they are copied into it.
-    let file = std::fs::metadata(db.0.join("q.db"))
+    let file = std::fs::metadata(db.dir().join("q.db"))
         .expect("database file")
         .len();
     assert!(
@@ -688,15 +808,17 @@ async fn stored_bytes_past_the_threshold_are_checkpointed_in_the_background() {
 
 /// Tile pixels wait in the job's spool file, laid out as the image, not in SQLite; a band
 /// reads them back, and the file goes when the image is stored.
+///
+/// SQLite only: its tile spool.
 #[tokio::test]
 async fn tile_pixels_wait_in_the_spool_not_in_sqlite() {
-    let db = Db::new("spool");
+    let db = Db::sqlite("spool");
     let q = open_store(&db.url()).await.expect("open");
     let dir = q
         .spool_dir()
         .expect("a database file has a spool")
         .to_path_buf();
-    assert_eq!(dir, db.0.join("q.db-tiles"));
+    assert_eq!(dir, db.dir().join("q.db-tiles"));
     let (w, h) = (300u32, 200u32);
     let rects = job(&q, "s", w, h, 64).await;
     let claims = claim_all(&q, 1).await;
@@ -749,9 +871,11 @@ async fn tile_pixels_wait_in_the_spool_not_in_sqlite() {
 /// the commit, a deleted file, someone else's bytes) are never encoded: the tiles are queued
 /// again, with a failure counted against the tile (not against any worker), and the band
 /// reads once they are rendered again.
+///
+/// SQLite only: its tile spool.
 #[tokio::test]
 async fn lost_pixels_send_their_tiles_back_to_the_queue() {
-    let db = Db::new("spool-lost");
+    let db = Db::sqlite("spool-lost");
     let q = open_store(&db.url()).await.expect("open");
     let dir = q.spool_dir().expect("spool").to_path_buf();
     let rects = job(&q, "l", 40, 16, 8).await; // 5 × 2 tiles
@@ -810,9 +934,11 @@ async fn lost_pixels_send_their_tiles_back_to_the_queue() {
 
 /// A tile whose pixels keep being lost fails its job after `max_attempts` losses, with the
 /// reason, instead of being rendered again for ever.
+///
+/// SQLite only: its tile spool.
 #[tokio::test]
 async fn a_tile_lost_again_and_again_fails_its_job() {
-    let db = Db::new("spool-lost-again");
+    let db = Db::sqlite("spool-lost-again");
     let q = open_store(&db.url()).await.expect("open").max_attempts(2);
     let file = q.spool_dir().expect("spool").join("r.rgb");
     job(&q, "r", 8, 8, 8).await; // one tile
@@ -843,9 +969,11 @@ async fn a_tile_lost_again_and_again_fails_its_job() {
 
 /// The files of jobs that ended without an image or were deleted are swept; an active
 /// job's file is kept.
+///
+/// SQLite only: its tile spool.
 #[tokio::test]
 async fn ended_jobs_spool_files_are_swept() {
-    let db = Db::new("spool-sweep");
+    let db = Db::sqlite("spool-sweep");
     let q = open_store(&db.url()).await.expect("open");
     let dir = q.spool_dir().expect("spool").to_path_buf();
     for id in ["a", "b"] {
@@ -874,9 +1002,11 @@ async fn ended_jobs_spool_files_are_swept() {
 
 /// A submission's scene and textures count towards the next checkpoint as tile pixels do,
 /// so that large submissions cannot grow the WAL unchecked.
+///
+/// SQLite only: its WAL.
 #[tokio::test]
 async fn a_large_submission_is_checkpointed_in_the_background() {
-    let db = Db::new("checkpoint-scene");
+    let db = Db::sqlite("checkpoint-scene");
     let q = open_store(&db.url())
         .await
         .expect("open")
@@ -958,13 +1088,11 @@ async fn png_of(q: &Store, id: &str) -> Vec<u8> {
     png
 }
 
-#[tokio::test]
-async fn bands_are_encoded_in_order_as_they_complete_and_give_the_whole_images_png() {
+async fn bands_are_encoded_in_order_as_they_complete_and_give_the_whole_images_png(db: Db) {
     use tessera_service::assemble::Progress;
     let (w, h) = (64, 30); // four bands of 8-pixel tiles, the last 6 rows high
     let whole = tessera_tracer::encode_png(w, h, &tile_rgb(Rect::new(0, 0, w, h))).expect("png");
 
-    let db = Db::new("bands");
     let q = open_store(&db.url()).await.expect("open");
     let progress = Progress::default();
     let rects = tiles(w, h, 8);
@@ -1019,12 +1147,11 @@ async fn bands_are_encoded_in_order_as_they_complete_and_give_the_whole_images_p
     );
     assert_eq!(png_of(&q, "k").await, whole);
 }
+on_both!(bands_are_encoded_in_order_as_they_complete_and_give_the_whole_images_png);
 
 /// A cancelled job's leases are stale for every route: a failure report neither counts
 /// against the tile or the worker nor requeues the tile, and a give-back is refused too.
-#[tokio::test]
-async fn a_cancelled_jobs_leases_are_stale() {
-    let db = Db::new("cancelled-leases");
+async fn a_cancelled_jobs_leases_are_stale(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 16, 8, 8).await;
     let a = q.claim("w", 0, 60_000, 3).await.expect("claim").expect("a");
@@ -1058,13 +1185,12 @@ async fn a_cancelled_jobs_leases_are_stale() {
     assert!(q.claim("v", 20, 60_000, 3).await.expect("claim").is_none());
     assert_eq!(q.reap(120_000, 3, KEEP).await.expect("reap"), 0);
 }
+on_both!(a_cancelled_jobs_leases_are_stale);
 
 /// Leases of one job that run out together (a worker's tile and the one it holds ahead: one
 /// stall) count once towards keeping the worker away: with keep-away after two, one stall
 /// of a lone worker no longer bars it from the job.
-#[tokio::test]
-async fn one_stall_is_one_strike() {
-    let db = Db::new("one-strike");
+async fn one_stall_is_one_strike(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 32, 8, 8).await;
     for _ in 0..2 {
@@ -1078,44 +1204,82 @@ async fn one_stall_is_one_strike() {
     let c = q.claim("w", 6_000, 1_000, 4).await.expect("claim");
     assert!(c.is_some(), "one stall kept the worker away");
 }
+on_both!(one_stall_is_one_strike);
+
+/// A second connection holding what the health probe's write needs: SQLite's database
+/// write lock, or PostgreSQL's lock on the health table.
+enum WriteLock {
+    Sqlite(sqlx::SqliteConnection),
+    Postgres(sqlx::PgConnection),
+}
+
+impl WriteLock {
+    async fn take(db: &Db) -> WriteLock {
+        use sqlx::Connection;
+        match db.backend {
+            Backend::Sqlite => {
+                let mut c = sqlx::SqliteConnection::connect(&db.url())
+                    .await
+                    .expect("second connection");
+                sqlx::query("BEGIN EXCLUSIVE")
+                    .execute(&mut c)
+                    .await
+                    .expect("lock");
+                WriteLock::Sqlite(c)
+            }
+            Backend::Postgres => {
+                let mut c = sqlx::PgConnection::connect(&db.url())
+                    .await
+                    .expect("second connection");
+                sqlx::raw_sql("BEGIN; LOCK TABLE health IN ACCESS EXCLUSIVE MODE")
+                    .execute(&mut c)
+                    .await
+                    .expect("lock");
+                WriteLock::Postgres(c)
+            }
+        }
+    }
+
+    async fn release(self) {
+        match self {
+            WriteLock::Sqlite(mut c) => {
+                sqlx::query("COMMIT").execute(&mut c).await.expect("unlock");
+            }
+            WriteLock::Postgres(mut c) => {
+                sqlx::query("COMMIT").execute(&mut c).await.expect("unlock");
+            }
+        }
+    }
+}
 
 /// The health check's write: it succeeds on a database that takes writes, and fails (in the
 /// time it is given) while another connection holds the database's write lock, then
 /// succeeds again once the lock is gone. The check only read, and so answered `200` while
 /// every write failed.
-#[tokio::test]
-async fn the_write_probe_fails_while_writes_cannot_happen() {
-    use sqlx::Connection;
-    let db = Db::new("probe");
+async fn the_write_probe_fails_while_writes_cannot_happen(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     let quick = std::time::Duration::from_millis(300);
     q.probe_write(1, quick).await.expect("writable");
-    let mut other = sqlx::SqliteConnection::connect(&db.url())
-        .await
-        .expect("second connection");
-    sqlx::query("BEGIN EXCLUSIVE")
-        .execute(&mut other)
-        .await
-        .expect("lock");
+    let lock = WriteLock::take(&db).await;
     let refused = q.probe_write(2, quick).await;
     assert!(refused.is_err(), "{refused:?}");
-    sqlx::query("COMMIT")
-        .execute(&mut other)
-        .await
-        .expect("unlock");
+    lock.release().await;
     q.probe_write(3, std::time::Duration::from_secs(20))
         .await
         .expect("writable again");
 }
+on_both!(the_write_probe_fails_while_writes_cannot_happen);
 
 /// A database from before migration 0008, whose jobs hold their scenes in the `jobs` row,
 /// opens with its scenes moved to `job_scenes`: a worker still gets each job's scene, and the
 /// listing reads rows without one (a large scene in the row makes each listed job walk its
 /// overflow pages to reach the columns after it).
+///
+/// SQLite only: its migrations from older files.
 #[tokio::test]
 async fn scenes_move_out_of_the_jobs_rows_when_an_older_database_opens() {
     use sqlx::sqlite::{SqliteConnectOptions, SqlitePoolOptions};
-    let db = Db::new("migrate-scenes");
+    let db = Db::sqlite("migrate-scenes");
     let opts: SqliteConnectOptions = db.url().parse().expect("url");
     let pool = SqlitePoolOptions::new()
         .connect_with(opts.create_if_missing(true))
@@ -1167,9 +1331,7 @@ async fn scenes_move_out_of_the_jobs_rows_when_an_older_database_opens() {
 /// Claims serve the highest priority first, and jobs of one priority in the order they came:
 /// a preview submitted behind a long render (at a higher priority) is rendered first, and a
 /// job below every other waits for them all.
-#[tokio::test]
-async fn claims_serve_the_highest_priority_first_then_the_oldest() {
-    let db = Db::new("priority");
+async fn claims_serve_the_highest_priority_first_then_the_oldest(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     job_at(&q, "long", 0, 64, 64, 32).await; // 4 tiles
     job_at(&q, "later", 0, 32, 32, 32).await; // 1 tile
@@ -1193,6 +1355,7 @@ async fn claims_serve_the_highest_priority_first_then_the_oldest() {
         ]
     );
 }
+on_both!(claims_serve_the_highest_priority_first_then_the_oldest);
 
 /// A job's first claim marks it running in the claim's own statement: a claim whose job
 /// could not be marked (here a trigger refuses the write, as a full disk would) stores no
@@ -1200,31 +1363,38 @@ async fn claims_serve_the_highest_priority_first_then_the_oldest() {
 /// second statement marking the job after the claim had committed would leave the failed
 /// claim's lease stored, its tile leased to a worker that never got it, and the job `queued`
 /// with no start time while its tiles were rendered.)
-#[tokio::test]
-async fn a_claim_and_its_jobs_start_are_one_write() {
-    let db = Db::new("first-claim");
+async fn a_claim_and_its_jobs_start_are_one_write(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 64, 32, 32).await; // 2 tiles
-    let pool = sqlx::SqlitePool::connect(&db.url()).await.expect("open");
-    sqlx::query(
-        "CREATE TRIGGER refuse_start BEFORE UPDATE OF state ON jobs WHEN NEW.state = 'running'
-         BEGIN SELECT RAISE(ABORT, 'disk full'); END",
-    )
-    .execute(&pool)
-    .await
-    .expect("trigger");
+    // A trigger refuses to mark the job running, as a full disk would.
+    match db.backend {
+        Backend::Sqlite => {
+            db.execute(
+                "CREATE TRIGGER refuse_start BEFORE UPDATE OF state ON jobs
+                 WHEN NEW.state = 'running' BEGIN SELECT RAISE(ABORT, 'disk full'); END",
+            )
+            .await
+        }
+        Backend::Postgres => {
+            db.execute(
+                "CREATE FUNCTION refuse_start() RETURNS trigger LANGUAGE plpgsql AS $$
+                 BEGIN RAISE EXCEPTION 'disk full'; END $$;
+                 CREATE TRIGGER refuse_start BEFORE UPDATE OF state ON jobs FOR EACH ROW
+                 WHEN (NEW.state = 'running') EXECUTE FUNCTION refuse_start()",
+            )
+            .await
+        }
+    }
     let refused = q.claim("w", 5, 60_000, 4).await;
     assert!(refused.is_err(), "{refused:?}");
-    let leased: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM tiles WHERE state != 'queued'")
-        .fetch_one(&pool)
-        .await
-        .expect("read");
+    let leased = db
+        .count("SELECT COUNT(*) FROM tiles WHERE state != 'queued'")
+        .await;
     assert_eq!(leased, 0, "the failed claim left a lease behind");
-    sqlx::query("DROP TRIGGER refuse_start")
-        .execute(&pool)
-        .await
-        .expect("drop");
-    pool.close().await;
+    match db.backend {
+        Backend::Sqlite => db.execute("DROP TRIGGER refuse_start").await,
+        Backend::Postgres => db.execute("DROP TRIGGER refuse_start ON jobs").await,
+    }
 
     assert_eq!(
         q.job("j").await.expect("job").expect("row").state,
@@ -1246,13 +1416,13 @@ async fn a_claim_and_its_jobs_start_are_one_write() {
     let row = q.job("j").await.expect("job").expect("row");
     assert_eq!((row.state.as_str(), row.started_at), ("running", Some(7)));
 }
+on_both!(a_claim_and_its_jobs_start_are_one_write);
 
 /// The PNG is stored in chunks of exactly `CHUNK` bytes but the last (what a download holds
 /// per client while the client reads), whatever the size of each band's output, and the
 /// chunks still make the whole image's PNG. Noise, so that the PNG is about as large as
 /// its pixels and its bands' outputs straddle chunk boundaries.
-#[tokio::test]
-async fn the_png_is_stored_in_chunks_of_one_size() {
+async fn the_png_is_stored_in_chunks_of_one_size(db: Db) {
     use tessera_service::assemble::{CHUNK, Progress};
     let (w, h) = (256, 200);
     let mut state = 0x9e37_79b9_7f4a_7c15u64;
@@ -1275,7 +1445,6 @@ async fn the_png_is_stored_in_chunks_of_one_size() {
         v
     };
 
-    let db = Db::new("chunks");
     let q = open_store(&db.url()).await.expect("open");
     let progress = Progress::default();
     let rects = tiles(w, h, 32);
@@ -1305,6 +1474,7 @@ async fn the_png_is_stored_in_chunks_of_one_size() {
         Some(whole.len() as i64)
     );
 }
+on_both!(the_png_is_stored_in_chunks_of_one_size);
 
 /// Flips a bit of tile `r`'s bytes in the spool file `file` of a `w`-wide, `h`-high image.
 fn spoil(file: &std::path::Path, w: u32, h: u32, r: Rect) {
@@ -1349,12 +1519,14 @@ async fn finish_after_loss(
 
 /// A tile whose spooled pixels are lost is rendered again wherever the loss is found,
 /// while encoding ahead or at the end, and the job's PNG is still the whole image's.
+///
+/// SQLite only: its tile spool.
 #[tokio::test]
 async fn a_job_whose_pixels_are_lost_still_gives_the_whole_images_png() {
     use tessera_service::assemble::Progress;
     let (w, h) = (32, 16); // two bands of four 8-pixel tiles
     let whole = tessera_tracer::encode_png(w, h, &tile_rgb(Rect::new(0, 0, w, h))).expect("png");
-    let db = Db::new("spool-assemble");
+    let db = Db::sqlite("spool-assemble");
     let q = open_store(&db.url()).await.expect("open");
     let file = q.spool_dir().expect("spool").join("j.rgb");
     let progress = Progress::default();
@@ -1423,9 +1595,7 @@ async fn a_job_whose_pixels_are_lost_still_gives_the_whole_images_png() {
 /// A post that is not its tile's current result (a wrong lease, another tile's rectangle,
 /// a rectangle spanning several tiles) writes nothing into the spool: the stored tiles'
 /// pixels stay as they were, before and after a restart (whose queue knows no leases).
-#[tokio::test]
-async fn refused_posts_leave_the_stored_pixels_alone() {
-    let db = Db::new("spool-refused");
+async fn refused_posts_leave_the_stored_pixels_alone(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     let rects = job(&q, "f", 32, 16, 8).await; // 4 × 2 tiles
     let claims = claim_all(&q, 4).await;
@@ -1475,15 +1645,18 @@ async fn refused_posts_leave_the_stored_pixels_alone() {
         );
     }
 }
+on_both!(refused_posts_leave_the_stored_pixels_alone);
 
 /// A loss found while encoding ahead, after the job's last tile is in, leaves the job to
 /// wait for the tile rendered again (it failed with a gap in the image before).
+///
+/// SQLite only: its tile spool.
 #[tokio::test]
 async fn a_loss_found_ahead_after_the_last_tile_waits_for_the_tile() {
     use tessera_service::assemble::Progress;
     let (w, h) = (32, 16);
     let whole = tessera_tracer::encode_png(w, h, &tile_rgb(Rect::new(0, 0, w, h))).expect("png");
-    let db = Db::new("spool-late-loss");
+    let db = Db::sqlite("spool-late-loss");
     let q = open_store(&db.url()).await.expect("open");
     let file = q.spool_dir().expect("spool").join("g.rgb");
     let progress = Progress::default();
@@ -1513,9 +1686,11 @@ async fn a_loss_found_ahead_after_the_last_tile_waits_for_the_tile() {
 }
 
 /// Cancelling or deleting a job removes its spool file at once.
+///
+/// SQLite only: its tile spool.
 #[tokio::test]
 async fn cancel_and_delete_remove_the_spool_file() {
-    let db = Db::new("spool-cancel");
+    let db = Db::sqlite("spool-cancel");
     let q = open_store(&db.url()).await.expect("open");
     let dir = q.spool_dir().expect("spool").to_path_buf();
     for id in ["c", "d"] {
@@ -1543,16 +1718,18 @@ async fn cancel_and_delete_remove_the_spool_file() {
 /// before anything is created beside the database; one that stops taking files fails the
 /// health probe. (A folder without write permission cannot be tested as root, which
 /// writes anyway: a folder where the probe's file should go stands in for it.)
+///
+/// SQLite only: its tile spool.
 #[tokio::test]
 async fn an_unusable_spool_is_refused_at_start_and_by_the_health_probe() {
-    let db = Db::new("spool-unusable");
-    let tiles = db.0.join("q.db-tiles");
+    let db = Db::sqlite("spool-unusable");
+    let tiles = db.dir().join("q.db-tiles");
     std::fs::write(&tiles, b"not a folder").expect("file");
     let err = open_store(&db.url())
         .await
         .expect_err("a file is not a folder");
     assert!(err.to_string().contains("is not a folder"), "{err}");
-    assert!(!db.0.join("q.db").exists(), "nothing created beside it");
+    assert!(!db.dir().join("q.db").exists(), "nothing created beside it");
     std::fs::remove_file(&tiles).expect("remove");
 
     std::fs::create_dir_all(tiles.join("probe.tmp")).expect("a folder in the way");
@@ -1578,10 +1755,8 @@ async fn an_unusable_spool_is_refused_at_start_and_by_the_health_probe() {
 /// same PNG as the whole image encoded at once; a band whose tiles do not lie side by side
 /// from the left edge is refused, not encoded with a hole, although their widths add up to
 /// the image's.
-#[tokio::test]
-async fn bands_are_encoded_from_tiles_side_by_side_only() {
+async fn bands_are_encoded_from_tiles_side_by_side_only(db: Db) {
     use tessera_service::assemble::{AssembleError, assemble};
-    let db = Db::new("gap");
     let q = open_store(&db.url()).await.expect("open");
     let (w, h) = (40, 20); // 5 × 3 tiles of 8 px, the last band 4 rows high
     for id in ["g", "h"] {
@@ -1594,29 +1769,32 @@ async fn bands_are_encoded_from_tiles_side_by_side_only() {
             .expect("complete");
         assert!(matches!(stored, Completion::Stored { .. }));
     }
-    // The pixels moved from the spool into the rows; job `h`'s second tile of its first
-    // band then says it lies at the left edge, where its first tile is.
-    let pool = sqlx::SqlitePool::connect(&db.url()).await.expect("open");
-    for (id, idx, x, y, tw, th) in sqlx::query_as::<_, (String, i64, u32, u32, u32, u32)>(
-        "SELECT job_id, idx, x, y, w, h FROM tiles",
-    )
-    .fetch_all(&pool)
-    .await
-    .expect("tiles")
-    {
-        sqlx::query("UPDATE tile_pixels SET rgb = ?3, crc = NULL WHERE job_id = ?1 AND idx = ?2")
+    // SQLite's pixels moved from the spool into the rows (PostgreSQL keeps them there);
+    // job `h`'s second tile of its first band then says it lies at the left edge, where
+    // its first tile is.
+    if db.backend == Backend::Sqlite {
+        let pool = sqlx::SqlitePool::connect(&db.url()).await.expect("open");
+        for (id, idx, x, y, tw, th) in sqlx::query_as::<_, (String, i64, u32, u32, u32, u32)>(
+            "SELECT job_id, idx, x, y, w, h FROM tiles",
+        )
+        .fetch_all(&pool)
+        .await
+        .expect("tiles")
+        {
+            sqlx::query(
+                "UPDATE tile_pixels SET rgb = ?3, crc = NULL WHERE job_id = ?1 AND idx = ?2",
+            )
             .bind(&id)
             .bind(idx)
             .bind(tile_rgb(Rect::new(x, y, tw, th)))
             .execute(&pool)
             .await
             .expect("move the pixels");
+        }
+        pool.close().await;
     }
-    sqlx::query("UPDATE tiles SET x = 0 WHERE job_id = 'h' AND idx = 1")
-        .execute(&pool)
-        .await
-        .expect("misplace");
-    pool.close().await;
+    db.execute("UPDATE tiles SET x = 0 WHERE job_id = 'h' AND idx = 1")
+        .await;
     assemble(&q, "g").await.expect("assembled");
     let whole = tessera_tracer::encode_png(w, h, &tile_rgb(Rect::new(0, 0, w, h))).expect("png");
     assert_eq!(png_of(&q, "g").await, whole);
@@ -1633,18 +1811,21 @@ async fn bands_are_encoded_from_tiles_side_by_side_only() {
         "{err}"
     );
 }
+on_both!(bands_are_encoded_from_tiles_side_by_side_only);
 
 /// A spool that cannot write (here its job file is `/dev/full`: every write fails with
 /// "no space left") stores nothing, hands the tile back uncharged, and says why; once the
 /// file can be written again the same tile is handed out and stored.
+///
+/// SQLite only: its tile spool.
 #[cfg(target_os = "linux")]
 #[tokio::test]
 async fn a_tile_whose_pixels_cannot_be_written_is_queued_again_uncharged() {
     use tessera_service::store::STORAGE_PAUSE;
-    let db = Db::new("full");
+    let db = Db::sqlite("full");
     let q = open_store(&db.url()).await.expect("open");
     job(&q, "f", 16, 8, 8).await;
-    let file = db.0.join("q.db-tiles").join("f.rgb");
+    let file = db.dir().join("q.db-tiles").join("f.rgb");
     std::os::unix::fs::symlink("/dev/full", &file).expect("a full file");
     assert_eq!(q.storage_trouble(0, STORAGE_PAUSE), None);
     let c = q
@@ -1712,13 +1893,15 @@ async fn a_tile_whose_pixels_cannot_be_written_is_queued_again_uncharged() {
 /// job file is a FIFO, where every positioned write is an "illegal seek"): the tile is
 /// charged, never the worker, so that the job fails with the reason once the tile is out
 /// of attempts instead of the tile being rendered for ever.
+///
+/// SQLite only: its tile spool.
 #[cfg(target_os = "linux")]
 #[tokio::test]
 async fn a_tile_whose_pixels_keep_failing_to_be_written_fails_its_job() {
-    let db = Db::new("fifo");
+    let db = Db::sqlite("fifo");
     let q = open_store(&db.url()).await.expect("open").max_attempts(2);
     job(&q, "p", 16, 8, 8).await;
-    let file = db.0.join("q.db-tiles").join("p.rgb");
+    let file = db.dir().join("q.db-tiles").join("p.rgb");
     let made = std::process::Command::new("mkfifo")
         .arg(&file)
         .status()
@@ -1763,9 +1946,7 @@ async fn a_tile_whose_pixels_keep_failing_to_be_written_fails_its_job() {
 /// heard from (a renewal or a result under the lease was refused) and reaps the others as
 /// ever: a worker that died meanwhile says nothing. Extending every lease would keep a dead
 /// worker's tile for as long as failures kept coming.
-#[tokio::test]
-async fn while_the_storage_fails_the_leases_of_silent_workers_are_reaped() {
-    let db = Db::new("unheard");
+async fn while_the_storage_fails_the_leases_of_silent_workers_are_reaped(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     job(&q, "j", 24, 8, 8).await;
     let claim = |w: &'static str, now: i64| {
@@ -1814,13 +1995,12 @@ async fn while_the_storage_fails_the_leases_of_silent_workers_are_reaped() {
         .expect("complete");
     assert!(matches!(stored, Completion::Stored { .. }), "{stored:?}");
 }
+on_both!(while_the_storage_fails_the_leases_of_silent_workers_are_reaped);
 
 /// The roster of workers seen is the database's: what one store heard is listed by
 /// another store on the same database, counts added up, by name, and only those heard
 /// from since the time asked.
-#[tokio::test]
-async fn the_roster_of_workers_is_kept_in_the_database() {
-    let db = Db::new("roster");
+async fn the_roster_of_workers_is_kept_in_the_database(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
     q.seen("b", 1_000, |w| w.claims += 2);
     q.seen("a", 2_000, |w| w.tiles_done += 1);
@@ -1846,3 +2026,4 @@ async fn the_roster_of_workers_is_kept_in_the_database() {
         ["a".to_string()]
     );
 }
+on_both!(the_roster_of_workers_is_kept_in_the_database);

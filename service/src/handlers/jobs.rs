@@ -236,10 +236,14 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     }
     let job = validate(&state, source, read.uploads, &params, tile, name, &held).await?;
     let (new_job, rects, assets) = job;
-    // Followed before it is stored, so that no stored tile goes uncounted.
-    state
-        .progress
-        .follow(&new_job.id, new_job.width, new_job.height, &rects);
+    // Followed before it is stored, so that no stored tile goes uncounted; not where other
+    // processes share the database, since the tiles they store would go uncounted here
+    // (the image is then encoded whole once its last tile is in).
+    if !state.store.is_shared() {
+        state
+            .progress
+            .follow(&new_job.id, new_job.width, new_job.height, &rects);
+    }
     let row = match state.store.insert_job(&new_job, &rects, &assets).await {
         Ok(row) => row,
         Err(e) => {

@@ -49,7 +49,7 @@ pub use types::{
     WorkerSeen,
 };
 
-pub(crate) use postgres::is_postgres;
+pub(crate) use postgres::{is_postgres, redacted};
 pub(crate) use sqlite::is_sqlite;
 
 /// The service's default `--max-attempts`, which a store uses until told otherwise.

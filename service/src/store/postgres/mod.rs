@@ -46,7 +46,7 @@ use super::memo::{FailureRecord, RosterBatch};
 use super::state::{JobState, TileState};
 
 pub use notify::AssemblyLock;
-pub(crate) use open::is_postgres;
+pub(crate) use open::{is_postgres, redacted};
 
 type Result<T> = std::result::Result<T, StoreError>;
 

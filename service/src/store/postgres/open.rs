@@ -7,7 +7,8 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicI64;
 use std::time::Duration;
 
-use sqlx::postgres::{PgConnectOptions, PgPoolOptions};
+use sqlx::Connection;
+use sqlx::postgres::{PgConnectOptions, PgConnection, PgPoolOptions};
 
 use super::{PgStore, Result};
 use crate::store::error::StoreError;
@@ -138,8 +139,21 @@ impl PgStore {
             .map_err(|e| StoreError::Url {
                 url: redacted(url),
                 reason: e.to_string(),
-            })?
-            .application_name("tessera-service");
+            })?;
+        // Named in the server's activity views, unless the URL names it otherwise.
+        let opts = if url.contains("application_name=") {
+            opts
+        } else {
+            opts.application_name("tessera-service")
+        };
+        // One connection first, so that a refused one is told at once and named (a pool
+        // retries until its timeout, and then says only that it timed out).
+        let first = tokio::time::timeout(CONNECT_WAIT, PgConnection::connect_with(&opts))
+            .await
+            .map_err(|_| sqlx::Error::PoolTimedOut)
+            .and_then(|c| c)
+            .map_err(|e| open_error(url, &opts, e))?;
+        let _ = first.close().await;
         let pool = PgPoolOptions::new()
             .max_connections(POOL_SIZE)
             .min_connections(1)
