@@ -135,11 +135,10 @@ impl PgStore {
     /// sqlx's options such as `sslmode`) and brings its schema up to date. Any number of
     /// replicas may do so at once: sqlx's migrator holds an advisory lock while it runs.
     pub(crate) async fn open(url: &str) -> Result<PgStore> {
-        let opts = PgConnectOptions::from_str(url)
-            .map_err(|e| StoreError::Url {
-                url: redacted(url),
-                reason: e.to_string(),
-            })?;
+        let opts = PgConnectOptions::from_str(url).map_err(|e| StoreError::Url {
+            url: redacted(url),
+            reason: e.to_string(),
+        })?;
         // Named in the server's activity views, unless the URL names it otherwise.
         let opts = if url.contains("application_name=") {
             opts
