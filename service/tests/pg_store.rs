@@ -2,9 +2,8 @@
 //! database share (the storage failing, the leases refused, the roster), the wake-ups
 //! between them, the maintenance lock, and a result racing its job's cancellation.
 //!
-//! Run against the server that `TESSERA_TEST_PG_URL` names (`postgres://USER@HOST:PORT/DB`,
-//! a database the user may create others from); each test makes a database of its own.
-//! Without it the tests pass after saying so.
+//! Run against the throwaway server of the end-to-end tests (`tests/src/pg.rs`); each test
+//! gets a database of its own.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -19,27 +18,14 @@ const KEEP: KeepAway = KeepAway {
     stall_ms: 500,
 };
 
-/// A database of the test's own on the server, or `None` (said) without one.
-async fn database(tag: &str) -> Option<String> {
-    let Ok(server) = std::env::var("TESSERA_TEST_PG_URL") else {
-        eprintln!("TESSERA_TEST_PG_URL is not set: skipping this PostgreSQL test");
-        return None;
-    };
-    let name = format!("tessera_{tag}_{}", std::process::id());
-    let mut conn = sqlx::PgConnection::connect(&server)
-        .await
-        .expect("the test server answers");
-    let drop_it = format!("DROP DATABASE IF EXISTS {name} WITH (FORCE)");
-    sqlx::query(sqlx::AssertSqlSafe(drop_it))
-        .execute(&mut conn)
-        .await
-        .expect("drop");
-    sqlx::query(sqlx::AssertSqlSafe(format!("CREATE DATABASE {name}")))
-        .execute(&mut conn)
-        .await
-        .expect("create");
-    let (base, _) = server.rsplit_once('/').expect("a URL with a database");
-    Some(format!("{base}/{name}"))
+/// The throwaway PostgreSQL server, shared with the end-to-end tests.
+#[allow(dead_code)]
+#[path = "../../tests/src/pg.rs"]
+mod pg;
+
+/// A database of the test's own on the server (dropped with the returned value).
+fn database() -> pg::Database {
+    pg::database()
 }
 
 async fn job(q: &Store, id: &str, w: u32, h: u32, tile: u32) -> Vec<Rect> {
@@ -78,9 +64,8 @@ fn storage_error() -> StoreError {
 /// lease it refused, reaps the lease nobody asked about, and lists the workers.
 #[tokio::test]
 async fn what_one_replica_noted_is_shared_with_the_others() {
-    let Some(url) = database("share").await else {
-        return;
-    };
+    let db = database();
+    let url = db.url.clone();
     let one = Store::open(&url).await.expect("open");
     let other = Store::open(&url).await.expect("open again");
     job(&one, "j", 16, 8, 8).await;
@@ -134,9 +119,8 @@ async fn what_one_replica_noted_is_shared_with_the_others() {
 /// database, with no polling.
 #[tokio::test]
 async fn a_submission_on_one_replica_wakes_another() {
-    let Some(url) = database("wake").await else {
-        return;
-    };
+    let db = database();
+    let url = db.url.clone();
     let one = Store::open(&url).await.expect("open");
     let other = Store::open(&url).await.expect("open again");
     let (work, ended) = (
@@ -176,9 +160,8 @@ async fn a_submission_on_one_replica_wakes_another() {
 /// One replica at a time holds the maintenance lock; it passes on when the holder goes.
 #[tokio::test]
 async fn one_replica_at_a_time_maintains() {
-    let Some(url) = database("lead").await else {
-        return;
-    };
+    let db = database();
+    let url = db.url.clone();
     let one = Store::open(&url).await.expect("open");
     let other = Store::open(&url).await.expect("open again");
     assert!(one.maintains().await);
@@ -197,9 +180,8 @@ async fn one_replica_at_a_time_maintains() {
 /// drops its own.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_result_racing_its_jobs_cancellation_leaves_nothing() {
-    let Some(url) = database("race").await else {
-        return;
-    };
+    let db = database();
+    let url = db.url.clone();
     let q = Store::open(&url).await.expect("open");
     job(&q, "j", 16, 8, 8).await;
     let c = q

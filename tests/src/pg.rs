@@ -79,11 +79,19 @@ rm -rf "$dir"
 /// The test binary's server, started on first use; panics, saying what to install or
 /// fix, when it cannot start.
 pub fn server() -> &'static Server {
-    static SERVER: OnceLock<Result<Server, String>> = OnceLock::new();
-    match SERVER.get_or_init(Server::launch) {
+    match try_server() {
         Ok(s) => s,
         Err(e) => panic!("the test PostgreSQL server: {e}"),
     }
+}
+
+/// The server of this process, once started (see [`try_server`]).
+static SERVER: OnceLock<Result<Server, String>> = OnceLock::new();
+
+/// The test binary's server, started on first use, or why it cannot start (for callers
+/// that go on without it, such as the benchmarks).
+pub fn try_server() -> Result<&'static Server, String> {
+    SERVER.get_or_init(Server::launch).as_ref().map_err(Clone::clone)
 }
 
 /// A fresh, empty database on [`server`], for one test.
