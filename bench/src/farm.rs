@@ -8,7 +8,10 @@
 //! - scaling: one local worker against two;
 //! - tile size: both jobs at several tile sizes (full mode), the measurement behind the
 //!   service's automatic tile size;
-//! - queue: claims plus results per second with no-op workers (they post black tiles);
+//! - queue: claims plus results per second with no-op workers (they post black tiles), on
+//!   SQLite and on PostgreSQL through one replica and through two, with the service's CPU
+//!   per stored tile;
+//! - postgres: the overhead job with the queue on PostgreSQL;
 //! - memory: the service process's peak resident memory while it takes in and assembles a
 //!   7680×4320 image, against the image's RGBA8 size.
 //!
@@ -39,9 +42,14 @@ pub struct Args {
     /// A tile edge for the overhead and scaling jobs (default: the service's choice).
     #[arg(long)]
     pub tile: Option<u32>,
-    /// Only these parts (overhead, scaling, tiles, queue, memory); default all.
+    /// Only these parts (overhead, scaling, tiles, queue, postgres, memory); default all.
     #[arg(long, value_delimiter = ',')]
     pub parts: Vec<String>,
+    /// A PostgreSQL server for the PostgreSQL figures, as a URL whose user may create
+    /// databases (`postgres://USER@HOST:PORT/postgres`); default: a throwaway server from
+    /// the `postgresql` package's binaries, started for the run (skipped without them).
+    #[arg(long, env = "TESSERA_BENCH_POSTGRES")]
+    pub postgres: Option<String>,
 }
 
 impl Args {
@@ -110,7 +118,13 @@ impl Drop for TempDir {
 }
 
 impl Service {
+    /// A service on a fresh SQLite database of its own.
     fn start<S: AsRef<std::ffi::OsStr>>(extra: &[S]) -> Result<Service> {
+        Service::start_on(None, extra)
+    }
+
+    /// A service on `database` (a fresh SQLite database of its own when `None`).
+    fn start_on<S: AsRef<std::ffi::OsStr>>(database: Option<&str>, extra: &[S]) -> Result<Service> {
         static N: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
         let dir = std::env::temp_dir().join(format!(
             "tessera-bench-farm-{}-{}",
@@ -122,7 +136,10 @@ impl Service {
         let mut child = Command::new(std::env::current_exe()?)
             .arg("__service")
             .args(["--listen", "127.0.0.1:0", "--database"])
-            .arg(format!("sqlite://{}", dir.join("bench.db").display()))
+            .arg(database.map_or_else(
+                || format!("sqlite://{}", dir.join("bench.db").display()),
+                str::to_string,
+            ))
             .args(extra)
             .env("RUST_LOG", "warn")
             .stdout(Stdio::piped())
@@ -173,6 +190,13 @@ impl Service {
             }
         }
         Some(cpu)
+    }
+
+    /// CPU time the whole service process used so far (Linux), in clock ticks.
+    fn process_cpu(&self) -> Option<u64> {
+        let stat = std::fs::read_to_string(format!("/proc/{}/stat", self.child.id())).ok()?;
+        let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+        Some(fields.get(11)?.parse::<u64>().ok()? + fields.get(12)?.parse::<u64>().ok()?)
     }
 
     /// Peak resident memory so far (Linux), in bytes.
@@ -294,12 +318,21 @@ fn noop_workers(
     workers: usize,
     threads: usize,
 ) -> Result<(tokio::runtime::Runtime, tokio::sync::watch::Sender<bool>)> {
+    noop_workers_on(&[url], workers, threads)
+}
+
+/// Runs in-process no-op workers, dealt in turn to `urls`, until `done` says stop.
+fn noop_workers_on(
+    urls: &[&str],
+    workers: usize,
+    threads: usize,
+) -> Result<(tokio::runtime::Runtime, tokio::sync::watch::Sender<bool>)> {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
     let (tx, rx) = tokio::sync::watch::channel(false);
     for i in 0..workers {
-        let mut cfg = tessera_worker::WorkerConfig::new(url);
+        let mut cfg = tessera_worker::WorkerConfig::new(urls[i % urls.len()]);
         cfg.noop = true;
         cfg.threads = threads;
         cfg.name = format!("noop-{i}");
@@ -426,21 +459,82 @@ pub fn run(args: &Args) -> Result<()> {
         }
     }
 
+    // The PostgreSQL server of the run, if any (see `--postgres`).
+    let postgres = if args.wants("queue") || args.wants("postgres") {
+        Postgres::find(args.postgres.as_deref())
+    } else {
+        Err("not asked for".into())
+    };
+    if let Err(why) = &postgres
+        && why != "not asked for"
+    {
+        println!("  (PostgreSQL figures skipped: {why})");
+    }
     if args.wants("queue") {
-        // The queue: no-op workers, 8-pixel tiles.
+        // The queue: no-op workers, 8-pixel tiles, the same job on each database.
         let (qw, qh): (u32, u32) = if args.quick { (320, 240) } else { (1920, 1080) };
-        let svc = Service::start(&["--local-workers", "0"])?;
-        let (rt, stop) = noop_workers(&svc.url, 4, 4)?;
         let tiles = u64::from(qw.div_ceil(8) * qh.div_ceil(8));
-        let (_, tq) = svc.render(&http, &scene_at(qw, qh), "?tile=8")?;
-        let _ = stop.send(true);
-        rt.shutdown_timeout(Duration::from_secs(5));
+        let queue = |label: &str, dbs: &[Option<String>]| -> Result<()> {
+            let svcs = dbs
+                .iter()
+                .map(|db| Service::start_on(db.as_deref(), &["--local-workers", "0"]))
+                .collect::<Result<Vec<_>>>()?;
+            let urls: Vec<&str> = svcs.iter().map(|s| s.url.as_str()).collect();
+            let (rt, stop) = noop_workers_on(&urls, 4, 4)?;
+            let cpu_before: Option<u64> = svcs.iter().map(Service::process_cpu).sum();
+            let (_, tq) = svcs[0].render(&http, &scene_at(qw, qh), "?tile=8")?;
+            let cpu_after: Option<u64> = svcs.iter().map(Service::process_cpu).sum();
+            let _ = stop.send(true);
+            rt.shutdown_timeout(Duration::from_secs(5));
+            drop(svcs);
+            let per_s = 2.0 * tiles as f64 / tq.as_secs_f64();
+            let cpu = cpu_after.zip(cpu_before).map(|(a, b)| {
+                // Clock ticks are 1/100 s on Linux (`getconf CLK_TCK`).
+                (a.saturating_sub(b)) as f64 * 10.0 / tiles as f64
+            });
+            println!(
+                "  queue ({label}): {tiles} tiles claimed and posted by 16 no-op worker loops in {:.3} s: {:.0} claims+results/s; the service's CPU {} ms per stored tile",
+                tq.as_secs_f64(),
+                per_s,
+                cpu.map_or("?".to_string(), |c| format!("{c:.2}")),
+            );
+            Ok(())
+        };
+        queue("SQLite", &[None])?;
+        if let Ok(pg) = &postgres {
+            let db = pg.database()?;
+            queue("PostgreSQL, one replica", &[Some(db.clone())])?;
+            let db = pg.database()?;
+            queue("PostgreSQL, two replicas", &[Some(db.clone()), Some(db)])?;
+        }
+    }
+    if args.wants("postgres")
+        && let Ok(pg) = &postgres
+    {
+        // The overhead job of the first workload, with the queue on PostgreSQL.
+        let svc = Service::start_on(Some(&pg.database()?), &service_args(threads, args.tile))?;
+        let (mut t_local, mut t_farm, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
+        for _ in 0..reps.max(1) {
+            let (local_png, tl) = local(&scene, threads, Some(4))?;
+            let (farm_png, tf) = svc.render(&http, &scene, "?sampler=jitter&samples=4")?;
+            if local_png != farm_png {
+                bail!("the farm's PNG on PostgreSQL differs from the local render");
+            }
+            ratios.push(tf.as_secs_f64() / tl.as_secs_f64());
+            t_local.push(tl);
+            t_farm.push(tf);
+        }
         drop(svc);
-        let per_s = 2.0 * tiles as f64 / tq.as_secs_f64();
+        let ratio = Spread::of(ratios);
+        let pct = |r: f64| (r - 1.0) * 100.0;
         println!(
-            "  queue: {tiles} tiles claimed and posted by 16 no-op worker loops in {:.3} s: {:.0} claims+results/s",
-            tq.as_secs_f64(),
-            per_s
+            "  overhead on PostgreSQL (jitter 4×4): tessera-render path {:.3} s, farm ({threads} local workers) {:.3} s: {:+.1} % (median of {} back-to-back pairs; range {:+.1} to {:+.1} %; PNG identical: yes)",
+            median(t_local).as_secs_f64(),
+            median(t_farm).as_secs_f64(),
+            pct(ratio.median),
+            ratio.count,
+            pct(ratio.lo),
+            pct(ratio.hi),
         );
     }
     if args.wants("memory") {
@@ -473,4 +567,58 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The PostgreSQL server of a run: one given by `--postgres`, or a throwaway one.
+enum Postgres {
+    /// A server at this URL, whose user may create databases.
+    Given(String),
+    /// The throwaway server (`tessera_tests::pg`), for this process's life.
+    Throwaway,
+}
+
+impl Postgres {
+    /// The server to use, or why there is none.
+    fn find(given: Option<&str>) -> std::result::Result<Postgres, String> {
+        if let Some(url) = given {
+            return Ok(Postgres::Given(url.to_string()));
+        }
+        tessera_tests::pg::try_server().map(|_| Postgres::Throwaway)
+    }
+
+    /// A fresh database for one service (left on the server for inspection when given,
+    /// dropped with the throwaway server otherwise), as a URL.
+    fn database(&self) -> Result<String> {
+        static N: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        match self {
+            Postgres::Throwaway => {
+                let db = tessera_tests::pg::database();
+                let url = db.url.clone();
+                // Kept until the server goes, with the process.
+                std::mem::forget(db);
+                Ok(url)
+            }
+            Postgres::Given(url) => {
+                let name = format!(
+                    "tessera_bench_{}_{}",
+                    std::process::id(),
+                    N.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+                );
+                let out = Command::new("psql")
+                    .arg(url)
+                    .args(["-v", "ON_ERROR_STOP=1", "-qc"])
+                    .arg(format!("CREATE DATABASE {name}"))
+                    .output()
+                    .context("running psql to create the benchmark's database")?;
+                if !out.status.success() {
+                    bail!(
+                        "creating a database: {}",
+                        String::from_utf8_lossy(&out.stderr)
+                    );
+                }
+                let base = url.rsplit_once('/').map_or(url.as_str(), |(b, _)| b);
+                Ok(format!("{base}/{name}"))
+            }
+        }
+    }
 }

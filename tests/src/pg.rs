@@ -91,7 +91,10 @@ static SERVER: OnceLock<Result<Server, String>> = OnceLock::new();
 /// The test binary's server, started on first use, or why it cannot start (for callers
 /// that go on without it, such as the benchmarks).
 pub fn try_server() -> Result<&'static Server, String> {
-    SERVER.get_or_init(Server::launch).as_ref().map_err(Clone::clone)
+    SERVER
+        .get_or_init(Server::launch)
+        .as_ref()
+        .map_err(Clone::clone)
 }
 
 /// A fresh, empty database on [`server`], for one test.
