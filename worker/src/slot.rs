@@ -36,7 +36,7 @@ pub(crate) async fn slot(
     index: usize,
     mut stop: watch::Receiver<bool>,
 ) -> Result<(), ClientError> {
-    let mut rng = seed().wrapping_add(index as u64 * 0x9E37_79B9_7F4A_7C15) | 1;
+    let mut rng = seed().wrapping_add((index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)) | 1;
     let mut idle = 0u32;
     // Tiles given back in a row because their scene or textures could not be fetched: the
     // back-off grows with them, as with a failing service (a claim that succeeds between
