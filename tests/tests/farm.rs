@@ -1,11 +1,12 @@
-//! The farm end to end: a real `tessera-service` process with a real SQLite file, real
-//! `tessera-worker` processes, and HTTP requests as curl would send them.
+//! The farm end to end: a real `tessera-service` process with a real database, real
+//! `tessera-worker` processes, and HTTP requests as curl would send them. Every test runs
+//! on both backends (`NAME::sqlite`, `NAME::postgres`).
 
 mod common;
 
 use std::time::Duration;
 
-use common::{Service, TempDir, Worker, client, examples, line_col, local_png, refused};
+use common::{Backend, Service, TempDir, Worker, client, examples, line_col, local_png, refused};
 use serde_json::Value;
 
 const JOB_TIME: Duration = Duration::from_secs(120);
@@ -14,9 +15,8 @@ fn read(name: &str) -> String {
     std::fs::read_to_string(examples().join(name)).expect("example readable")
 }
 
-#[test]
-fn two_worker_processes_share_a_job_and_match_tessera_render() {
-    let dir = TempDir::new("share");
+fn two_worker_processes_share_a_job_and_match_tessera_render(backend: Backend) {
+    let dir = TempDir::on(backend, "share");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
     let _a = Worker::start(&svc.url, "worker-a", &[]);
     let _b = Worker::start(&svc.url, "worker-b", &[]);
@@ -44,6 +44,7 @@ fn two_worker_processes_share_a_job_and_match_tessera_render() {
     );
     assert_eq!(done_by("worker-a") + done_by("worker-b"), 1200);
 }
+on_both!(two_worker_processes_share_a_job_and_match_tessera_render);
 
 /// A number from `GET /workers` for one worker (0 if it is not listed).
 fn worker_count(workers: &Value, name: &str, what: &str) -> u64 {
@@ -53,9 +54,8 @@ fn worker_count(workers: &Value, name: &str, what: &str) -> u64 {
         .map_or(0, |w| w[what].as_u64().unwrap_or(0))
 }
 
-#[test]
-fn workers_claim_their_next_tile_with_the_result_they_post() {
-    let dir = TempDir::new("rides");
+fn workers_claim_their_next_tile_with_the_result_they_post(backend: Backend) {
+    let dir = TempDir::on(backend, "rides");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
     // Tiles that take a while to render (64 px, 16 rays a pixel: 80 tiles), so that each
     // claim made as a tile starts is answered long before the tile is done; and a worker
@@ -89,10 +89,10 @@ fn workers_claim_their_next_tile_with_the_result_they_post() {
         "{workers}"
     );
 }
+on_both!(workers_claim_their_next_tile_with_the_result_they_post);
 
-#[test]
-fn multipart_scene_with_textures_matches_tessera_render() {
-    let dir = TempDir::new("multipart");
+fn multipart_scene_with_textures_matches_tessera_render(backend: Backend) {
+    let dir = TempDir::on(backend, "multipart");
     let svc = Service::start(&dir, &["--local-workers", "2"]);
     let tex = examples().join("textures");
     let form = reqwest::blocking::multipart::Form::new()
@@ -169,10 +169,10 @@ fn multipart_scene_with_textures_matches_tessera_render() {
         .count();
     assert_eq!(builds, 1, "{log}");
 }
+on_both!(multipart_scene_with_textures_matches_tessera_render);
 
-#[test]
-fn a_job_can_override_the_scenes_sampler() {
-    let dir = TempDir::new("sampler");
+fn a_job_can_override_the_scenes_sampler(backend: Backend) {
+    let dir = TempDir::on(backend, "sampler");
     let svc = Service::start(&dir, &["--local-workers", "2"]);
     let scene = read("checker.ray");
     let job = svc.submit(&scene, "?sampler=jitter&samples=2");
@@ -203,10 +203,10 @@ fn a_job_can_override_the_scenes_sampler() {
         "{body}"
     );
 }
+on_both!(a_job_can_override_the_scenes_sampler);
 
-#[test]
-fn bad_requests_get_json_errors_and_store_nothing() {
-    let dir = TempDir::new("errors");
+fn bad_requests_get_json_errors_and_store_nothing(backend: Backend) {
+    let dir = TempDir::on(backend, "errors");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
     let http = client();
     let post = |body: &str| {
@@ -447,10 +447,10 @@ fn bad_requests_get_json_errors_and_store_nothing() {
     let page = svc.get("/").text().expect("page");
     assert!(page.contains("<form") && page.contains("/jobs"));
 }
+on_both!(bad_requests_get_json_errors_and_store_nothing);
 
-#[test]
-fn a_killed_workers_tile_is_handed_out_again() {
-    let dir = TempDir::new("killed");
+fn a_killed_workers_tile_is_handed_out_again(backend: Backend) {
+    let dir = TempDir::on(backend, "killed");
     let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "500"]);
     let scene = read("thesis.ray");
     let id = svc.submit_id(&scene, "?tile=64");
@@ -498,13 +498,13 @@ fn a_killed_workers_tile_is_handed_out_again() {
     // And the image is unchanged by it.
     assert!(svc.image(&id) == local_png(&examples().join("thesis.ray"), None, None));
 }
+on_both!(a_killed_workers_tile_is_handed_out_again);
 
 /// A worker claims its next tile while the current one renders. Stopped with SIGTERM, it
 /// must finish what it renders and give back the tile it holds ahead at once: with leases
 /// far longer than the test, a tile left behind would be missing from what others can claim.
-#[test]
-fn a_stopped_worker_gives_back_the_tile_it_claimed_ahead() {
-    let dir = TempDir::new("ahead");
+fn a_stopped_worker_gives_back_the_tile_it_claimed_ahead(backend: Backend) {
+    let dir = TempDir::on(backend, "ahead");
     let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "600000"]);
     // 32 px tiles at 8×8 jitter: 300 tiles, each long enough (65,536 rays) that the worker
     // is nearly always mid-render with the next tile claimed and queued. (Stopped between
@@ -540,13 +540,13 @@ fn a_stopped_worker_gives_back_the_tile_it_claimed_ahead() {
     }
     assert_eq!(claimed.len() as u64, total - done);
 }
+on_both!(a_stopped_worker_gives_back_the_tile_it_claimed_ahead);
 
 /// A stopping service's local workers give their tiles back after `--grace-secs` rather than
 /// finishing them (the service image sets 8 s, before `docker stop`'s kill at 10 s), and the
 /// tile is claimable at once after a restart, not stranded under its lease.
-#[test]
-fn a_stopping_services_local_workers_give_back_their_tiles_after_the_grace() {
-    let dir = TempDir::new("grace");
+fn a_stopping_services_local_workers_give_back_their_tiles_after_the_grace(backend: Backend) {
+    let dir = TempDir::on(backend, "grace");
     let lease = ["--lease-ms", "600000"];
     let mut svc = Service::start(
         &dir,
@@ -578,11 +578,11 @@ fn a_stopping_services_local_workers_give_back_their_tiles_after_the_grace() {
     assert_eq!(r.status(), 200, "the tile is claimable at once");
     assert_eq!(r.json::<Value>().expect("claim")["job"], id.as_str());
 }
+on_both!(a_stopping_services_local_workers_give_back_their_tiles_after_the_grace);
 
 /// Tile sizes: a job's `?tile=` wins over `--tile`, which wins over the service's own pick;
 /// whichever is used, the job's tiles cover its image exactly once.
-#[test]
-fn tile_size_comes_from_the_job_then_the_flag_then_the_service() {
+fn tile_size_comes_from_the_job_then_the_flag_then_the_service(backend: Backend) {
     let scene = read("thesis.ray");
     let covers = |job: &Value| {
         let (w, h, t) = (
@@ -597,12 +597,12 @@ fn tile_size_comes_from_the_job_then_the_flag_then_the_service() {
         );
         t
     };
-    let dir = TempDir::new("tileflag");
+    let dir = TempDir::on(backend, "tileflag");
     let svc = Service::start(&dir, &["--local-workers", "0", "--tile", "48"]);
     assert_eq!(covers(&svc.submit(&scene, "")), 48);
     assert_eq!(covers(&svc.submit(&scene, "?tile=40")), 40);
 
-    let dir = TempDir::new("tileauto");
+    let dir = TempDir::on(backend, "tileauto");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
     // thesis.ray: 640×480 at one ray per pixel. 512 px tiles, the largest picked, would be
     // only 2 × 1 = 2 tiles and 256 px 3 × 2 = 6 (under 12), so 128 px: 5 × 4 = 20.
@@ -610,10 +610,10 @@ fn tile_size_comes_from_the_job_then_the_flag_then_the_service() {
     // With 8×8 jitter, 64² × 64 rays is the 262,144 a picked tile carries.
     assert_eq!(covers(&svc.submit(&scene, "?sampler=jitter&samples=8")), 64);
 }
+on_both!(tile_size_comes_from_the_job_then_the_flag_then_the_service);
 
-#[test]
-fn a_job_can_be_waited_for() {
-    let dir = TempDir::new("wait");
+fn a_job_can_be_waited_for(backend: Backend) {
+    let dir = TempDir::on(backend, "wait");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
     let job = svc.submit(&read("checker.ray"), "");
     let id = job["id"].as_str().expect("job id").to_string();
@@ -651,12 +651,12 @@ fn a_job_can_be_waited_for() {
         "answered at the end, not the limit"
     );
 }
+on_both!(a_job_can_be_waited_for);
 
 /// The download is named after the job: a plain ASCII `filename` always, and the whole name
 /// in `filename*` when it holds more than that; an empty `name=` names nothing.
-#[test]
-fn downloads_are_named_after_their_job() {
-    let dir = TempDir::new("names");
+fn downloads_are_named_after_their_job(backend: Backend) {
+    let dir = TempDir::on(backend, "names");
     let svc = Service::start(&dir, &["--local-workers", "1"]);
     let scene = "[GLOBALS]\nwidth = 16\nheight = 16\n[/GLOBALS]\n";
     let named = svc.submit(scene, "?name=dir%2FStra%C3%9Fe%20%231.ray");
@@ -688,12 +688,12 @@ fn downloads_are_named_after_their_job() {
         format!("inline; filename=\"{id}.png\"")
     );
 }
+on_both!(downloads_are_named_after_their_job);
 
 /// `GET /jobs` lists the newest first, a page at a time: `limit`, then `before` the last one
 /// seen, until a page comes back short; every job once, in submission order reversed.
-#[test]
-fn jobs_are_listed_newest_first_a_page_at_a_time() {
-    let dir = TempDir::new("pages");
+fn jobs_are_listed_newest_first_a_page_at_a_time(backend: Backend) {
+    let dir = TempDir::on(backend, "pages");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
     let scene = "[GLOBALS]\nwidth = 8\nheight = 8\n[/GLOBALS]\n";
     let submitted: Vec<String> = (0..5).map(|_| svc.submit_id(scene, "")).collect();
@@ -728,3 +728,4 @@ fn jobs_are_listed_newest_first_a_page_at_a_time() {
         assert_eq!(svc.get(&format!("/jobs{bad}")).status(), 400, "{bad}");
     }
 }
+on_both!(jobs_are_listed_newest_first_a_page_at_a_time);

@@ -1,11 +1,19 @@
 //! Faults and hostile input against real processes: service restarts, killed workers, a
 //! chaos run, limits, tokens and malformed tile blobs.
+//!
+//! The tests of what the queue does (restarts, leases, results, cancels, failures) run on
+//! both backends (`NAME::sqlite`, `NAME::postgres`). The others run on SQLite only: what
+//! they test (flags, limits, tokens, connections, workers against a fake service) does not
+//! reach the database, or is SQLite's alone (its file lock, its tile spool, the local
+//! workers of the one process on its file).
 
 mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{SERVICE, Service, TempDir, WORKER, Worker, client, examples, local_png, wait_until};
+use common::{
+    Backend, SERVICE, Service, TempDir, WORKER, Worker, client, examples, local_png, wait_until,
+};
 use serde_json::{Value, json};
 use tessera_protocol::encode_tile;
 use tessera_tracer::Rect;
@@ -46,9 +54,8 @@ fn tiles_done(svc: &Service, id: &str) -> u64 {
         .unwrap_or(0)
 }
 
-#[test]
-fn jobs_survive_service_restarts_and_workers_ride_through() {
-    let dir = TempDir::new("restart");
+fn jobs_survive_service_restarts_and_workers_ride_through(backend: Backend) {
+    let dir = TempDir::on(backend, "restart");
     let addr = free_addr();
     let args = ["--local-workers", "0", "--lease-ms", "2000"];
     let mut svc = Service::start_on(&dir, &addr, &args);
@@ -84,6 +91,7 @@ fn jobs_survive_service_restarts_and_workers_ride_through() {
         "a finished image survives restarts"
     );
 }
+on_both!(jobs_survive_service_restarts_and_workers_ride_through);
 
 /// A service killed (SIGKILL, out of memory) with its local workers rendering: started
 /// again, it requeues the tiles they held at once and charges nothing, since they died with
@@ -156,9 +164,8 @@ fn a_restarted_service_requeues_its_dead_local_workers_tiles_uncharged() {
     assert_eq!(job["state"], "running", "{job}");
 }
 
-#[test]
-fn chaos_killed_workers_and_a_restarted_service_still_give_the_exact_image() {
-    let dir = TempDir::new("chaos");
+fn chaos_killed_workers_and_a_restarted_service_still_give_the_exact_image(backend: Backend) {
+    let dir = TempDir::on(backend, "chaos");
     let addr = free_addr();
     let args = [
         "--local-workers",
@@ -219,6 +226,7 @@ fn chaos_killed_workers_and_a_restarted_service_still_give_the_exact_image() {
     assert!(spawned > 3, "workers were killed during the run");
     assert!(svc.image(&id) == local_png(&examples().join("mirrors.ray"), None, None));
 }
+on_both!(chaos_killed_workers_and_a_restarted_service_still_give_the_exact_image);
 
 #[test]
 fn limits_refuse_oversized_input_and_store_nothing() {
@@ -789,9 +797,8 @@ fn usage_refusal(program: &str, args: &[&str]) -> String {
     stderr
 }
 
-#[test]
-fn tile_blobs_are_checked_before_they_are_stored() {
-    let dir = TempDir::new("blobs");
+fn tile_blobs_are_checked_before_they_are_stored(backend: Backend) {
+    let dir = TempDir::on(backend, "blobs");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
     let id = svc.submit_id(&read("checker.ray"), "?tile=32");
     let http = client();
@@ -846,10 +853,10 @@ fn tile_blobs_are_checked_before_they_are_stored() {
     assert_eq!(r.json::<Value>().expect("json")["repeat"], true);
     assert_eq!(tiles_done(&svc, &id), 1, "the repeat changed nothing");
 }
+on_both!(tile_blobs_are_checked_before_they_are_stored);
 
-#[test]
-fn a_result_can_carry_the_next_claim() {
-    let dir = TempDir::new("ride");
+fn a_result_can_carry_the_next_claim(backend: Backend) {
+    let dir = TempDir::on(backend, "ride");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
     let job = svc.submit(&read("checker.ray"), "?tile=128");
     let id = job["id"].as_str().expect("id").to_string();
@@ -903,6 +910,7 @@ fn a_result_can_carry_the_next_claim() {
     let a: Value = again.json().expect("json");
     assert_eq!((a["repeat"].clone(), a.get("next")), (json!(true), None));
 }
+on_both!(a_result_can_carry_the_next_claim);
 
 /// A connection that falls silent is closed after `--idle-timeout-secs`, whether it stopped
 /// in its headers or in its body (either would otherwise hold its connection and the body
@@ -988,9 +996,8 @@ fn silent_connections_are_closed() {
 /// the renewals it could not take: it gives every lease a fresh term, and a worker's lease
 /// from before the pause is still good after it (not reaped and its tile handed out again,
 /// as if the worker had died).
-#[test]
-fn a_paused_service_extends_leases_instead_of_reaping_them() {
-    let dir = TempDir::new("paused");
+fn a_paused_service_extends_leases_instead_of_reaping_them(backend: Backend) {
+    let dir = TempDir::on(backend, "paused");
     let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "1000"]);
     let id = svc.submit_id(&read("thesis.ray"), "?tile=64");
     let c: Value = svc.claim("w").json().expect("claim");
@@ -1024,13 +1031,13 @@ fn a_paused_service_extends_leases_instead_of_reaping_them() {
         .expect("answer");
     assert_eq!(renewed.status(), 200, "{}", svc.log());
 }
+on_both!(a_paused_service_extends_leases_instead_of_reaping_them);
 
 /// A cancelled job's tile stops rendering when the worker's next renewal is refused: the
 /// worker is free for the next job within a fraction of a lease, instead of rendering the
 /// tile to its end (here a billion rays, minutes) while every job waits behind it.
-#[test]
-fn a_cancelled_jobs_tile_stops_rendering() {
-    let dir = TempDir::new("cancel-tile");
+fn a_cancelled_jobs_tile_stops_rendering(backend: Backend) {
+    let dir = TempDir::on(backend, "cancel-tile");
     let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "600"]);
     // A billion slow samples in the one tile.
     let id = svc.submit_id(&mirror_cave(1024, 32), "?tile=1024");
@@ -1046,6 +1053,7 @@ fn a_cancelled_jobs_tile_stops_rendering() {
     let done = svc.wait_finished(next, Duration::from_secs(60));
     assert_eq!(done["state"], "done", "{done}");
 }
+on_both!(a_cancelled_jobs_tile_stops_rendering);
 
 /// A stop does not wait for clients that never finish their requests: one that sent half
 /// its headers and one part of an upload held a graceful stop for the idle timeout (two
@@ -1094,9 +1102,8 @@ fn a_worker_stops_within_its_grace_while_the_service_is_down() {
 
 /// A reported failure says what became of the tile: requeued, or, when it was the tile's
 /// last attempt, its job failed (the answer said `requeued` either way).
-#[test]
-fn a_reported_failure_says_whether_it_failed_the_job() {
-    let dir = TempDir::new("fail-answer");
+fn a_reported_failure_says_whether_it_failed_the_job(backend: Backend) {
+    let dir = TempDir::on(backend, "fail-answer");
     let svc = Service::start(&dir, &["--local-workers", "0", "--max-attempts", "2"]);
     let id = svc.submit_id(&read("thesis.ray"), "?tile=64");
     let http = client();
@@ -1120,6 +1127,7 @@ fn a_reported_failure_says_whether_it_failed_the_job() {
     assert_eq!(answers[1], json!({ "requeued": false, "job_failed": true }));
     assert_eq!(svc.get_json(&format!("/jobs/{id}"))["state"], "failed");
 }
+on_both!(a_reported_failure_says_whether_it_failed_the_job);
 
 /// A worker process of one thread for `url`, keeping its tiles `grace` seconds once asked
 /// to stop; the caller sets its log level and where its log goes.
@@ -1245,9 +1253,8 @@ fn stop_worker_with_the_service_out(
 
 /// A renewal says whether the tile is rendering as a flag, `true`/`1` or `false`/`0`, as
 /// `?purge=` does; anything else is refused.
-#[test]
-fn a_renewal_takes_rendering_as_a_flag() {
-    let dir = TempDir::new("renew-flag");
+fn a_renewal_takes_rendering_as_a_flag(backend: Backend) {
+    let dir = TempDir::on(backend, "renew-flag");
     let svc = Service::start(&dir, &["--local-workers", "0"]);
     let id = svc.submit_id(&read("thesis.ray"), "?tile=64");
     let c: Value = svc.claim("w").json().expect("claim");
@@ -1267,6 +1274,7 @@ fn a_renewal_takes_rendering_as_a_flag() {
     }
     assert_eq!(renew("&rendering=yes"), 400);
 }
+on_both!(a_renewal_takes_rendering_as_a_flag);
 
 /// What the fake service of [`fake_service`] was asked.
 #[derive(Default)]

@@ -1,5 +1,9 @@
 //! The end-to-end harness: temporary directories, the service and workers as real processes
-//! on real sockets with a real SQLite file, and a blocking HTTP client.
+//! on real sockets with a real database (a SQLite file, or a database of its own on the test
+//! binary's throwaway PostgreSQL server, `tessera_tests::pg`), and a blocking HTTP client.
+//!
+//! Tests that hold for either backend are written once, as a function taking a [`Backend`],
+//! and [`on_both!`] makes them the tests `NAME::sqlite` and `NAME::postgres`.
 //!
 //! Waiting is always for an observable condition (a line on stdout, a job state) with a
 //! deadline, never a fixed sleep.
@@ -18,11 +22,51 @@ use tessera_tracer::{DirAssets, Limits, Scene, TextureLimits, encode_png, parse}
 pub const SERVICE: &str = env!("CARGO_BIN_EXE_e2e-service");
 pub const WORKER: &str = env!("CARGO_BIN_EXE_e2e-worker");
 
-/// A directory removed when dropped.
-pub struct TempDir(pub PathBuf);
+pub use tessera_tests::pg;
+
+/// Which database a test's services run on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Backend {
+    Sqlite,
+    Postgres,
+}
+
+/// Runs test function `$name` (a `fn` taking a [`Backend`]) on each backend: the tests
+/// `$name::sqlite` and `$name::postgres`.
+#[macro_export]
+macro_rules! on_both {
+    ($name:ident) => {
+        mod $name {
+            use super::common::Backend;
+
+            #[test]
+            fn sqlite() {
+                super::$name(Backend::Sqlite)
+            }
+
+            #[test]
+            fn postgres() {
+                super::$name(Backend::Postgres)
+            }
+        }
+    };
+}
+
+/// A test's directory, removed when dropped, and its database: `tessera.db` in it, or a
+/// database of its own on the PostgreSQL server, dropped with it.
+pub struct TempDir {
+    path: PathBuf,
+    database: Option<pg::Database>,
+}
 
 impl TempDir {
+    /// A directory whose services use a SQLite file in it.
     pub fn new(tag: &str) -> TempDir {
+        TempDir::on(Backend::Sqlite, tag)
+    }
+
+    /// A directory whose services use `backend`.
+    pub fn on(backend: Backend, tag: &str) -> TempDir {
         static N: AtomicU32 = AtomicU32::new(0);
         let p = std::env::temp_dir().join(format!(
             "tessera-e2e-{tag}-{}-{}",
@@ -31,17 +75,33 @@ impl TempDir {
         ));
         let _ = std::fs::remove_dir_all(&p);
         std::fs::create_dir_all(&p).expect("temp dir can be created");
-        TempDir(p)
+        TempDir {
+            path: p,
+            database: (backend == Backend::Postgres).then(pg::database),
+        }
     }
 
     pub fn path(&self) -> &Path {
-        &self.0
+        &self.path
+    }
+
+    /// The services' `--database`.
+    pub fn database(&self) -> String {
+        match &self.database {
+            Some(db) => db.url.clone(),
+            None => format!("sqlite://{}", self.path.join("tessera.db").display()),
+        }
+    }
+
+    /// The PostgreSQL database's name; `None` on SQLite.
+    pub fn pg_name(&self) -> Option<&str> {
+        self.database.as_ref().map(|d| d.name.as_str())
     }
 }
 
 impl Drop for TempDir {
     fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
+        let _ = std::fs::remove_dir_all(&self.path);
     }
 }
 
@@ -73,12 +133,13 @@ pub fn wait_exit(child: &mut Child, within: Duration) -> Option<std::process::Ex
 pub struct Service {
     child: Child,
     pub url: String,
+    /// The SQLite file, when it runs on one.
     pub db: PathBuf,
     pub log: PathBuf,
 }
 
 impl Service {
-    /// Starts a service on a free loopback port with its database in `dir`.
+    /// Starts a service on a free loopback port with `dir`'s database.
     pub fn start(dir: &TempDir, args: &[&str]) -> Service {
         Service::start_on(dir, "127.0.0.1:0", args)
     }
@@ -96,7 +157,7 @@ impl Service {
             .arg("--listen")
             .arg(listen)
             .arg("--database")
-            .arg(format!("sqlite://{}", db.display()))
+            .arg(dir.database())
             .args(args)
             .env("RUST_LOG", "info,sqlx=warn")
             .stdout(Stdio::piped())
