@@ -50,9 +50,15 @@ fn replicas(dir: &TempDir, n: usize, args: &[&str]) -> Vec<Service> {
     (0..n).map(|_| Service::start(dir, args)).collect()
 }
 
-/// The `--server` of the `i`-th worker of a farm of `replicas`: one replica each, in turn.
+/// The `--server` of the `i`-th worker of a farm of `replicas`: every replica, starting
+/// with a different one for each worker, so that claims are spread and a dead replica is
+/// left for the others.
 fn server_of(replicas: &[&str], i: usize) -> String {
-    replicas[i % replicas.len()].to_string()
+    let n = replicas.len();
+    (0..n)
+        .map(|k| replicas[(i + k) % n])
+        .collect::<Vec<_>>()
+        .join(",")
 }
 
 fn tiles_done(svc: &Service, id: &str) -> u64 {
