@@ -157,6 +157,10 @@ impl PgStore {
             .max_connections(POOL_SIZE)
             .min_connections(1)
             .acquire_timeout(CONNECT_WAIT)
+            // No ping before each use: it doubles every statement's round trips. A
+            // connection the server dropped fails its next statement instead, which is
+            // answered `503` like any lost connection, and the pool opens a fresh one.
+            .test_before_acquire(false)
             .connect_with(opts.clone())
             .await
             .map_err(|e| open_error(url, &opts, e))?;
