@@ -198,3 +198,36 @@ fn farm_quick_reports_overhead_scaling_queue_and_memory() {
         .unwrap_or_else(|| panic!("no queue rate in\n{stdout}"));
     assert!(per_s.is_finite() && per_s > 0.0, "{stdout}");
 }
+
+#[test]
+fn farm_quick_measures_the_queue_on_both_databases() {
+    let run = bench()
+        .args(["farm", "--quick", "--parts", "queue"])
+        .output()
+        .expect("runs");
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    // One line per queue, each with a positive rate (the PostgreSQL ones on the tests'
+    // throwaway server, which `.ci/run` installs).
+    for label in [
+        "queue (SQLite)",
+        "queue (PostgreSQL, one replica)",
+        "queue (PostgreSQL, two replicas)",
+    ] {
+        let line = stdout
+            .lines()
+            .find(|l| l.contains(label))
+            .unwrap_or_else(|| panic!("no `{label}` line in:\n{stdout}"));
+        let rate: f64 = line
+            .split(" claims+results/s")
+            .next()
+            .and_then(|s| s.rsplit(' ').next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("no rate in `{line}`"));
+        assert!(rate > 0.0 && rate.is_finite(), "{line}");
+    }
+}
