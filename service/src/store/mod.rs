@@ -31,6 +31,7 @@ mod error;
 mod memo;
 mod postgres;
 mod sqlite;
+mod stall;
 mod state;
 mod types;
 

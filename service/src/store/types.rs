@@ -115,6 +115,30 @@ pub enum Completion {
     Unstored(String),
 }
 
+impl Completion {
+    /// Why a result under `lease` stored nothing, from its tile as read afterwards (`None`:
+    /// the job has no such tile). `repeat`: whether a tile done under this very lease is a
+    /// repeat of a stored post (false when this post's own pixels were undone, its job
+    /// having ended under it).
+    pub(crate) fn refused(tile: Option<TileInfo>, lease: &str, repeat: bool) -> Completion {
+        let Some(tile) = tile else {
+            return Completion::Missing;
+        };
+        let current = tile.lease.as_deref() == Some(lease);
+        if repeat && tile.state == TileState::Done && current {
+            Completion::Repeat
+        } else if !tile.job_state.is_active() {
+            Completion::Stale(format!("the job is {}", tile.job_state))
+        } else if !current || tile.state != TileState::Leased {
+            Completion::Stale(
+                "this lease is no longer current (it expired or was given back)".into(),
+            )
+        } else {
+            Completion::WrongTile(tile.rect)
+        }
+    }
+}
+
 /// How long after a tile's pixels could not be written the service hands out no work (see
 /// [`crate::store::Store::storage_trouble`]): long enough that workers do not render tile
 /// after tile that cannot be stored, short enough that a freed disk is noticed soon. A

@@ -11,7 +11,7 @@ use tessera_tracer::Rect;
 
 use super::notify::{ENDED, WORK, channel, notify_sql};
 use super::{PgStore, Result, job_state, tile_state};
-use crate::store::state::{TileState, job_sql, tile_sql};
+use crate::store::state::{job_sql, tile_sql};
 use crate::store::types::{Completion, KeepAway, TileInfo};
 
 /// The first active job with a tile that the worker (placeholder `$w`) may take at `$now`
@@ -264,27 +264,14 @@ impl PgStore {
             }
             None => {}
         }
-        let Some(tile) = self.tile(job, idx).await? else {
-            return Ok(Completion::Missing);
-        };
-        Ok(
-            // A tile done under this lease by a post before, not by this one whose job
-            // ended under it.
-            if stored.is_none()
-                && tile.state == TileState::Done
-                && tile.lease.as_deref() == Some(lease)
-            {
-                Completion::Repeat
-            } else if !tile.job_state.is_active() {
-                Completion::Stale(format!("the job is {}", tile.job_state))
-            } else if tile.lease.as_deref() != Some(lease) || tile.state != TileState::Leased {
-                Completion::Stale(
-                    "this lease is no longer current (it expired or was given back)".into(),
-                )
-            } else {
-                Completion::WrongTile(tile.rect)
-            },
-        )
+        // A tile done under this lease is a repeat of a post before, unless this post's
+        // pixels were undone above (its job ended under it).
+        let repeat = stored.is_none();
+        Ok(Completion::refused(
+            self.tile(job, idx).await?,
+            lease,
+            repeat,
+        ))
     }
 
     /// A worker reports that it cannot render a tile: requeue it with one more failure,

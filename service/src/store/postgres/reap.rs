@@ -12,6 +12,7 @@ use sqlx::{Postgres, Transaction};
 use super::notify::{ENDED, WORK, notify_sql};
 use super::{PgStore, Result};
 use crate::store::memo::millis;
+use crate::store::stall::{Lapse, charge};
 use crate::store::state::{job_sql, tile_sql};
 use crate::store::types::KeepAway;
 
@@ -97,28 +98,18 @@ impl PgStore {
         // One worker's expired leases on one job, in the order they ran out.
         for tiles in expired.chunk_by(|a, b| a.job_id == b.job_id && a.worker == b.worker) {
             let (job, worker) = (&tiles[0].job_id, &tiles[0].worker);
-            let mut stall_until = worker.as_deref().map_or(0, |w| stall_of(job, w));
-            let mut strikes = 0i64;
-            for (k, t) in tiles.iter().enumerate() {
-                // A lease with no worker name (none is stored so) is its own stall.
-                let opens = worker.is_none() || t.lease_expires >= stall_until;
-                if opens {
-                    strikes += 1;
-                    stall_until = t.lease_expires.saturating_add(keep.stall_ms);
-                }
-                // Charged: a tile the worker said it was rendering; or, when it said so of
-                // none of this stall's tiles (it stopped before its first renewal), the one
-                // whose lease ran out first.
-                let charged = t.rendering
-                    || (opens
-                        && !tiles[k..]
-                            .iter()
-                            .take_while(|u| u.lease_expires < stall_until)
-                            .any(|u| u.rendering));
-                charges.push(i64::from(charged));
-            }
+            let lapses: Vec<Lapse> = tiles
+                .iter()
+                .map(|t| Lapse {
+                    expires: t.lease_expires,
+                    rendering: t.rendering,
+                })
+                .collect();
+            let stored = worker.as_deref().map_or(0, |w| stall_of(job, w));
+            let c = charge(&lapses, stored, keep.stall_ms, worker.is_some());
+            charges.extend(c.charged.iter().map(|&b| i64::from(b)));
             if let Some(w) = worker {
-                strikes_of.push((job.clone(), w.clone(), strikes, stall_until));
+                strikes_of.push((job.clone(), w.clone(), c.strikes, c.stall_until));
             }
         }
         let requeued = sqlx::query(concat!(

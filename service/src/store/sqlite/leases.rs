@@ -243,22 +243,7 @@ impl SqliteStore {
                 worker,
             });
         }
-        let Some(tile) = self.tile(job, idx).await? else {
-            return Ok(Completion::Missing);
-        };
-        Ok(
-            if tile.state == TileState::Done && tile.lease.as_deref() == Some(lease) {
-                Completion::Repeat
-            } else if !tile.job_state.is_active() {
-                Completion::Stale(format!("the job is {}", tile.job_state))
-            } else if tile.lease.as_deref() != Some(lease) || tile.state != TileState::Leased {
-                Completion::Stale(
-                    "this lease is no longer current (it expired or was given back)".into(),
-                )
-            } else {
-                Completion::WrongTile(tile.rect)
-            },
-        )
+        Ok(Completion::refused(self.tile(job, idx).await?, lease, true))
     }
 
     pub(super) fn issued_map(&self) -> std::sync::MutexGuard<'_, Issued> {

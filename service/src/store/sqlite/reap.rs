@@ -8,6 +8,7 @@ use std::time::Duration;
 use sqlx::Connection;
 
 use super::{Result, SqliteStore};
+use crate::store::stall::{Lapse, charge};
 use crate::store::state::{job_sql, tile_sql};
 use crate::store::types::KeepAway;
 
@@ -56,7 +57,7 @@ impl SqliteStore {
         // One worker's expired leases on one job, in the order they ran out.
         for tiles in expired.chunk_by(|a, b| a.job_id == b.job_id && a.worker == b.worker) {
             let (job, worker) = (&tiles[0].job_id, &tiles[0].worker);
-            let mut stall_until: i64 = match worker {
+            let stall_until: i64 = match worker {
                 Some(w) => sqlx::query_scalar(
                     "SELECT stall_until FROM keep_away WHERE job_id = ?1 AND worker = ?2",
                 )
@@ -67,33 +68,26 @@ impl SqliteStore {
                 .unwrap_or(0),
                 None => 0,
             };
-            let mut strikes = 0i64;
-            for (k, t) in tiles.iter().enumerate() {
-                // A lease with no worker name (none is stored so) is its own stall.
-                let opens = worker.is_none() || t.lease_expires >= stall_until;
-                if opens {
-                    strikes += 1;
-                    stall_until = t.lease_expires.saturating_add(keep.stall_ms);
-                }
-                // Charged: a tile the worker said it was rendering; or, when it said so of
-                // none of this stall's tiles (it stopped before its first renewal), the one
-                // whose lease ran out first.
-                let charged = t.rendering
-                    || (opens
-                        && !tiles[k..]
-                            .iter()
-                            .take_while(|u| u.lease_expires < stall_until)
-                            .any(|u| u.rendering));
+            let lapses: Vec<Lapse> = tiles
+                .iter()
+                .map(|t| Lapse {
+                    expires: t.lease_expires,
+                    rendering: t.rendering,
+                })
+                .collect();
+            let c = charge(&lapses, stall_until, keep.stall_ms, worker.is_some());
+            let (strikes, stall_until) = (c.strikes, c.stall_until);
+            for (t, &charged) in tiles.iter().zip(&c.charged) {
                 sqlx::query(concat!(
                     "UPDATE tiles SET state = ",
                     tile_sql!(Queued),
                     ", failures = failures + ?3,
-                         last_error = CASE WHEN ?3 = 1
-                             THEN 'lease lost: worker ' || COALESCE(worker, '?')
-                                  || ' stopped answering'
-                             ELSE last_error END,
-                         lease = NULL, worker = NULL, lease_expires = NULL
-                     WHERE job_id = ?1 AND idx = ?2"
+                             last_error = CASE WHEN ?3 = 1
+                                 THEN 'lease lost: worker ' || COALESCE(worker, '?')
+                                      || ' stopped answering'
+                                 ELSE last_error END,
+                             lease = NULL, worker = NULL, lease_expires = NULL
+                         WHERE job_id = ?1 AND idx = ?2"
                 ))
                 .bind(job)
                 .bind(t.idx)
