@@ -2,10 +2,11 @@
 //! maintenance lock (one replica at a time reaps and sweeps), and the assembly lock (one
 //! replica at a time writes a job's PNG).
 //!
-//! Both locks are session advisory locks on a connection of their own, never a pooled one:
+//! Both locks are connection-level advisory locks (`pg_try_advisory_lock`, held until
+//! released or disconnected) on a connection of their own, never a pooled one:
 //! a lock taken through the pool would stay with whichever request used that connection
 //! next, and die with it. A replica that dies (or loses its connection) releases its locks
-//! as its session ends, so another takes over on its next pass.
+//! as its connection closes, so another takes over on its next pass.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -155,7 +156,7 @@ impl PgStore {
     }
 }
 
-/// Takes the session advisory lock `key` on `conn` if no other session holds it.
+/// Takes the advisory lock `key` on `conn` if no other connection holds it.
 async fn try_lock(conn: &mut PgConnection, key: i64) -> std::result::Result<bool, sqlx::Error> {
     sqlx::query_scalar("SELECT pg_try_advisory_lock($1)")
         .bind(key)
