@@ -46,8 +46,8 @@ pub use postgres::PgStore;
 pub use sqlite::SqliteStore;
 pub use state::{JobState, TileState, UnknownState};
 pub use types::{
-    BandTile, Cancel, Checkpoint, Completion, JobRow, KeepAway, NewJob, STORAGE_PAUSE, TileInfo,
-    WorkerSeen,
+    BandTile, Cancel, Checkpoint, Completion, JobRow, KeepAway, NewJob, Reprioritized,
+    STORAGE_PAUSE, TileInfo, TileView, WorkerSeen,
 };
 
 pub(crate) use postgres::{is_postgres, redacted};
@@ -503,6 +503,37 @@ impl Store {
     /// The workers heard from at or after `since`, by name.
     pub async fn workers(&self, since: i64) -> Result<Vec<WorkerSeen>> {
         on!(self, s => s.workers(since).await)
+    }
+
+    /// Every tile of job `id` in index order, as users see it; `None` when there is no such
+    /// job.
+    pub async fn tiles(&self, id: &str) -> Result<Option<Vec<TileView>>> {
+        on!(self, s => s.tiles(id).await)
+    }
+
+    /// The top rows of job `id`'s bands of tiles (tiles that share their top row and height
+    /// and lie side by side), top to bottom.
+    pub async fn bands(&self, id: &str) -> Result<Vec<u32>> {
+        on!(self, s => s.bands(id).await)
+    }
+
+    /// The stored tiles of the band of rows starting at `y` of job `id` (its image
+    /// `size`), left to right, their bytes appended to `buf` (cleared first). Read only:
+    /// tiles whose pixels cannot be read are left out, not requeued ([`Store::band`] does
+    /// that for the image).
+    pub async fn stored_band(
+        &self,
+        id: &str,
+        size: (u32, u32),
+        y: u32,
+        buf: &mut Vec<u8>,
+    ) -> Result<Vec<BandTile>> {
+        on!(self, s => s.stored_band(id, size, y, buf).await)
+    }
+
+    /// Sets a queued or running job's priority (claims serve the highest first).
+    pub async fn set_priority(&self, id: &str, priority: i64) -> Result<Reprioritized> {
+        on!(self, s => s.set_priority(id, priority).await)
     }
 
     /// The names of the workers heard from at or after `since`.

@@ -195,3 +195,31 @@ impl fmt::Display for TileState {
         f.write_str(self.as_str())
     }
 }
+
+/// A string schema whose values are `states`' texts: the document lists exactly the states
+/// the code writes.
+fn states_schema(
+    states: impl IntoIterator<Item = &'static str>,
+) -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+    use utoipa::openapi::schema::{ObjectBuilder, Type};
+    ObjectBuilder::new()
+        .schema_type(Type::String)
+        .enum_values(Some(states))
+        .into()
+}
+
+impl utoipa::PartialSchema for JobState {
+    fn schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+        states_schema(JobState::ALL.map(JobState::as_str))
+    }
+}
+
+impl utoipa::ToSchema for JobState {}
+
+impl utoipa::PartialSchema for TileState {
+    fn schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+        states_schema(TileState::ALL.map(TileState::as_str))
+    }
+}
+
+impl utoipa::ToSchema for TileState {}

@@ -8,7 +8,7 @@ use tessera_tracer::Rect;
 use super::state::{JobState, TileState};
 
 /// A job as users see it.
-#[derive(Debug, Clone, Serialize, sqlx::FromRow)]
+#[derive(Debug, Clone, Serialize, sqlx::FromRow, utoipa::ToSchema)]
 pub struct JobRow {
     /// The job's id (hexadecimal, the service's own).
     pub id: String,
@@ -214,4 +214,42 @@ pub struct WorkerSeen {
     pub claims_with_results: u64,
     /// Tiles it rendered that were stored.
     pub tiles_done: u64,
+}
+
+/// A tile as users see it: where it is in the image, where it is in its life, who holds or
+/// rendered it, and how often it was handed out and failed (`GET /jobs/{id}/tiles`, the job
+/// page's map, the job's events).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+pub struct TileView {
+    /// Its index within its job.
+    pub idx: u32,
+    /// Its left edge, in image pixels.
+    pub x: u32,
+    /// Its top edge, in image pixels.
+    pub y: u32,
+    /// Its width in pixels.
+    pub w: u32,
+    /// Its height in pixels.
+    pub h: u32,
+    /// Queued, leased or done.
+    pub state: TileState,
+    /// The worker that holds it (leased) or rendered it (done).
+    pub worker: Option<String>,
+    /// How many times it was handed out.
+    pub attempts: i64,
+    /// How many of those ended without its pixels: reported failures and leases that ran out.
+    pub failures: i64,
+    /// Why it last failed.
+    pub error: Option<String>,
+}
+
+/// What [`crate::store::Store::set_priority`] found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Reprioritized {
+    /// No such job.
+    Unknown,
+    /// The job was queued or running; its priority is the new one.
+    Changed,
+    /// The job has ended (its state): nothing changed.
+    Ended(JobState),
 }

@@ -22,8 +22,9 @@
 //! requests it refused while the database failed.
 //!
 //! The files: [`open`] (URLs, connections, the schema and the errors at start), [`jobs`],
-//! [`leases`], [`reap`], [`images`], [`workers`], [`health`], [`notify`] (wake-ups, the
-//! maintenance lock, the assembly lock).
+//! [`leases`], [`reap`], [`images`], [`view`] (a job's tiles and stored pixels as users see
+//! them, its priority), [`workers`], [`health`], [`notify`] (wake-ups, the maintenance lock,
+//! the assembly lock).
 
 mod health;
 mod images;
@@ -32,6 +33,7 @@ mod leases;
 mod notify;
 mod open;
 mod reap;
+mod view;
 mod workers;
 
 use std::sync::Arc;

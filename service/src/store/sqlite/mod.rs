@@ -25,7 +25,8 @@
 //!
 //! The files: [`open`] (URLs, connections, migrations), [`checkpoint`], [`jobs`],
 //! [`leases`] (claim, renew, result, fail, release), [`reap`] (expiry, keep-away, jobs no
-//! worker may take), [`health`], [`images`] (bands and PNG chunks), [`workers`], [`spool`].
+//! worker may take), [`health`], [`images`] (bands and PNG chunks), [`view`] (a job's tiles
+//! and stored pixels as users see them, its priority), [`workers`], [`spool`].
 
 mod checkpoint;
 mod health;
@@ -35,6 +36,7 @@ mod leases;
 mod open;
 mod reap;
 pub(crate) mod spool;
+mod view;
 mod workers;
 
 #[cfg(test)]
