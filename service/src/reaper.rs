@@ -153,6 +153,7 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
                 state.work.notify_waiters();
                 // A tile out of attempts fails its job.
                 state.ended.notify_waiters();
+                state.changes.any();
             }
             Err(e) => warn!("reaping expired leases: {}", state.store.noted(e, now_ms())),
         }
@@ -186,6 +187,7 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
             Ok(n) => {
                 warn!("{n} jobs failed: every live worker is kept away from them");
                 state.ended.notify_waiters();
+                state.changes.any();
             }
             Err(e) => warn!("checking kept-away jobs: {e}"),
         }

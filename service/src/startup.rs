@@ -7,7 +7,6 @@
 
 use std::future::{Future, IntoFuture};
 use std::net::SocketAddr;
-use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::net::TcpListener;
@@ -21,7 +20,7 @@ use crate::routes::router;
 use crate::state::AppState;
 use crate::store::{Store, StoreError};
 use crate::tiling::{MAX_TILE, MIN_TILE};
-use crate::{db_lock, idle, now_ms, receiving};
+use crate::{db_lock, idle, now_ms};
 
 /// Why the service could not start or run.
 #[derive(Debug, thiserror::Error)]
@@ -110,16 +109,7 @@ pub async fn serve(
         );
     }
     let (stop_tx, stop_rx) = watch::channel(false);
-    let receiving = receiving::Receiving::new(cfg.receiving_bytes(), cfg.max_scene_texture_pixels);
-    let state = AppState {
-        cfg: Arc::new(cfg),
-        store: store.clone(),
-        work: Arc::default(),
-        ended: Arc::default(),
-        progress: Arc::default(),
-        receiving,
-        stopping: stop_rx.clone(),
-    };
+    let state = AppState::new(cfg, store.clone(), stop_rx.clone());
     match store.sweep_spool().await {
         Ok(0) => {}
         Ok(n) => info!("{n} spool files of ended jobs removed"),

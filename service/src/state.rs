@@ -9,10 +9,11 @@ use std::sync::Arc;
 use tokio::sync::watch;
 use tracing::{error, warn};
 
+use crate::changes::Changes;
 use crate::config::Config;
 use crate::receiving::Receiving;
 use crate::store::{KeepAway, Store};
-use crate::{assemble, now_ms};
+use crate::{assemble, now_ms, preview};
 
 /// The state every handler shares.
 #[derive(Clone)]
@@ -34,9 +35,29 @@ pub struct AppState {
     /// for work, `GET /jobs/{id}?wait=`) answer at once, since a graceful stop waits for
     /// every open request.
     pub stopping: watch::Receiver<bool>,
+    /// The ids of jobs this process changes, told to the streams of their events.
+    pub changes: Changes,
+    /// Previews encoded lately, shared by every viewer of a job.
+    pub previews: Arc<preview::Cache>,
 }
 
 impl AppState {
+    /// The state of a service with configuration `cfg` on `store`, stopping once `stopping`
+    /// turns `true`, with nothing yet received, encoded or waited for.
+    pub fn new(cfg: Config, store: Store, stopping: watch::Receiver<bool>) -> AppState {
+        AppState {
+            receiving: Receiving::new(cfg.receiving_bytes(), cfg.max_scene_texture_pixels),
+            cfg: Arc::new(cfg),
+            store,
+            work: Arc::default(),
+            ended: Arc::default(),
+            progress: Arc::default(),
+            stopping,
+            changes: Changes::default(),
+            previews: Arc::default(),
+        }
+    }
+
     /// Completes when the service begins to stop (at once if it has).
     pub async fn stopped(&self) {
         let mut stopping = self.stopping.clone();
@@ -78,7 +99,10 @@ impl AppState {
         let ended = self.ended.clone();
         let progress = self.progress.clone();
         let work = self.work.clone();
+        let changes = self.changes.clone();
         tokio::spawn(async move {
+            // Done, failed, or tiles to render again: the job's events say which.
+            let _told = Told(&changes, &job);
             if let Err(e) = progress.complete(&store, &job).await {
                 if e.requeued() {
                     // Not a failure of the assembly: the lost tiles are queued again, and
@@ -102,5 +126,15 @@ impl AppState {
             }
             ended.notify_waiters();
         });
+    }
+}
+
+/// Tells the streams of a job's events that it changed when dropped: on every way out of
+/// the task that holds it.
+struct Told<'a>(&'a Changes, &'a str);
+
+impl Drop for Told<'_> {
+    fn drop(&mut self) {
+        self.0.job(self.1);
     }
 }

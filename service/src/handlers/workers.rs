@@ -108,6 +108,9 @@ async fn claim_now(
         .claim(worker, now_ms(), state.cfg.lease_ms, state.cfg.max_attempts)
         .await
         .map_err(|e| state.store.noted(e, now_ms()))?;
+    if let Some(c) = &claimed {
+        state.changes.job(&c.job);
+    }
     let n = u64::from(claimed.is_some());
     state.store.seen(worker, now_ms(), |w| {
         w.claims += n;
@@ -219,6 +222,7 @@ pub async fn result(
             if let Some(worker) = &worker {
                 state.store.seen(worker, now_ms(), |w| w.tiles_done += 1);
             }
+            state.changes.job(&id);
             if last {
                 state.spawn_assembly(id);
             } else {
@@ -289,6 +293,7 @@ pub async fn fail(
         .await?;
     if ok {
         state.work.notify_waiters();
+        state.changes.job(&id);
         // The tile may have been out of attempts, failing its job: then it is not requeued,
         // and the answer says so.
         state.ended.notify_waiters();
@@ -314,6 +319,7 @@ pub async fn release(
 ) -> Result<Json<serde_json::Value>, ApiError> {
     if state.store.release(&id, idx, &q.lease).await? {
         state.work.notify_waiters();
+        state.changes.job(&id);
         Ok(ok_json(serde_json::json!({ "requeued": true })))
     } else {
         Err(ApiError::conflict("this lease is no longer current"))
