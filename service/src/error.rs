@@ -9,7 +9,9 @@ use axum::extract::Request;
 use axum::http::StatusCode;
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
+use serde::Serialize;
 use serde_json::{Map, Value, json};
+use utoipa::ToSchema;
 
 use crate::store::StoreError;
 
@@ -63,8 +65,12 @@ impl ApiError {
         ApiError::new(StatusCode::CONFLICT, message)
     }
 
-    /// Adds a field to the JSON body.
+    /// Adds a field to the JSON body: one of [`ErrorBody::FIELDS`].
     pub fn with(mut self, key: &str, value: impl Into<Value>) -> ApiError {
+        debug_assert!(
+            ErrorBody::FIELDS.contains(&key),
+            "`{key}` is not a field of ErrorBody: describe it there first"
+        );
         self.body.insert(key.into(), value.into());
         self
     }
@@ -121,14 +127,18 @@ pub async fn no_route(uri: axum::http::Uri) -> ApiError {
     ApiError::new(StatusCode::NOT_FOUND, message)
 }
 
-/// Whether `path` is one of the user routes (`/jobs`, `/jobs/{id}`, `/jobs/{id}/image.png`,
-/// `/healthz`, `/workers`).
+/// Whether `path` is one of the user routes (`/jobs`, `/jobs/{id}` and what is under it,
+/// `/healthz`, `/workers`, `/metrics`, `/openapi.json`, `/api`).
 fn is_user_route(path: &str) -> bool {
     let segs: Vec<&str> = path.split('/').skip(1).collect();
     match segs.as_slice() {
-        ["jobs" | "healthz" | "workers"] => true,
+        ["jobs" | "healthz" | "workers" | "metrics" | "openapi.json" | "api"] => true,
         ["jobs", id] => !id.is_empty(),
-        ["jobs", id, "image.png"] => !id.is_empty(),
+        [
+            "jobs",
+            id,
+            "image.png" | "preview.png" | "events" | "tiles" | "scene" | "retry",
+        ] => !id.is_empty(),
         _ => false,
     }
 }
@@ -139,6 +149,76 @@ pub async fn wrong_method() -> ApiError {
         StatusCode::METHOD_NOT_ALLOWED,
         "method not allowed on this route",
     )
+}
+
+/// Every error answer's body: `error` says what went wrong, in words; some answers add
+/// fields that say where or how far.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ErrorBody {
+    /// What went wrong.
+    pub error: String,
+    /// A refused scene: the line of its first mistake (1-based).
+    #[schema(required = false)]
+    pub line: Option<u32>,
+    /// A refused scene: the column of its first mistake (1-based, in characters).
+    #[schema(required = false)]
+    pub column: Option<u32>,
+    /// A refused scene: every mistake found.
+    #[schema(required = false)]
+    pub errors: Option<Vec<SceneMistake>>,
+    /// A request that does not fit the job's state: that state.
+    #[schema(required = false)]
+    pub state: Option<String>,
+    /// A job's image asked for too early: tiles done so far.
+    #[schema(required = false)]
+    pub tiles_done: Option<i64>,
+    /// A job's image asked for too early: tiles in all.
+    #[schema(required = false)]
+    pub tiles_total: Option<i64>,
+    /// A scene whose textures were not sent: their names.
+    #[schema(required = false)]
+    pub missing_assets: Option<Vec<String>>,
+    /// A submission that found no room: the service's budget of bytes being received.
+    #[schema(required = false)]
+    pub receiving_bytes: Option<u64>,
+    /// A job of too many tiles: its tile count.
+    #[schema(required = false)]
+    pub tiles: Option<u64>,
+    /// A job of too many tiles: the most a job may have.
+    #[schema(required = false)]
+    pub max_tiles: Option<u64>,
+    /// A job of too many tiles: the smallest tile edge that would fit.
+    #[schema(required = false)]
+    pub min_tile: Option<u32>,
+}
+
+/// One mistake in a refused scene.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct SceneMistake {
+    /// Its line (1-based).
+    pub line: u32,
+    /// Its column (1-based, in characters).
+    pub column: u32,
+    /// What is wrong, and what was expected.
+    pub message: String,
+}
+
+impl ErrorBody {
+    /// The fields an error answer may carry besides `error` ([`ApiError::with`] takes no
+    /// other, so that the document's description of errors stays the answers' own).
+    pub const FIELDS: [&str; 11] = [
+        "line",
+        "column",
+        "errors",
+        "state",
+        "tiles_done",
+        "tiles_total",
+        "missing_assets",
+        "receiving_bytes",
+        "tiles",
+        "max_tiles",
+        "min_tile",
+    ];
 }
 
 /// The body of a successful JSON answer.

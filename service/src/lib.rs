@@ -10,9 +10,12 @@
 //!
 //! - `startup`: opening the store, listening, the graceful stop; `reaper`: the periodic
 //!   maintenance pass; `local_workers`: the in-process workers.
-//! - `routes`: the router, its body limits and token checks; `handlers/`: one file per
-//!   group of routes (`jobs`, `image`, `page`, `workers`); `params`: the user routes' query
-//!   parameters.
+//! - `routes`: the router, its body limits and token checks, and the OpenAPI document built
+//!   with it; `handlers/`: one file per group of routes (`jobs`, `image`, `live`, `page`,
+//!   `workers`); `params`: the user routes' query parameters, refused in words.
+//! - `preview`: a job's image as far as it is rendered; `events`: a job's server-sent events,
+//!   woken by `changes`; `job_view`: a job as every answer shows it.
+//!   The web pages' files are in `service/web/`.
 //! - `upload`: reading a submission's body (metered by `receiving`) and multipart parts;
 //!   `validate`: a submitted scene checked into the job to store; `names`: job and asset
 //!   names; `tiling`: the tile size the service picks and the tile count it allows.
@@ -32,16 +35,20 @@
 // bench drive them directly, without HTTP.
 pub mod assemble;
 mod auth;
+mod changes;
 mod cli;
 mod clock;
 mod config;
 mod db_lock;
 mod error;
+mod events;
 mod handlers;
 mod idle;
+mod job_view;
 mod local_workers;
 mod names;
 mod params;
+mod preview;
 mod reaper;
 mod receiving;
 mod rlimit;
@@ -55,7 +62,7 @@ mod validate;
 
 pub use cli::{main, main_from};
 pub use config::Config;
-pub use error::ApiError;
+pub use error::{ApiError, ErrorBody};
 pub use handlers::jobs::{get_job, submit};
 pub use handlers::workers::{ClaimParams, claim};
 pub use params::JobParams;

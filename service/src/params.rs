@@ -3,15 +3,20 @@
 //! otherwise be ignored without a word.
 
 use serde::Deserialize;
+use utoipa::IntoParams;
 
 use crate::tiling::{MAX_TILE, MIN_TILE};
 
 /// `GET /jobs` query parameters: a page of at most `limit` jobs (default and most
 /// [`MAX_JOBS_LISTED`]), those submitted before job `before` when given.
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, IntoParams)]
 #[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
 pub struct ListParams {
+    /// The most jobs to list, 1 to 200 (default 200).
+    #[param(minimum = 1, maximum = 200)]
     pub limit: Option<u32>,
+    /// List the jobs submitted before this job (the last of the page before).
     pub before: Option<String>,
 }
 
@@ -21,10 +26,12 @@ pub const MAX_JOBS_LISTED: u32 = 200;
 /// `GET /jobs/{id}?wait=S`: with `wait`, the answer waits until the job has ended (done,
 /// failed or cancelled) or `S` seconds (at most 60, and less than the idle timeout) have
 /// passed, so a client learns of the end at once instead of polling.
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, IntoParams)]
 #[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
 pub struct JobParams {
-    /// Seconds to wait for the job's end; none: answer at once.
+    /// Seconds to wait for the job's end (at most 60); none: answer at once.
+    #[param(minimum = 0)]
     pub wait: Option<f64>,
 }
 
@@ -32,12 +39,14 @@ pub struct JobParams {
 pub const MAX_JOB_WAIT_SECS: f64 = 60.0;
 
 /// `DELETE /jobs/{id}` query parameters.
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, IntoParams)]
 #[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
 pub struct DeleteParams {
     /// Remove an ended job and everything stored for it, instead of cancelling: `true` or
     /// `1` (`false`, `0` or absent: cancel).
     #[serde(default, deserialize_with = "flag")]
+    #[param(value_type = Option<String>, pattern = "^(true|false|1|0)$")]
     pub purge: bool,
 }
 
@@ -60,17 +69,26 @@ pub struct NoParams {}
 
 /// `POST /jobs` query parameters. Any other is refused, as a misspelt key in a scene is: a
 /// misspelt `?tiles=8` or `?sample=4` would otherwise render with the defaults.
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, IntoParams)]
 #[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
 pub struct SubmitParams {
+    /// The tile edge in pixels, 8 to 1024 (default: the service's choice).
+    #[param(minimum = 8, maximum = 1024)]
     pub tile: Option<u32>,
+    /// The sampler, overriding the scene's: `center`, `thesis`, `grid`, `jitter` or
+    /// `adaptive`.
     pub sampler: Option<String>,
+    /// Samples per pixel along each axis, overriding the scene's.
+    #[param(minimum = 1)]
     pub samples: Option<u32>,
+    /// The adaptive sampler's threshold, overriding the scene's.
     pub threshold: Option<f64>,
     /// A name for the job (the scene file's name, shown in lists and used for the download).
     pub name: Option<String>,
     /// Claims serve the highest priority first ([`MIN_PRIORITY`] to [`MAX_PRIORITY`],
     /// default 0), and jobs of one priority in the order they came.
+    #[param(minimum = -1000, maximum = 1000)]
     pub priority: Option<i64>,
 }
 
@@ -79,24 +97,85 @@ pub const MIN_PRIORITY: i64 = -1000;
 /// The highest `?priority=`.
 pub const MAX_PRIORITY: i64 = 1000;
 
-/// The answer to a submission's query that does not parse: serde's reason, and what the
-/// parameter it names takes (for `?tile=abc`, serde says only "invalid digit found in
-/// string").
+/// The answer to a query that does not parse, in the project's words: the parameter named
+/// and what it takes, from serde's own rejection (for `?tile=abc` serde says only "invalid
+/// digit found in string"; for a misspelt one, "unknown field").
 pub fn bad_query(reason: &str) -> String {
-    let field = reason
+    let reason = reason
         .strip_prefix("Failed to deserialize query string: ")
-        .and_then(|r| r.split_once(':'))
-        .map(|(f, _)| f);
+        .unwrap_or(reason);
+    // serde_urlencoded's reasons, after the parameter's name when it has one: "unknown field
+    // `x`, expected one of `a`, `b`" (or "expected `a` or `b`", or "there are no fields");
+    // "missing field `x`"; or what is wrong with the value.
+    let (field, why) = match reason.split_once(": ") {
+        Some((f, w)) if !f.contains(' ') => (Some(f), w),
+        _ => (None, reason),
+    };
+    if let Some(rest) = why.strip_prefix("unknown field ") {
+        let (name, takes) = rest.split_once(", ").unwrap_or((rest, ""));
+        let takes = match takes.strip_prefix("expected ") {
+            Some(list) => format!(
+                "this route takes {}",
+                list.strip_prefix("one of ").unwrap_or(list)
+            ),
+            None => "this route takes no query parameters".to_string(),
+        };
+        return format!("unknown query parameter {name}; {takes}");
+    }
+    if let Some(name) = why.strip_prefix("missing field ") {
+        return format!("the query parameter {name} is required");
+    }
+    let Some(field) = field else {
+        return format!("the query does not parse: {reason}");
+    };
     let takes = match field {
-        Some("tile") => format!("; `tile` is a whole number of pixels, {MIN_TILE} to {MAX_TILE}"),
-        Some("samples") => "; `samples` is a positive whole number".to_string(),
-        Some("threshold") => "; `threshold` is a number".to_string(),
-        Some("priority") => {
-            format!("; `priority` is a whole number, {MIN_PRIORITY} to {MAX_PRIORITY}")
-        }
+        "tile" => format!("; `tile` is a whole number of pixels, {MIN_TILE} to {MAX_TILE}"),
+        "samples" => "; `samples` is a positive whole number".to_string(),
+        "threshold" => "; `threshold` is a number".to_string(),
+        "priority" => format!("; `priority` is a whole number, {MIN_PRIORITY} to {MAX_PRIORITY}"),
+        "limit" => format!("; `limit` is a whole number, 1 to {MAX_JOBS_LISTED}"),
+        "wait" => "; `wait` is a number of seconds".to_string(),
         _ => String::new(),
     };
-    format!("bad query: {reason}{takes}")
+    format!("query parameter `{field}`: {why}{takes}")
+}
+
+/// A route's query parameters, `T`, refused in the project's words ([`bad_query`]) with
+/// `400`: axum's own `Query` answers serde's message ("Failed to deserialize query
+/// string: …"), which names serde, not what the route takes.
+#[derive(Debug)]
+pub struct Params<T>(pub T);
+
+impl<T, S> axum::extract::FromRequestParts<S> for Params<T>
+where
+    T: serde::de::DeserializeOwned,
+    S: Send + Sync,
+{
+    type Rejection = crate::error::ApiError;
+
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        _state: &S,
+    ) -> Result<Self, Self::Rejection> {
+        Params::parse(&parts.uri)
+    }
+}
+
+impl<T: serde::de::DeserializeOwned> Params<T> {
+    /// The query of `uri`, or the answer to a query that does not parse.
+    pub fn parse(uri: &axum::http::Uri) -> Result<Params<T>, crate::error::ApiError> {
+        if let Some(key) = uri.query().and_then(crate::upload::non_utf8_param) {
+            return Err(crate::error::ApiError::bad_request(format!(
+                "query parameter `{key}` is not UTF-8 text once percent-decoded"
+            )));
+        }
+        match axum::extract::Query::<T>::try_from_uri(uri) {
+            Ok(axum::extract::Query(v)) => Ok(Params(v)),
+            Err(e) => Err(crate::error::ApiError::bad_request(bad_query(
+                &e.body_text(),
+            ))),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -125,14 +204,18 @@ mod tests {
             ),
         ] {
             let m = reason(q);
+            let field = q.split('=').next().unwrap_or_default();
             assert!(
-                m.starts_with("bad query: ") && m.ends_with(takes),
+                m.starts_with(&format!("query parameter `{field}`: ")) && m.ends_with(takes),
                 "{q}: {m}"
             );
+            assert!(!m.contains("deserialize"), "{q}: {m}");
         }
         let m = reason("tlie=8");
         assert!(
-            m.contains("unknown field") && !m.contains("whole number"),
+            m.starts_with("unknown query parameter `tlie`; this route takes `tile`, ")
+                && !m.contains("whole number")
+                && !m.contains("field"),
             "{m}"
         );
     }

@@ -1,18 +1,159 @@
 //! The router: every route with its handler, body limit and token check, and the layers
 //! around all of them (JSON errors, request logging). Which token a route needs is decided
 //! here; `auth` only checks tokens.
+//!
+//! The user routes are registered from their handlers' OpenAPI descriptions
+//! (`utoipa_axum::routes!`): a route's path and methods are written once, in the
+//! `#[utoipa::path]` beside its handler, and both the router and the document served at
+//! `/openapi.json` ([`document`]) are built from it, so the two cannot disagree.
 
+use std::sync::OnceLock;
 use std::time::Duration;
 
 use axum::Router;
 use axum::extract::DefaultBodyLimit;
 use axum::routing::{get, post, put};
 use tracing::error;
+use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
+use utoipa::openapi::{InfoBuilder, LicenseBuilder, OpenApi, OpenApiBuilder, Tag};
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
 
-use crate::handlers::{image, jobs, page, workers};
+use crate::handlers::{image, jobs, live, page, workers};
 use crate::state::AppState;
 use crate::tiling::protocol_limit;
 use crate::{auth, error};
+
+/// The user routes with their body limits and token checks, and their OpenAPI document.
+fn user_routes(body_limit: usize) -> OpenApiRouter<AppState> {
+    let job_routes = OpenApiRouter::new()
+        .routes(routes!(jobs::list_jobs, jobs::submit))
+        .routes(routes!(jobs::get_job, jobs::delete_job, jobs::patch_job))
+        .layer(DefaultBodyLimit::max(body_limit))
+        .route_layer(axum::middleware::from_fn(move |req, next| {
+            error::declared_length_within(body_limit, req, next)
+        }));
+    OpenApiRouter::with_openapi(base_document())
+        .merge(job_routes)
+        .routes(routes!(image::image))
+        .routes(routes!(live::preview))
+        .routes(routes!(live::events))
+        .routes(routes!(live::tiles))
+        .routes(routes!(live::scene))
+        .routes(routes!(page::healthz))
+        .routes(routes!(page::page))
+        .routes(routes!(page::api_page))
+        .routes(routes!(page::openapi))
+}
+
+/// The document's own parts: what the service is, and the submit token's scheme.
+fn base_document() -> OpenApi {
+    let mut doc = OpenApiBuilder::new()
+        .info(
+            InfoBuilder::new()
+                .title("Tessera")
+                .version(env!("CARGO_PKG_VERSION"))
+                .description(Some(
+                    "A distributed ray-tracing farm: submit a `.ray` scene, watch its tiles \
+                     render, download the PNG. Routes that change jobs need the submit token \
+                     when the service is started with one (`Authorization: Bearer <token>`). \
+                     Every error answer is JSON `{\"error\": \"...\"}` with a fitting status.",
+                ))
+                .license(Some(
+                    LicenseBuilder::new().name("MIT OR Apache-2.0").build(),
+                ))
+                .build(),
+        )
+        .tags(Some([
+            Tag::new("jobs"),
+            Tag::new("service"),
+            Tag::new("pages"),
+        ]))
+        .build();
+    let scheme = SecurityScheme::Http(HttpBuilder::new().scheme(HttpAuthScheme::Bearer).build());
+    doc.components
+        .get_or_insert_with(Default::default)
+        .add_security_scheme("submit_token", scheme);
+    doc
+}
+
+/// Links the job a submission answers to the routes of one job (`id` from the answer's
+/// body), so that a client generator or a stateful test can follow them.
+fn link_submission(doc: &mut OpenApi) {
+    use utoipa::openapi::RefOr;
+    use utoipa::openapi::link::LinkBuilder;
+    let targets: Vec<(String, String)> = doc
+        .paths
+        .paths
+        .iter()
+        .filter(|(path, _)| path.starts_with("/jobs/{id}"))
+        .flat_map(|(_, item)| {
+            [&item.get, &item.delete, &item.patch]
+                .into_iter()
+                .filter_map(|op| op.as_ref()?.operation_id.clone())
+                .collect::<Vec<_>>()
+        })
+        .map(|id| (id.clone(), id))
+        .collect();
+    let Some(created) = doc
+        .paths
+        .paths
+        .get_mut("/jobs")
+        .and_then(|item| item.post.as_mut())
+        .and_then(|op| op.responses.responses.get_mut("201"))
+    else {
+        return;
+    };
+    if let RefOr::T(created) = created {
+        for (name, operation) in targets {
+            let link = LinkBuilder::new()
+                .operation_id(operation)
+                .parameter("id", "$response.body#/id")
+                .build();
+            created.links.insert(name, RefOr::T(link));
+        }
+    }
+}
+
+/// A small scene the document gives as the example of a submission's body, so that a
+/// reader (or a generated test) has one that renders.
+const EXAMPLE_SCENE: &str = "[GLOBALS]\nwidth = 64\nheight = 48\n[/GLOBALS]\n[CAMERA]\n\
+eye = <0, 2, 10>\n[/CAMERA]\n[LIGHT]\nposition = <10, 10, 10>\n[/LIGHT]\n[OBJECT]\n\
+type = sphere\nradius = 2\ncolor1 = <0.9, 0.3, 0.2>\n[/OBJECT]\n";
+
+/// Sets [`EXAMPLE_SCENE`] as the example of `POST /jobs`'s text bodies.
+fn example_scene(doc: &mut OpenApi) {
+    let Some(body) = doc
+        .paths
+        .paths
+        .get_mut("/jobs")
+        .and_then(|item| item.post.as_mut())
+        .and_then(|op| op.request_body.as_mut())
+    else {
+        return;
+    };
+    let utoipa::openapi::RefOr::T(body) = body else {
+        return;
+    };
+    for kind in ["text/plain", "application/octet-stream"] {
+        if let Some(utoipa::openapi::RefOr::T(content)) = body.content.get_mut(kind) {
+            content.example = Some(serde_json::Value::String(EXAMPLE_SCENE.to_string()));
+        }
+    }
+}
+
+/// The OpenAPI 3.1 document of the user routes, as JSON (built once).
+pub fn document() -> &'static str {
+    static DOC: OnceLock<String> = OnceLock::new();
+    DOC.get_or_init(|| {
+        let mut doc = user_routes(0).into_openapi();
+        link_submission(&mut doc);
+        example_scene(&mut doc);
+        // Serializing a document of strings and numbers cannot fail.
+        doc.to_pretty_json()
+            .unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
+    })
+}
 
 /// All routes, with their body limits and token checks.
 pub fn router(state: AppState) -> Router {
@@ -38,24 +179,19 @@ pub fn router(state: AppState) -> Router {
             state.clone(),
             auth::require_worker_token,
         ));
-    let job_routes = Router::new()
-        .route("/jobs", get(jobs::list_jobs).post(jobs::submit))
-        .route("/jobs/{id}", get(jobs::get_job).delete(jobs::delete_job))
-        .layer(DefaultBodyLimit::max(state.cfg.max_body_bytes))
-        .route_layer(axum::middleware::from_fn(move |req, next| {
-            error::declared_length_within(body_limit, req, next)
-        }))
-        .route_layer(axum::middleware::from_fn_with_state(
-            state.clone(),
-            auth::require_submit_token,
-        ));
+    let (user_routes, _) = user_routes(body_limit).split_for_parts();
+    // The submit token guards every user route but reads (`auth` lets `GET`s through).
+    let user_routes = user_routes.route_layer(axum::middleware::from_fn_with_state(
+        state.clone(),
+        auth::require_submit_token,
+    ));
     Router::new()
-        .route("/", get(page::page))
-        .route("/healthz", get(page::healthz))
+        .route("/static/{file}", get(page::asset))
+        .route("/favicon.ico", get(page::favicon))
         .route("/workers", get(workers::list_workers))
-        .route("/jobs/{id}/image.png", get(image::image))
-        .merge(job_routes)
+        .merge(user_routes)
         .merge(worker_routes)
+        .layer(axum::Extension(page::Document(document())))
         .fallback(error::no_route)
         .method_not_allowed_fallback(error::wrong_method)
         .layer(axum::middleware::from_fn(error::json_errors))

@@ -2,7 +2,6 @@
 //! request, and a client's `GET /jobs/{id}?wait=60` or a worker's long claim must not hold it
 //! for their whole wait (longer than `docker stop` gives before its kill).
 
-use std::sync::Arc;
 use std::time::Duration;
 
 use axum::extract::{Json, Path, Query, State};
@@ -10,9 +9,7 @@ use axum::http::StatusCode;
 use axum::response::IntoResponse;
 use tessera_protocol::ClaimRequest;
 use tessera_service::store::{NewJob, Store};
-use tessera_service::{
-    AppState, ClaimParams, Config, JobParams, Receiving, claim, get_job, submit,
-};
+use tessera_service::{AppState, ClaimParams, Config, claim, get_job, submit};
 use tessera_tracer::tiles;
 use tokio::sync::watch;
 
@@ -21,17 +18,10 @@ async fn state(stopping: watch::Receiver<bool>) -> AppState {
 }
 
 async fn state_with(cfg: Config, stopping: watch::Receiver<bool>) -> AppState {
-    AppState {
-        receiving: Receiving::new(cfg.receiving_bytes(), cfg.max_scene_texture_pixels),
-        cfg: Arc::new(cfg),
-        store: Store::open("sqlite::memory:")
-            .await
-            .expect("in-memory queue"),
-        work: Arc::default(),
-        ended: Arc::default(),
-        progress: Arc::default(),
-        stopping,
-    }
+    let store = Store::open("sqlite::memory:")
+        .await
+        .expect("in-memory queue");
+    AppState::new(cfg, store, stopping)
 }
 
 /// A multipart submission of `scene` and PNG textures `t0.png`, `t1.png`, … of the given
@@ -106,10 +96,15 @@ async fn a_waiting_job_request_answers_when_the_service_stops() {
     let wait = tokio::spawn(get_job(
         State(state.clone()),
         Path("waited".to_string()),
-        Query(JobParams { wait: Some(60.0) }),
+        axum::http::HeaderMap::new(),
+        "/jobs/waited?wait=60".parse().expect("a URI"),
     ));
     let answer = answer_on_stop(stop, wait).await.expect("the job");
-    assert_eq!(answer.0["state"], "queued", "the job as it is");
+    let body = axum::body::to_bytes(answer.into_body(), 1 << 20)
+        .await
+        .expect("the body");
+    let job: serde_json::Value = serde_json::from_slice(&body).expect("JSON");
+    assert_eq!(job["state"], "queued", "the job as it is");
 }
 
 #[tokio::test]

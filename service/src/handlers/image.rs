@@ -2,20 +2,34 @@
 //! name a download gets.
 
 use axum::body::{Body, Bytes};
-use axum::extract::{Path, Query, State};
+use axum::extract::{Path, State};
 use axum::http::{HeaderMap, HeaderValue, header};
 use axum::response::{IntoResponse, Response};
 
-use crate::error::ApiError;
-use crate::params::NoParams;
+use crate::error::{ApiError, ErrorBody};
+use crate::params::{NoParams, Params};
 use crate::state::AppState;
 use crate::store::JobState;
 
-/// The finished PNG, streamed from the database chunk by chunk.
+/// `GET /jobs/{id}/image.png`: the finished PNG, streamed from the database chunk by chunk.
+#[utoipa::path(
+    get, path = "/jobs/{id}/image.png", tag = "jobs",
+    summary = "Download the image",
+    description = "The finished PNG, once the job is done; before that, how far the job is.",
+    params(("id" = String, Path, description = "The job's id")),
+    responses(
+        (status = 200, description = "The finished image (RGB, 8 bits, sRGB)", content_type = "image/png", body = Vec<u8>,
+         headers(("Content-Disposition" = String, description = "The job's name as the file name"))),
+        (status = 400, description = "A query parameter was given", body = ErrorBody),
+        (status = 404, description = "No such job", body = ErrorBody),
+        (status = 409, description = "The job is not done: how far it is, or why it has no image", body = ErrorBody),
+        (status = 503, description = "The database is busy or failing; try again", body = ErrorBody),
+    )
+)]
 pub async fn image(
     State(state): State<AppState>,
     Path(id): Path<String>,
-    Query(NoParams {}): Query<NoParams>,
+    Params(NoParams {}): Params<NoParams>,
 ) -> Result<Response, ApiError> {
     let row = state
         .store
