@@ -181,6 +181,10 @@ pub struct ErrorBody {
     /// A submission that found no room: the service's budget of bytes being received.
     #[schema(required = false)]
     pub receiving_bytes: Option<u64>,
+    /// A submission whose textures found no room to be decoded: the most texels the service
+    /// decodes at once.
+    #[schema(required = false)]
+    pub max_scene_texture_pixels: Option<u64>,
     /// A job of too many tiles: its tile count.
     #[schema(required = false)]
     pub tiles: Option<u64>,
@@ -206,7 +210,7 @@ pub struct SceneMistake {
 impl ErrorBody {
     /// The fields an error answer may carry besides `error` ([`ApiError::with`] takes no
     /// other, so that the document's description of errors stays the answers' own).
-    pub const FIELDS: [&str; 11] = [
+    pub const FIELDS: [&str; 12] = [
         "line",
         "column",
         "errors",
@@ -215,6 +219,7 @@ impl ErrorBody {
         "tiles_total",
         "missing_assets",
         "receiving_bytes",
+        "max_scene_texture_pixels",
         "tiles",
         "max_tiles",
         "min_tile",
