@@ -190,13 +190,16 @@ impl RosterBatch {
     }
 }
 
-/// A roster row as both backends read it: `(name, last_seen, claims,
-/// claims_with_results, tiles_done)`.
-pub(crate) type RosterRow = (String, i64, i64, i64, i64);
+/// The columns of a roster row as both backends read them, in [`RosterRow`]'s order.
+pub(crate) const ROSTER_COLUMNS: &str =
+    "name, last_seen, claims, claims_with_results, tiles_done, threads, rays_per_second, left_at";
+
+/// A roster row as both backends read it ([`ROSTER_COLUMNS`]).
+pub(crate) type RosterRow = (String, i64, i64, i64, i64, Option<i64>, Option<f64>, i64);
 
 /// The [`WorkerSeen`] of a roster row (a negative count, which no write makes, reads 0).
 pub(crate) fn roster_row(
-    (name, last_seen, claims, with_results, tiles_done): RosterRow,
+    (name, last_seen, claims, with_results, tiles_done, threads, rays, left_at): RosterRow,
 ) -> WorkerSeen {
     WorkerSeen {
         name,
@@ -204,6 +207,9 @@ pub(crate) fn roster_row(
         claims: u64::try_from(claims).unwrap_or(0),
         claims_with_results: u64::try_from(with_results).unwrap_or(0),
         tiles_done: u64::try_from(tiles_done).unwrap_or(0),
+        threads: threads.and_then(|t| u32::try_from(t).ok()),
+        rays_per_second: rays,
+        left_at,
     }
 }
 
@@ -212,8 +218,9 @@ pub(crate) fn count(n: u64) -> i64 {
     i64::try_from(n).unwrap_or(i64::MAX)
 }
 
-/// Adds `p`'s counts to `to`, keeping the later `last_seen` (`to` takes `p`'s name if it
-/// has none).
+/// Adds `p`'s counts to `to`, keeping the later `last_seen` and goodbye; what `p` says of
+/// the worker (threads, rays per second) replaces `to`'s, as `p` is the later news (`to`
+/// takes `p`'s name if it has none).
 fn add(to: &mut WorkerSeen, p: &WorkerSeen) {
     if to.name.is_empty() {
         to.name = p.name.clone();
@@ -222,6 +229,9 @@ fn add(to: &mut WorkerSeen, p: &WorkerSeen) {
     to.claims += p.claims;
     to.claims_with_results += p.claims_with_results;
     to.tiles_done += p.tiles_done;
+    to.threads = p.threads.or(to.threads);
+    to.rays_per_second = p.rays_per_second.or(to.rays_per_second);
+    to.left_at = to.left_at.max(p.left_at);
 }
 
 #[cfg(test)]
@@ -256,5 +266,38 @@ mod tests {
         .await;
         assert_eq!(written.len(), 1);
         assert!(b.merged(Vec::new(), 0).is_empty());
+    }
+
+    #[test]
+    fn a_pending_report_replaces_the_stored_one_and_a_goodbye_lasts_until_heard_again() {
+        let b = RosterBatch::default();
+        let stored = WorkerSeen {
+            name: "w".into(),
+            last_seen: 10,
+            tiles_done: 3,
+            threads: Some(4),
+            rays_per_second: Some(1e6),
+            ..WorkerSeen::default()
+        };
+        // Heard again without a report: what it said before stands.
+        b.seen("w", 20, |w| w.tiles_done += 1);
+        let w = &b.merged(vec![stored.clone()], 0)[0];
+        assert_eq!(
+            (w.tiles_done, w.threads, w.rays_per_second),
+            (4, Some(4), Some(1e6))
+        );
+        assert!(!w.has_left());
+        // A new report wins over the stored one; a goodbye marks it gone.
+        b.seen("w", 30, |w| {
+            w.threads = Some(2);
+            w.rays_per_second = Some(5e5);
+            w.left_at = 30;
+        });
+        let w = &b.merged(vec![stored.clone()], 0)[0];
+        assert_eq!((w.threads, w.rays_per_second), (Some(2), Some(5e5)));
+        assert!(w.has_left());
+        // A claim after the goodbye: back.
+        b.seen("w", 31, |_| {});
+        assert!(!b.merged(vec![stored], 0)[0].has_left());
     }
 }

@@ -46,8 +46,8 @@ pub use postgres::PgStore;
 pub use sqlite::SqliteStore;
 pub use state::{JobState, TileState, UnknownState};
 pub use types::{
-    BandTile, Cancel, Checkpoint, Completion, JobRow, KeepAway, NewJob, Reprioritized,
-    STORAGE_PAUSE, TileInfo, TileView, WorkerSeen,
+    BandTile, Cancel, Checkpoint, Completion, FarmCounts, HeldTile, JobRow, KeepAway, NewJob,
+    Reprioritized, STORAGE_PAUSE, TileInfo, TileView, WorkerSeen,
 };
 
 pub(crate) use postgres::{is_postgres, redacted};
@@ -81,7 +81,7 @@ pub enum Store {
     Postgres(PgStore),
 }
 
-/// Held while this process writes a job's PNG (see [`Store::assembling`]).
+/// HeldTile while this process writes a job's PNG (see [`Store::assembling`]).
 #[derive(Debug)]
 pub struct AssemblyLock(#[allow(dead_code)] Option<postgres::AssemblyLock>);
 
@@ -503,6 +503,23 @@ impl Store {
     /// The workers heard from at or after `since`, by name.
     pub async fn workers(&self, since: i64) -> Result<Vec<WorkerSeen>> {
         on!(self, s => s.workers(since).await)
+    }
+
+    /// Notes that `worker` said goodbye at `now` (it stops cleanly, its tiles given back),
+    /// and writes the roster at once so that every process on the database lists it gone.
+    pub async fn bye(&self, worker: &str, now: i64) {
+        self.seen(worker, now, |w| w.left_at = now);
+        on!(self, s => s.write_roster_now().await)
+    }
+
+    /// The leases that run past `now`: which worker holds which tile.
+    pub async fn held(&self, now: i64) -> Result<Vec<HeldTile>> {
+        on!(self, s => s.held(now).await)
+    }
+
+    /// Jobs by state and the tiles of active jobs waiting and leased, for the metrics.
+    pub async fn counts(&self) -> Result<FarmCounts> {
+        on!(self, s => s.counts().await)
     }
 
     /// Every tile of job `id` in index order, as users see it; `None` when there is no such

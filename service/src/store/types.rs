@@ -202,7 +202,7 @@ pub struct Checkpoint {
 }
 
 /// What the service knows about a worker it has heard from (the `/workers` route's rows).
-#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct WorkerSeen {
     /// The name it gives.
     pub name: String,
@@ -214,6 +214,45 @@ pub struct WorkerSeen {
     pub claims_with_results: u64,
     /// Tiles it rendered that were stored.
     pub tiles_done: u64,
+    /// Its render threads, as it last said (none: never said).
+    pub threads: Option<u32>,
+    /// The rays it traced per second lately, as it last said (none: never said).
+    pub rays_per_second: Option<f64>,
+    /// When it last said goodbye (ms since the epoch; 0: never). It has left while this is
+    /// at least `last_seen`.
+    pub left_at: i64,
+}
+
+impl WorkerSeen {
+    /// Whether it said goodbye and has not been heard from since.
+    pub fn has_left(&self) -> bool {
+        self.left_at > 0 && self.left_at >= self.last_seen
+    }
+}
+
+/// A lease held now: which worker renders (or holds ahead) which tile.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct HeldTile {
+    /// The worker that holds it.
+    pub worker: String,
+    /// The tile's job.
+    pub job: String,
+    /// The tile's index within its job.
+    pub idx: u32,
+    /// Whether the worker said it is rendering it (not holding it ahead of its turn).
+    pub rendering: bool,
+}
+
+/// The farm's numbers at one moment, for the metrics: jobs by state and the tiles waiting
+/// or leased in active jobs.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct FarmCounts {
+    /// Jobs in each state that has any (states with none are left out).
+    pub jobs: Vec<(JobState, u64)>,
+    /// Tiles of queued and running jobs waiting for a worker.
+    pub tiles_queued: u64,
+    /// Tiles of queued and running jobs under a lease.
+    pub tiles_leased: u64,
 }
 
 /// A tile as users see it: where it is in the image, where it is in its life, who holds or

@@ -8,8 +8,8 @@
 use sqlx::Row;
 
 use super::{PgStore, Result, job_state, tile_state};
-use crate::store::state::job_sql;
-use crate::store::types::{BandTile, Reprioritized, TileView};
+use crate::store::state::{job_sql, tile_sql};
+use crate::store::types::{BandTile, FarmCounts, Reprioritized, TileView};
 
 impl PgStore {
     /// Every tile of job `id` in index order; `None` when there is no such job.
@@ -116,6 +116,39 @@ impl PgStore {
         Ok(match state {
             None => Reprioritized::Unknown,
             Some(s) => Reprioritized::Ended(job_state(s)?),
+        })
+    }
+}
+
+impl PgStore {
+    /// Jobs by state, and the tiles of active jobs waiting and leased: the metrics' gauges.
+    pub(crate) async fn counts(&self) -> Result<FarmCounts> {
+        let by_state: Vec<(String, i64)> =
+            sqlx::query_as("SELECT state, COUNT(*) FROM jobs GROUP BY state ORDER BY state")
+                .fetch_all(&self.pool)
+                .await?;
+        let mut jobs = Vec::with_capacity(by_state.len());
+        for (state, n) in by_state {
+            jobs.push((job_state(state)?, u64::try_from(n).unwrap_or(0)));
+        }
+        let (queued, leased): (Option<i64>, Option<i64>) = sqlx::query_as(concat!(
+            "SELECT SUM(CASE WHEN t.state = ",
+            tile_sql!(Queued),
+            " THEN 1 ELSE 0 END), SUM(CASE WHEN t.state = ",
+            tile_sql!(Leased),
+            " THEN 1 ELSE 0 END)
+             FROM tiles t JOIN jobs j ON j.id = t.job_id
+             WHERE j.state IN ",
+            job_sql!(active),
+            " AND t.state <> ",
+            tile_sql!(Done)
+        ))
+        .fetch_one(&self.pool)
+        .await?;
+        Ok(FarmCounts {
+            jobs,
+            tiles_queued: u64::try_from(queued.unwrap_or(0)).unwrap_or(0),
+            tiles_leased: u64::try_from(leased.unwrap_or(0)).unwrap_or(0),
         })
     }
 }
