@@ -18,6 +18,6 @@ mod messages;
 mod tile;
 
 pub use checks::{MAX_WORKER_NAME, check_worker_name, token_problem};
-pub use messages::{Accepted, Claim, ClaimRequest, FailRequest, JobSpec, Renewed};
+pub use messages::{Accepted, Bye, Claim, ClaimRequest, FailRequest, JobSpec, Renewed};
 pub use tessera_tracer::Rect;
 pub use tile::{BlobError, TILE_HEADER_LEN, TILE_MAGIC, decode_tile, encode_tile, split_tile};

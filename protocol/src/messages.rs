@@ -7,9 +7,35 @@ use serde::{Deserialize, Serialize};
 use tessera_tracer::Rect;
 
 /// `POST /worker/claim` body.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ClaimRequest {
     /// The worker's self-chosen name (host and process), used for keep-away and `/workers`.
+    pub worker: String,
+    /// Its render threads, for `/workers` (none: not said).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threads: Option<u32>,
+    /// The rays it traced per second over its last few seconds, all threads together, for
+    /// `/workers` (none: not measured yet).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rays_per_second: Option<f64>,
+}
+
+impl ClaimRequest {
+    /// A claim by `worker` that says nothing of itself.
+    pub fn by(worker: impl Into<String>) -> ClaimRequest {
+        ClaimRequest {
+            worker: worker.into(),
+            threads: None,
+            rays_per_second: None,
+        }
+    }
+}
+
+/// `POST /worker/bye` body: the worker stops cleanly (its tiles are given back), so
+/// `/workers` shows it gone at once.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Bye {
+    /// The worker's name, as in its claims.
     pub worker: String,
 }
 

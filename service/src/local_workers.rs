@@ -62,6 +62,7 @@ pub fn spawn_local_workers(
             wc.name = format!("{prefix}{i}");
             wc.idle_max = Duration::from_millis(500);
             wc.grace = Duration::from_secs(cfg.grace_secs);
+            wc.say_bye = false;
             let mut stop = stop.clone();
             let scenes = scenes.clone();
             let pool = pool.clone();

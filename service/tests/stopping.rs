@@ -117,7 +117,7 @@ async fn a_waiting_claim_answers_no_work_when_the_service_stops() {
         Query(ClaimParams {
             wait_ms: Some(10_000),
         }),
-        Json(ClaimRequest { worker: "w".into() }),
+        Json(ClaimRequest::by("w")),
     ));
     let answer = answer_on_stop(stop, waiting).await.expect("an answer");
     assert_eq!(answer.into_response().status(), StatusCode::NO_CONTENT);

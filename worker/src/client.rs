@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use bytes::Bytes;
 use reqwest::{StatusCode, Url};
-use tessera_protocol::{Accepted, Claim, ClaimRequest, FailRequest, JobSpec, Renewed};
+use tessera_protocol::{Accepted, Bye, Claim, ClaimRequest, FailRequest, JobSpec, Renewed};
 
 /// Why a request to the service did not give a usable answer.
 #[derive(Debug, thiserror::Error)]
@@ -205,6 +205,28 @@ pub(crate) struct Client {
 
 type Result<T> = std::result::Result<T, ClientError>;
 
+/// The longest a goodbye waits for its answer: the worker is stopping, and a service that
+/// does not answer at once only learns of it later (the worker shows gone once silent).
+const BYE_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// What one tile cost its worker: said with its result, for the service's metrics.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub(crate) struct Spent {
+    /// The rays it took.
+    pub(crate) rays: u64,
+    /// The render-thread time it took, in milliseconds, over all its strips.
+    pub(crate) render_ms: u64,
+}
+
+/// What a posted tile says besides its pixels: its cost, and the worker's threads and
+/// rays per second (see [`tessera_protocol::ClaimRequest`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Said {
+    pub(crate) spent: Spent,
+    pub(crate) threads: u32,
+    pub(crate) rays_per_second: Option<f64>,
+}
+
 /// How much longer than its `wait_ms` a claim may take before it is given up: a service
 /// that answers a claim this late is frozen or overloaded, and a worker with several
 /// servers asks another meanwhile.
@@ -307,18 +329,16 @@ impl Client {
 
     /// Claims the next tile; `None` when there is no work. With no work at hand the
     /// service waits up to `wait` for some before answering.
-    pub(crate) async fn claim(&self, worker: &str, wait: Duration) -> Result<Option<Claim>> {
+    pub(crate) async fn claim(
+        &self,
+        claim: &ClaimRequest,
+        wait: Duration,
+    ) -> Result<Option<Claim>> {
         let what = "claim";
         let mut url = self.url(&["worker", "claim"], None);
         url.query_pairs_mut()
             .append_pair("wait_ms", &wait.as_millis().to_string());
-        let req = self
-            .http
-            .post(url)
-            .timeout(wait + CLAIM_MARGIN)
-            .json(&ClaimRequest {
-                worker: worker.to_string(),
-            });
+        let req = self.http.post(url).timeout(wait + CLAIM_MARGIN).json(claim);
         let resp = self.send(req).await?;
         match resp.status() {
             StatusCode::NO_CONTENT => Ok(None),
@@ -328,6 +348,24 @@ impl Client {
                 .map(Some)
                 .map_err(|source| ClientError::Decode { what, source }),
             _ => Err(Self::fail_status(what, resp).await),
+        }
+    }
+
+    /// Says that this worker stops cleanly (`POST /worker/bye`).
+    pub(crate) async fn bye(&self, worker: &str) -> Result<()> {
+        let what = "goodbye";
+        let req = self
+            .http
+            .post(self.url(&["worker", "bye"], None))
+            .timeout(BYE_TIMEOUT)
+            .json(&Bye {
+                worker: worker.to_string(),
+            });
+        let resp = self.send(req).await?;
+        if resp.status().is_success() {
+            Ok(())
+        } else {
+            Err(Self::fail_status(what, resp).await)
         }
     }
 
@@ -396,11 +434,21 @@ impl Client {
         c: &Claim,
         blob: Bytes,
         next: Option<&str>,
+        said: &Said,
     ) -> Result<Posted> {
         let what = "post tile";
         let mut url = self.tile_url(c, None);
-        if let Some(name) = next {
-            url.query_pairs_mut().append_pair("next", name);
+        {
+            let mut q = url.query_pairs_mut();
+            if let Some(name) = next {
+                q.append_pair("next", name);
+            }
+            q.append_pair("rays", &said.spent.rays.to_string())
+                .append_pair("render_ms", &said.spent.render_ms.to_string())
+                .append_pair("threads", &said.threads.to_string());
+            if let Some(rate) = said.rays_per_second {
+                q.append_pair("rays_per_second", &format!("{rate:.0}"));
+            }
         }
         let req = self
             .http

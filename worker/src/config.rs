@@ -29,6 +29,9 @@ pub struct WorkerConfig {
     pub idle_max: Duration,
     /// After a shutdown request, how long to keep rendering held tiles before giving them back.
     pub grace: Duration,
+    /// Whether a clean stop says goodbye (`POST /worker/bye`), so that the service lists
+    /// the worker gone at once. The service's own workers do not: they stop with it.
+    pub say_bye: bool,
 }
 
 impl WorkerConfig {
@@ -52,6 +55,7 @@ impl WorkerConfig {
             noop: false,
             idle_max: Duration::from_millis(1000),
             grace: Duration::from_secs(30),
+            say_bye: true,
         }
     }
 }

@@ -32,6 +32,7 @@ mod client;
 mod config;
 mod health;
 mod lease;
+mod meter;
 mod pipeline;
 mod pool;
 mod post;

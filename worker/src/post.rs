@@ -13,7 +13,7 @@ use tokio::task::JoinHandle;
 use tracing::{debug, warn};
 
 use crate::backoff::{backoff, seed};
-use crate::client::{ClientError, Posted};
+use crate::client::{ClientError, Posted, Said, Spent};
 use crate::servers::Claimed;
 use crate::shared::Shared;
 use crate::shutdown::grace_over;
@@ -33,6 +33,7 @@ pub(crate) async fn post(
     shared: Arc<Shared>,
     c: Claimed,
     blob: Bytes,
+    spent: Spent,
     ride: Option<Ride>,
     stop: watch::Receiver<bool>,
 ) -> Result<(), ClientError> {
@@ -41,7 +42,7 @@ pub(crate) async fn post(
     // answers), for longer than a service manager waits. Without this bound a stop would
     // wait four leases or the client's two-minute timeout, whatever `--grace-secs` says.
     tokio::select! {
-        posted = post_retrying(&shared, &c, blob, ride) => posted,
+        posted = post_retrying(&shared, &c, blob, spent, ride) => posted,
         () = grace_over(&shared, stop) => {
             warn!(job = %c.job, tile = c.idx, "stopping: the tile could not be posted in time; giving it up");
             Ok(())
@@ -55,6 +56,7 @@ async fn post_retrying(
     shared: &Shared,
     c: &Claimed,
     blob: Bytes,
+    spent: Spent,
     mut ride: Option<Ride>,
 ) -> Result<(), ClientError> {
     let give_up_at = Instant::now() + Duration::from_millis(c.lease_ms.max(1000) * 4);
@@ -62,7 +64,13 @@ async fn post_retrying(
     let mut streak = 0;
     loop {
         let next = ride.is_some().then_some(shared.cfg.name.as_str());
-        let answer = shared.servers.post_tile(c, blob.clone(), next).await;
+        let (threads, rays_per_second) = shared.said();
+        let said = Said {
+            spent,
+            threads,
+            rays_per_second,
+        };
+        let answer = shared.servers.post_tile(c, blob.clone(), next, &said).await;
         if let Some(tx) = ride.take() {
             let claim = match &answer {
                 Ok((_, next)) => next.clone(),

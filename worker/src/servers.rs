@@ -19,12 +19,12 @@ use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
 use bytes::Bytes;
-use tessera_protocol::{Claim, JobSpec};
+use tessera_protocol::{Claim, ClaimRequest, JobSpec};
 use tokio::sync::watch;
 use tracing::{info, warn};
 
 use crate::backoff::seed;
-use crate::client::{Client, ClientError, Posted, http_client, service_urls};
+use crate::client::{Client, ClientError, Posted, Said, http_client, service_urls};
 use crate::health::{Change, Failure, Health};
 
 type Result<T> = std::result::Result<T, ClientError>;
@@ -200,7 +200,7 @@ impl Servers {
     pub(crate) async fn claim(
         &self,
         first: usize,
-        worker: &str,
+        req: &ClaimRequest,
         wait: Duration,
         mut stop: watch::Receiver<bool>,
     ) -> Result<Option<Claimed>> {
@@ -228,7 +228,7 @@ impl Servers {
                 continue;
             };
             match self
-                .ask(i, Box::pin(self.clients[i].claim(worker, wait)))
+                .ask(i, Box::pin(self.clients[i].claim(req, wait)))
                 .await
             {
                 Ok(c) => return Ok(c.map(|claim| Claimed { claim, from: i })),
@@ -267,10 +267,11 @@ impl Servers {
         c: &Claimed,
         blob: Bytes,
         next: Option<&str>,
+        said: &Said,
     ) -> Result<(Posted, Option<Claimed>)> {
         let (from, posted) = self
             .each(c.from, |s| {
-                Box::pin(s.post_tile(&c.claim, blob.clone(), next))
+                Box::pin(s.post_tile(&c.claim, blob.clone(), next, said))
             })
             .await?;
         let claimed = match &posted {
@@ -285,6 +286,19 @@ impl Servers {
         self.each(c.from, |s| Box::pin(s.fail(&c.claim, worker, reason)))
             .await
             .map(|_| ())
+    }
+
+    /// Says that the worker stops cleanly, to the first server that answers (they share
+    /// one database, so one is enough).
+    pub(crate) async fn bye(&self, worker: &str) -> Result<()> {
+        let mut last = None;
+        for c in &self.clients {
+            match c.bye(worker).await {
+                Ok(()) => return Ok(()),
+                Err(e) => last = Some(e),
+            }
+        }
+        last.map_or(Ok(()), Err)
     }
 
     /// Gives the tile back unrendered (see [`Client::release`]).

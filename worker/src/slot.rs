@@ -18,7 +18,7 @@ use tracing::{debug, info, warn};
 
 use crate::backoff::{backoff, seed};
 use crate::cache::Unusable;
-use crate::client::{ClientError, ignore_transient};
+use crate::client::{ClientError, Spent, ignore_transient};
 use crate::lease::{self, Held, give_back, renew_every};
 use crate::pipeline::{ClaimTask, Pipeline};
 use crate::pool::RenderPool;
@@ -76,9 +76,9 @@ pub(crate) async fn slot(
             }
         } else {
             let first = pipe.next_turn(shared.servers.len());
-            let (name, wait) = (&shared.cfg.name, shared.cfg.idle_max);
+            let (req, wait) = (shared.claim_request(), shared.cfg.idle_max);
             tokio::select! {
-                c = shared.servers.claim(first, name, wait, stop.clone()) => c,
+                c = shared.servers.claim(first, &req, wait, stop.clone()) => c,
                 _ = stop.changed() => break Ok(()),
             }
         };
@@ -170,10 +170,14 @@ async fn submit(
     c: Claimed,
 ) -> Result<Submitted, ClientError> {
     if shared.cfg.noop() {
-        return Ok(Submitted::Queued(renderer.submit(c, None)));
+        return Ok(Submitted::Queued(renderer.submit(c, None, &shared.meter)));
     }
     match shared.cache.prepared(&shared.servers, c.from, &c.job).await {
-        Ok(p) => Ok(Submitted::Queued(renderer.submit(c, Some(p)))),
+        Ok(p) => Ok(Submitted::Queued(renderer.submit(
+            c,
+            Some(p),
+            &shared.meter,
+        ))),
         Err(Unusable::Gone) => Ok(Submitted::Dropped),
         Err(Unusable::Invalid(reason)) => {
             warn!(job = %c.job, "cannot build scene: {reason}");
@@ -301,10 +305,15 @@ async fn work(
     } else {
         None
     };
+    let spent = Spent {
+        rays: t.cost.rays(),
+        render_ms: t.cost.millis(),
+    };
     pipe.start_post(tokio::spawn(post(
         shared.clone(),
         c,
         blob,
+        spent,
         ride,
         stop.clone(),
     )))
@@ -327,7 +336,7 @@ fn spawn_claim(
         {
             return Ok(Some(c));
         }
-        let (name, wait) = (&shared.cfg.name, shared.cfg.idle_max);
-        shared.servers.claim(first, name, wait, stop).await
+        let (req, wait) = (shared.claim_request(), shared.cfg.idle_max);
+        shared.servers.claim(first, &req, wait, stop).await
     })
 }

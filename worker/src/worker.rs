@@ -6,6 +6,7 @@
 use std::future::Future;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, OnceLock};
+use std::time::Instant;
 
 use tokio::sync::watch;
 use tracing::{info, warn};
@@ -13,6 +14,7 @@ use tracing::{info, warn};
 use crate::cache::SceneCache;
 use crate::client::ClientError;
 use crate::config::WorkerConfig;
+use crate::meter::Meter;
 use crate::pool::RenderPool;
 use crate::servers::Servers;
 use crate::shared::Shared;
@@ -84,6 +86,7 @@ pub async fn run_with(
         released: AtomicU64::new(0),
         failed: AtomicU64::new(0),
         stopping_since: OnceLock::new(),
+        meter: Arc::new(Meter::new(Instant::now())),
         cfg,
     });
     on_shutdown(shared.clone(), shutdown, stop_tx);
@@ -107,6 +110,14 @@ pub async fn run_with(
             }
             Err(e) => warn!("worker slot ended abnormally: {e}"),
         }
+    }
+    // Said once every tile is posted or given back, so that nothing it held is left to
+    // lapse; a worker stopped by a refusal says nothing (the service may not hear it).
+    if first_err.is_none()
+        && shared.cfg.say_bye
+        && let Err(e) = shared.servers.bye(&shared.cfg.name).await
+    {
+        warn!("saying goodbye to the service: {e}");
     }
     let summary = Summary {
         tiles: shared.tiles.load(Ordering::Relaxed),
