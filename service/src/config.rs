@@ -6,6 +6,9 @@ use tessera_tracer::{Limits, MAX_THREADS, TextureLimits};
 
 use crate::tiling::{MAX_TILE, MIN_TILE};
 
+/// The longest a claim waits at the service for work (`?wait_ms=`).
+pub const MAX_CLAIM_WAIT_MS: u64 = 10_000;
+
 /// Shortest lease a service hands out, in milliseconds: workers renew at a third of it,
 /// and below this a round trip could outlast the renewal interval.
 pub const MIN_LEASE_MS: u64 = 100;

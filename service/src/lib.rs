@@ -46,6 +46,7 @@ mod handlers;
 mod idle;
 mod job_view;
 mod local_workers;
+mod metrics;
 mod names;
 mod params;
 mod preview;
@@ -59,6 +60,7 @@ pub mod store;
 mod tiling;
 mod upload;
 mod validate;
+mod worker_view;
 
 pub use cli::{main, main_from};
 pub use config::Config;

@@ -150,6 +150,7 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
             Ok(0) => {}
             Ok(n) => {
                 warn!("{n} expired leases: tiles handed out again");
+                crate::metrics::count(crate::metrics::TILES_REAPED, n);
                 state.work.notify_waiters();
                 // A tile out of attempts fails its job.
                 state.ended.notify_waiters();

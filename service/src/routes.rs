@@ -22,7 +22,7 @@ use utoipa_axum::routes;
 use crate::handlers::{image, jobs, live, page, workers};
 use crate::state::AppState;
 use crate::tiling::protocol_limit;
-use crate::{auth, error};
+use crate::{auth, error, metrics};
 
 /// The user routes with their body limits and token checks, and their OpenAPI document.
 fn user_routes(body_limit: usize) -> OpenApiRouter<AppState> {
@@ -41,6 +41,8 @@ fn user_routes(body_limit: usize) -> OpenApiRouter<AppState> {
         .routes(routes!(live::tiles))
         .routes(routes!(live::scene))
         .routes(routes!(page::healthz))
+        .routes(routes!(page::scrape_metrics))
+        .routes(routes!(workers::list_workers))
         .routes(routes!(page::page))
         .routes(routes!(page::api_page))
         .routes(routes!(page::openapi))
@@ -171,6 +173,7 @@ pub fn router(state: AppState) -> Router {
             "/worker/jobs/{id}/tiles/{idx}/release",
             post(workers::release),
         )
+        .route("/worker/bye", post(workers::bye))
         .layer(DefaultBodyLimit::max(tile_limit))
         .route_layer(axum::middleware::from_fn(move |req, next| {
             error::declared_length_within(tile_limit, req, next)
@@ -188,10 +191,10 @@ pub fn router(state: AppState) -> Router {
     Router::new()
         .route("/static/{file}", get(page::asset))
         .route("/favicon.ico", get(page::favicon))
-        .route("/workers", get(workers::list_workers))
         .merge(user_routes)
         .merge(worker_routes)
         .layer(axum::Extension(page::Document(document())))
+        .layer(axum::middleware::from_fn(metrics::count_requests))
         .fallback(error::no_route)
         .method_not_allowed_fallback(error::wrong_method)
         .layer(axum::middleware::from_fn(error::json_errors))

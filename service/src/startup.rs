@@ -126,6 +126,7 @@ pub async fn serve(
         let _ = stop_tx.send(true);
     });
     tokio::spawn(reaper(state.clone(), stop_rx.clone()));
+    crate::metrics::start(stop_rx.clone());
     // Other replicas' submissions and requeues wake this one's waiting claims.
     let (news, work, ended) = (store.clone(), state.work.clone(), state.ended.clone());
     let stop_listening = stop_rx.clone();

@@ -29,6 +29,8 @@ const USER_ROUTES: &[(&str, &str)] = &[
     ("/jobs/{id}/tiles", "get"),
     ("/jobs/{id}/scene", "get"),
     ("/healthz", "get"),
+    ("/workers", "get"),
+    ("/metrics", "get"),
     ("/openapi.json", "get"),
     ("/api", "get"),
 ];

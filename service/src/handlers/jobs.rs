@@ -375,6 +375,7 @@ pub async fn submit(State(state): State<AppState>, req: Request) -> Result<Respo
     };
     state.work.notify_waiters();
     state.changes.job(&row.id);
+    crate::metrics::count(crate::metrics::JOBS_SUBMITTED, 1);
     let location = format!("/jobs/{}", row.id);
     let mut resp = (StatusCode::CREATED, ok_json(JobView::of(&state, row))).into_response();
     if let Ok(v) = HeaderValue::from_str(&location) {

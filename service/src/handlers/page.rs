@@ -17,9 +17,11 @@ use axum::response::{Html, IntoResponse, Response};
 use serde_json::{Value, json};
 
 use crate::error::{ApiError, ErrorBody};
-use crate::now_ms;
+use crate::params::{NoParams, Params};
 use crate::state::AppState;
 use crate::store::STORAGE_PAUSE;
+use crate::worker_view::{by_state, roster};
+use crate::{metrics, now_ms};
 
 /// The files under `/static/`: name, media type, contents.
 const STATIC: &[(&str, &str, &str)] = &[
@@ -231,4 +233,33 @@ mod tests {
         assert!(wants(Some("application/json;q=0.1, text/html")));
         assert!(!wants(Some("text/html;q=0")));
     }
+}
+
+/// `GET /metrics`: the Prometheus text of the service's metrics (see `metrics`).
+#[utoipa::path(
+    get, path = "/metrics", tag = "service",
+    summary = "Prometheus metrics",
+    description = "The service's metrics in Prometheus's text format: jobs by state, tiles waiting and leased, workers by state (read from the database at each scrape), and this process's counters and histograms: tiles claimed, stored, failed and reaped, rays traced, jobs submitted, claim wait and tile render time, requests by route and status. Each metric is described in `docs/OPERATIONS.md`.",
+    responses(
+        (status = 200, description = "The metrics, as Prometheus text", body = String,
+         content_type = "text/plain; version=0.0.4; charset=utf-8"),
+        (status = 400, description = "A query parameter was given", body = ErrorBody),
+        (status = 503, description = "The database is busy or failing; try again", body = ErrorBody),
+    )
+)]
+pub async fn scrape_metrics(
+    State(state): State<AppState>,
+    Params(NoParams {}): Params<NoParams>,
+) -> Result<Response, ApiError> {
+    let farm = state.store.counts().await?;
+    let workers = roster(&state, now_ms()).await?;
+    let text = metrics::scrape(&farm, &by_state(&workers));
+    Ok((
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("text/plain; version=0.0.4; charset=utf-8"),
+        )],
+        text,
+    )
+        .into_response())
 }

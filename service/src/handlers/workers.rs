@@ -1,11 +1,11 @@
 //! The worker routes: claim a tile, fetch a job's scene and assets, renew a lease, post a
-//! result, report a failure, give a tile back (see `docs/PROTOCOL.md`); and the list of
-//! workers heard from (`GET /workers`).
+//! result, report a failure, give a tile back, say goodbye (see `docs/PROTOCOL.md`); and
+//! the list of workers heard from (`GET /workers`).
 //!
 //! Every tile route takes the lease token as `?lease=`; the queue applies it only while the
 //! token is the tile's current lease. Blobs are checked against the tile before storage.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use axum::Json;
 use axum::body::Bytes;
@@ -13,21 +13,69 @@ use axum::extract::{Path, Query, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
-use serde_json::Value;
 use tessera_protocol::{
-    Accepted, BlobError, Claim, ClaimRequest, FailRequest, Renewed, split_tile,
+    Accepted, BlobError, Bye, Claim, ClaimRequest, FailRequest, Renewed, split_tile,
 };
 
-use crate::error::{ApiError, ok_json};
-use crate::now_ms;
-use crate::params::flag;
+use crate::error::{ApiError, ErrorBody, ok_json};
+use crate::config::MAX_CLAIM_WAIT_MS;
+use crate::params::{NoParams, Params, flag};
 use crate::state::AppState;
 use crate::store::{Completion, JobState, STORAGE_PAUSE};
+use crate::worker_view::{WorkerView, roster};
+use crate::{metrics, now_ms};
 
-/// Workers heard from in the last ten minutes.
-pub async fn list_workers(State(state): State<AppState>) -> Result<Json<Value>, ApiError> {
-    let cutoff = now_ms() - 600_000;
-    Ok(ok_json(state.store.workers(cutoff).await?))
+/// `GET /workers`: the workers heard from in the last ten minutes, with what each does now.
+#[utoipa::path(
+    get, path = "/workers", tag = "service",
+    summary = "List the workers",
+    description = "The workers heard from in the last ten minutes, by name: rendering (with the tiles they hold), idle, or gone (said goodbye, or silent past a lease with their leases lapsed), with the threads and rays per second they report and what they have done.",
+    responses(
+        (status = 200, description = "The workers, by name", body = [WorkerView]),
+        (status = 400, description = "A query parameter was given", body = ErrorBody),
+        (status = 503, description = "The database is busy or failing; try again", body = ErrorBody),
+    )
+)]
+pub async fn list_workers(
+    State(state): State<AppState>,
+    Params(NoParams {}): Params<NoParams>,
+) -> Result<Json<Vec<WorkerView>>, ApiError> {
+    Ok(Json(roster(&state, now_ms()).await?))
+}
+
+/// What a worker says of itself, checked: threads from 1, a rate that is a finite number
+/// of at least 0.
+fn check_said(threads: Option<u32>, rays_per_second: Option<f64>) -> Result<(), ApiError> {
+    if threads == Some(0) {
+        return Err(ApiError::bad_request("threads must be at least 1"));
+    }
+    if rays_per_second.is_some_and(|r| !r.is_finite() || r < 0.0) {
+        return Err(ApiError::bad_request(
+            "rays_per_second must be a finite number of at least 0",
+        ));
+    }
+    Ok(())
+}
+
+/// Notes what `worker` says of itself (what it leaves out stands as it last said).
+fn note_said(state: &AppState, worker: &str, threads: Option<u32>, rays_per_second: Option<f64>) {
+    if threads.is_some() || rays_per_second.is_some() {
+        state.store.seen(worker, now_ms(), |w| {
+            w.threads = threads.or(w.threads);
+            w.rays_per_second = rays_per_second.or(w.rays_per_second);
+        });
+    }
+}
+
+/// `POST /worker/bye`: the worker stops cleanly, having posted or given back every tile;
+/// `/workers` lists it gone at once. A claim after it brings the worker back.
+pub async fn bye(
+    State(state): State<AppState>,
+    Json(req): Json<Bye>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let name = worker_name(&req.worker)?;
+    state.store.bye(name, now_ms()).await;
+    Ok(ok_json(serde_json::json!({ "left": true })))
 }
 
 /// `POST /worker/claim?wait_ms=N`: with no work at hand, wait up to `N` ms (at most 10 s)
@@ -38,8 +86,6 @@ pub struct ClaimParams {
     pub wait_ms: Option<u64>,
 }
 
-/// The longest a claim waits for work.
-pub const MAX_CLAIM_WAIT_MS: u64 = 10_000;
 
 /// `?lease=L`: the lease a tile route acts under.
 #[derive(Debug, Deserialize)]
@@ -60,8 +106,11 @@ pub async fn claim(
     Json(req): Json<ClaimRequest>,
 ) -> Result<Response, ApiError> {
     let name = worker_name(&req.worker)?;
+    check_said(req.threads, req.rays_per_second)?;
+    note_said(&state, name, req.threads, req.rays_per_second);
     let wait = Duration::from_millis(params.wait_ms.unwrap_or(0).min(MAX_CLAIM_WAIT_MS))
         .min(state.cfg.longest_silence());
+    let asked = Instant::now();
     let deadline = tokio::time::Instant::now() + wait;
     loop {
         // Registered before looking, so that work arriving in between is not missed.
@@ -69,6 +118,7 @@ pub async fn claim(
         tokio::pin!(notified);
         notified.as_mut().enable();
         if let Some(c) = claim_now(&state, name, false).await? {
+            metrics::observe(metrics::CLAIM_WAIT, asked.elapsed());
             return Ok(ok_json(c).into_response());
         }
         tokio::select! {
@@ -110,6 +160,7 @@ async fn claim_now(
         .map_err(|e| state.store.noted(e, now_ms()))?;
     if let Some(c) = &claimed {
         state.changes.job(&c.job);
+        metrics::count(metrics::TILES_CLAIMED, 1);
     }
     let n = u64::from(claimed.is_some());
     state.store.seen(worker, now_ms(), |w| {
@@ -191,13 +242,22 @@ pub async fn renew(
     }
 }
 
-/// `PUT /worker/jobs/{id}/tiles/{idx}?lease=L`.
+/// `PUT /worker/jobs/{id}/tiles/{idx}?lease=L`, with what the worker says of the tile and
+/// of itself (each optional).
 #[derive(Debug, Deserialize)]
 pub struct ResultParams {
     pub lease: String,
     /// A worker name: with the result stored, also claim that worker's next tile (without
     /// waiting), saving it a round trip.
     pub next: Option<String>,
+    /// The rays the tile took.
+    pub rays: Option<u64>,
+    /// The render-thread time the tile took, in milliseconds.
+    pub render_ms: Option<u64>,
+    /// The worker's render threads.
+    pub threads: Option<u32>,
+    /// The rays the worker traced per second lately.
+    pub rays_per_second: Option<f64>,
 }
 
 /// `PUT /worker/jobs/{id}/tiles/{idx}?lease=L[&next=NAME]`: the tile blob. `200` stored (or a
@@ -211,6 +271,7 @@ pub async fn result(
     body: Bytes,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let next_for = q.next.as_deref().map(worker_name).transpose()?;
+    check_said(q.threads, q.rays_per_second)?;
     let (rect, rgb) = split_tile(&body)
         .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
     let completed = state
@@ -221,6 +282,12 @@ pub async fn result(
         Completion::Stored { last, worker } => {
             if let Some(worker) = &worker {
                 state.store.seen(worker, now_ms(), |w| w.tiles_done += 1);
+                note_said(&state, worker, q.threads, q.rays_per_second);
+            }
+            metrics::count(metrics::TILES_STORED, 1);
+            metrics::count(metrics::RAYS_TRACED, q.rays.unwrap_or(0));
+            if let Some(ms) = q.render_ms {
+                metrics::observe(metrics::TILE_RENDER, Duration::from_millis(ms));
             }
             state.changes.job(&id);
             if last {
@@ -292,6 +359,7 @@ pub async fn fail(
         )
         .await?;
     if ok {
+        metrics::count(metrics::TILES_FAILED, 1);
         state.work.notify_waiters();
         state.changes.job(&id);
         // The tile may have been out of attempts, failing its job: then it is not requeued,
