@@ -17,8 +17,8 @@ use tessera_protocol::{
     Accepted, BlobError, Bye, Claim, ClaimRequest, FailRequest, Renewed, split_tile,
 };
 
-use crate::error::{ApiError, ErrorBody, ok_json};
 use crate::config::MAX_CLAIM_WAIT_MS;
+use crate::error::{ApiError, ErrorBody, ok_json};
 use crate::params::{NoParams, Params, flag};
 use crate::state::AppState;
 use crate::store::{Completion, JobState, STORAGE_PAUSE};
@@ -85,7 +85,6 @@ pub struct ClaimParams {
     /// Milliseconds to wait for work (at most 10 s); none: answer at once.
     pub wait_ms: Option<u64>,
 }
-
 
 /// `?lease=L`: the lease a tile route acts under.
 #[derive(Debug, Deserialize)]
