@@ -411,11 +411,15 @@ pub(super) fn forget_one(pending: &mut HashMap<&'static str, usize>, hint: Optio
     }
 }
 
-/// Adds a finished block to its parent; a `[rayfile]` wrapper is dissolved into it.
-pub(super) fn attach(stack: &mut [Block], block: Block) {
+/// Adds a finished block to its parent; a `[rayfile]` wrapper is dissolved into it. A
+/// finished block's lists are cut to their length: a scene of many small blocks would
+/// otherwise hold room for four entries in each (a growing list's first size).
+pub(super) fn attach(stack: &mut [Block], mut block: Block) {
     let Some(parent) = stack.last_mut() else {
         return;
     };
+    block.entries.shrink_to_fit();
+    block.children.shrink_to_fit();
     if block.name == "rayfile" {
         parent.entries.extend(block.entries);
         parent.children.extend(block.children);

@@ -79,7 +79,7 @@ pub fn parse(source: &str, limits: &Limits) -> Result<SceneDesc, SceneError> {
         textures: Vec::new(),
         light_pos: Vec::new(),
     };
-    let desc = p.scene(&root);
+    let desc = p.scene(root);
     match p.errors.into_error() {
         None => Ok(desc),
         Some(e) => Err(e),
@@ -116,7 +116,10 @@ impl Parser<'_> {
         self.errors.push(Diagnostic::new(pos, message));
     }
 
-    fn scene(&mut self, root: &Block) -> SceneDesc {
+    /// The scene of the block tree `root`, taken apart as it is read: each top-level block
+    /// is dropped once its node is made, so that the tree and the nodes are not both held
+    /// whole (for a scene of many small objects, each is the larger part of its memory).
+    fn scene(&mut self, root: Block) -> SceneDesc {
         let mut desc = SceneDesc {
             width: 640,
             height: 480,
@@ -127,7 +130,13 @@ impl Parser<'_> {
             sampler: Sampler::Center,
             camera: CameraDesc::default(),
             lights: Vec::new(),
-            objects: Vec::new(),
+            // Sized once: growing by doubling would hold up to twice the nodes at its peak.
+            objects: Vec::with_capacity(
+                root.children
+                    .iter()
+                    .filter(|b| matches!(b.name.as_str(), "object" | "csg"))
+                    .count(),
+            ),
         };
         for e in &root.entries {
             let hint = match home_of(&e.key) {
@@ -142,7 +151,8 @@ impl Parser<'_> {
         let mut globals_at: Option<Pos> = None;
         let mut size = GivenSize::default();
         let mut camera_at: Option<Pos> = None;
-        for b in &root.children {
+        for b in root.children {
+            let b = &b;
             match b.name.as_str() {
                 "globals" | "global" => {
                     if let Some(first) = globals_at {

@@ -78,22 +78,34 @@ impl Scene {
     }
 
     /// Every error [`Self::build`] would report (textures that cannot be read or decoded,
-    /// singular transforms), without building what only rendering needs (the BVH, the clear
-    /// lights): what a service that accepts scenes but does not render them checks.
+    /// singular transforms), without building what only rendering needs: no object is
+    /// placed (so checking a scene costs its textures, not a second copy of its objects),
+    /// and no BVH or clear lights are built. What a service that accepts scenes but does
+    /// not render them checks.
     pub fn check(
         desc: &SceneDesc,
         assets: &dyn AssetSource,
         texture_limits: &TextureLimits,
     ) -> Result<(), SceneError> {
-        Self::place(desc, assets, texture_limits).map(|_| ())
+        let (_, mut errors) = Self::load_textures(desc, assets, texture_limits);
+        let mut objects = 0usize;
+        for node in &desc.objects {
+            check_node(node, None, &mut objects, &mut errors);
+        }
+        if errors.is_empty() {
+            Ok(())
+        } else {
+            Err(SceneError::new(errors))
+        }
     }
 
-    /// The textures loaded and the objects placed in the world, or every error found.
-    pub(super) fn place(
-        desc: &SceneDesc,
+    /// The scene's textures, loaded and decoded within `texture_limits`, with an error for
+    /// each that could not be.
+    fn load_textures<'d>(
+        desc: &'d SceneDesc,
         assets: &dyn AssetSource,
         texture_limits: &TextureLimits,
-    ) -> Result<(Vec<Object>, Vec<Prim>), SceneError> {
+    ) -> (HashMap<&'d str, Arc<Texture>>, Vec<Diagnostic>) {
         let mut textures: HashMap<&str, Arc<Texture>> = HashMap::new();
         let mut errors = Vec::new();
         // Texels of the textures decoded so far, against `max_total_pixels`: each is sized
@@ -121,6 +133,16 @@ impl Scene {
                 Err(e) => errors.push(Diagnostic::new(pos, e.to_string())),
             }
         }
+        (textures, errors)
+    }
+
+    /// The textures loaded and the objects placed in the world, or every error found.
+    pub(super) fn place(
+        desc: &SceneDesc,
+        assets: &dyn AssetSource,
+        texture_limits: &TextureLimits,
+    ) -> Result<(Vec<Object>, Vec<Prim>), SceneError> {
+        let (textures, mut errors) = Self::load_textures(desc, assets, texture_limits);
         let mut objects = Vec::with_capacity(desc.primitive_count());
         let mut prims = Vec::with_capacity(desc.objects.len());
         for node in &desc.objects {
@@ -285,6 +307,57 @@ fn surfaces_through(
     found
 }
 
+/// The message of an object whose composed transform cannot be used.
+const SINGULAR_OBJECT: &str =
+    "this object's transforms and those of its [CSG] make a singular or non-finite matrix";
+
+/// The message of a [CSG] whose composed transform cannot be used.
+const SINGULAR_CSG: &str = "this [CSG]'s transforms and those of its enclosing [CSG] make a \
+                            singular or non-finite matrix";
+
+/// The message of the object past the most one scene can index.
+const TOO_MANY: &str = "too many objects for one scene";
+
+/// The transform of a node placed inside `outer` (its enclosing CSG's), if any.
+fn composed(own: &Transform, outer: Option<&Transform>) -> Transform {
+    match outer {
+        Some(o) => own.then(o),
+        None => *own,
+    }
+}
+
+/// The errors [`Placer::place`] would find in `node`, found without placing it: the same
+/// transforms composed in the same order, the same count of objects. `objects` counts the
+/// objects met so far.
+fn check_node(
+    node: &Node,
+    outer: Option<&Transform>,
+    objects: &mut usize,
+    errors: &mut Vec<Diagnostic>,
+) {
+    match node {
+        Node::Object(o) => {
+            if !composed(&o.transform, outer).is_valid() {
+                errors.push(Diagnostic::new(o.pos, SINGULAR_OBJECT));
+            } else if u32::try_from(*objects).is_err() {
+                errors.push(Diagnostic::new(o.pos, TOO_MANY));
+            } else {
+                *objects += 1;
+            }
+        }
+        Node::Csg(c) => {
+            let transform = composed(&c.transform, outer);
+            if !transform.is_valid() {
+                errors.push(Diagnostic::new(c.pos, SINGULAR_CSG));
+                return;
+            }
+            for ch in &c.children {
+                check_node(ch, Some(&transform), objects, errors);
+            }
+        }
+    }
+}
+
 /// Places scene nodes in the world, flattening their primitives into `objects`.
 struct Placer<'a, 'b> {
     objects: &'a mut Vec<Object>,
@@ -295,24 +368,15 @@ struct Placer<'a, 'b> {
 impl Placer<'_, '_> {
     /// The prim for a node; `outer` is the enclosing CSG's object-to-world transform.
     pub(super) fn place(&mut self, node: &Node, outer: Option<&Transform>) -> Option<Prim> {
-        let compose = |own: &Transform| match outer {
-            Some(o) => own.then(o),
-            None => *own,
-        };
         match node {
             Node::Object(o) => {
-                let transform = compose(&o.transform);
+                let transform = composed(&o.transform, outer);
                 if !transform.is_valid() {
-                    self.errors.push(Diagnostic::new(
-                        o.pos,
-                        "this object's transforms and those of its [CSG] make a singular or \
-                         non-finite matrix",
-                    ));
+                    self.errors.push(Diagnostic::new(o.pos, SINGULAR_OBJECT));
                     return None;
                 }
                 let Ok(index) = u32::try_from(self.objects.len()) else {
-                    self.errors
-                        .push(Diagnostic::new(o.pos, "too many objects for one scene"));
+                    self.errors.push(Diagnostic::new(o.pos, TOO_MANY));
                     return None;
                 };
                 self.objects.push(Object::new(
@@ -325,13 +389,9 @@ impl Placer<'_, '_> {
                 Some(Prim::Object(index))
             }
             Node::Csg(c) => {
-                let transform = compose(&c.transform);
+                let transform = composed(&c.transform, outer);
                 if !transform.is_valid() {
-                    self.errors.push(Diagnostic::new(
-                        c.pos,
-                        "this [CSG]'s transforms and those of its enclosing [CSG] make a \
-                         singular or non-finite matrix",
-                    ));
+                    self.errors.push(Diagnostic::new(c.pos, SINGULAR_CSG));
                     return None;
                 }
                 let children: Vec<Prim> = c

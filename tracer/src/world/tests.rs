@@ -119,8 +119,8 @@ fn csg_children_compose_with_the_csg_transforms() {
 }
 
 /// `Scene::check` reports exactly what `Scene::build` reports (a composite transform that
-/// overflows, a texture that is missing and one that does not decode, all at once), and
-/// accepts what it accepts.
+/// overflows, of an object and of a nested [CSG], a texture that is missing and one that
+/// does not decode, all at once), and accepts what it accepts, without placing objects.
 #[test]
 fn check_reports_what_build_reports() {
     let desc = |src: &str| scene::parse(src, &Limits::default()).expect("parses");
@@ -131,13 +131,20 @@ fn check_reports_what_build_reports() {
     let bad = desc(&format!(
         "[CSG]\nop = union\n{big}[OBJECT]\ntype = cube\n{big}[/OBJECT]\n\
              [OBJECT]\ntype = cube\n[/OBJECT]\n[/CSG]\n\
+             [CSG]\nop = union\n{big}[CSG]\nop = union\n{big}[OBJECT]\ntype = cube\n\
+             [/OBJECT]\n[OBJECT]\ntype = cube\n[/OBJECT]\n[/CSG]\n[OBJECT]\ntype = cube\n\
+             [/OBJECT]\n[/CSG]\n\
              [OBJECT]\ntype = sphere\ntexture = missing.ppm\n[/OBJECT]\n\
              [OBJECT]\ntype = sphere\ntexture = bad.ppm\n[/OBJECT]\n",
     ));
-    let from_build = Scene::build(&bad, &assets, &limits).expect_err("three errors");
-    let from_check = Scene::check(&bad, &assets, &limits).expect_err("three errors");
+    let from_build = Scene::build(&bad, &assets, &limits).expect_err("four errors");
+    let from_check = Scene::check(&bad, &assets, &limits).expect_err("four errors");
     assert_eq!(from_check.to_string(), from_build.to_string());
-    assert_eq!(from_check.diagnostics().len(), 3, "{from_check}");
+    assert_eq!(from_check.diagnostics().len(), 4, "{from_check}");
+    assert!(
+        from_check.to_string().contains("this [CSG]'s transforms"),
+        "{from_check}"
+    );
     let good = desc("[OBJECT]\ntype = sphere\n[/OBJECT]\n");
     assert!(Scene::check(&good, &assets, &limits).is_ok());
 }
