@@ -145,6 +145,13 @@ pub struct Config {
     /// are held to `--max-scene-texture-pixels` at once, the same way.)
     #[arg(long, env = "TESSERA_MAX_RECEIVING_BYTES")]
     pub max_receiving_bytes: Option<usize>,
+    /// Memory for checking the scenes of submissions at once, in bytes (at least 1 MiB):
+    /// each scene is charged 32 times its bytes while it is parsed and checked (the most a
+    /// scene of the smallest objects takes). A submission that does not fit waits its turn,
+    /// up to 30 s, then is answered 503 with Retry-After.
+    #[arg(long, env = "TESSERA_MAX_CHECKING_BYTES", default_value_t = 1 << 30,
+          value_parser = clap::value_parser!(u64).range(1 << 20..))]
+    pub max_checking_bytes: u64,
     /// Largest image, width × height pixels. The limits below go up to the workers' own
     /// (the tracer's defaults, which `tessera-worker` applies), not past them, so that the
     /// service accepts no job that no worker would build.

@@ -181,6 +181,13 @@ pub struct ErrorBody {
     /// A submission that found no room: the service's budget of bytes being received.
     #[schema(required = false)]
     pub receiving_bytes: Option<u64>,
+    /// A submission whose scene found no room to be checked: the memory the service gives
+    /// to checking scenes at once.
+    #[schema(required = false)]
+    pub max_checking_bytes: Option<u64>,
+    /// A submission whose scene found no room to be checked: what its check is charged.
+    #[schema(required = false)]
+    pub check_bytes: Option<u64>,
     /// A submission whose textures found no room to be decoded: the most texels the service
     /// decodes at once.
     #[schema(required = false)]
@@ -210,7 +217,7 @@ pub struct SceneMistake {
 impl ErrorBody {
     /// The fields an error answer may carry besides `error` ([`ApiError::with`] takes no
     /// other, so that the document's description of errors stays the answers' own).
-    pub const FIELDS: [&str; 12] = [
+    pub const FIELDS: [&str; 14] = [
         "line",
         "column",
         "errors",
@@ -220,6 +227,8 @@ impl ErrorBody {
         "missing_assets",
         "receiving_bytes",
         "max_scene_texture_pixels",
+        "max_checking_bytes",
+        "check_bytes",
         "tiles",
         "max_tiles",
         "min_tile",

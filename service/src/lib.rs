@@ -46,6 +46,7 @@ mod handlers;
 mod idle;
 mod job_view;
 mod local_workers;
+mod memory;
 mod metrics;
 mod names;
 mod params;

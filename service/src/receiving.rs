@@ -13,10 +13,15 @@
 //!   the wait limit); a body that stops arriving for [`BODY_SILENCE`] is cut (`408`) and its
 //!   share given back, so that a client that declares a large body and falls silent cannot
 //!   shut every submission out until the idle timeout;
+//! - its scene's check: parsing and checking a scene takes memory in proportion to its
+//!   text, up to [`CHECK_BYTES_PER_SCENE_BYTE`] times it (a scene of the smallest objects),
+//!   charged before parsing against a budget of its own (`--max-checking-bytes`), so that
+//!   many large scenes arriving at once are checked in turn rather than all at once;
 //! - its textures' texels, counted from their headers before they are decoded, against a
 //!   budget of their own: at most one job's worth (`--max-scene-texture-pixels`) is
 //!   decoded at a time. (In the same budget as bodies, shares holding their bodies while
-//!   they waited for texels would shut each other out.)
+//!   they waited for texels would shut each other out.) A share takes its check's room
+//!   before its texels' and never the other way round, so that no two wait for each other.
 //!
 //! A share that cannot grow waits its turn (first come, first served), at most
 //! [`Receiving::wait_limit`]; the submission is then answered `503` with `Retry-After` and
@@ -41,6 +46,11 @@ pub const BODY_SILENCE: Duration = Duration::from_secs(10);
 /// The budget is counted in whole KiB: tokio's semaphore counts permits in `u32` per request.
 const UNIT: u64 = 1024;
 
+/// What checking a scene may take, per byte of its text: the most measured, a scene of
+/// the smallest objects (`[OBJECT]`, `type=cube`, `[/OBJECT]`: 27 bytes each, about 700 bytes
+/// of block tree and scene description while parsed), with room to spare.
+pub const CHECK_BYTES_PER_SCENE_BYTE: u64 = 32;
+
 /// The submission budget (see the module comment).
 #[derive(Debug, Clone)]
 pub struct Receiving {
@@ -49,6 +59,9 @@ pub struct Receiving {
     /// Texels being decoded, in units of 1,024.
     texels: Arc<Semaphore>,
     texel_units: usize,
+    /// Memory for checking scenes, in KiB.
+    checking: Arc<Semaphore>,
+    checking_units: usize,
 }
 
 /// One submission's share of the budget; given back when dropped.
@@ -60,6 +73,8 @@ pub struct Held {
     room: Option<OwnedSemaphorePermit>,
     /// Texels being decoded (see [`Held::grow_texels`]).
     texels: Option<OwnedSemaphorePermit>,
+    /// Memory for checking the scene (see [`Held::grow_checking`]).
+    checking: Option<OwnedSemaphorePermit>,
     /// Whether a `grow` found no room in time: the submission's answer is `503`.
     refused: bool,
     /// Whether the body fell silent past [`BODY_SILENCE`]: the answer is `408`.
@@ -72,17 +87,26 @@ pub struct Held {
 pub struct Full;
 
 impl Receiving {
-    /// A budget of `bytes` of bodies (rounded up to whole KiB, at least one) and `texels`
-    /// of textures being decoded (rounded up to units of 1,024).
-    pub fn new(bytes: usize, texels: u64) -> Receiving {
+    /// A budget of `bytes` of bodies (rounded up to whole KiB, at least one), `texels` of
+    /// textures being decoded (rounded up to units of 1,024) and `checking` bytes of memory
+    /// for checking scenes (rounded up to whole KiB).
+    pub fn new(bytes: usize, texels: u64, checking: u64) -> Receiving {
         let units = |n: u64| n.div_ceil(UNIT).clamp(1, Semaphore::MAX_PERMITS as u64) as usize;
         let (body_units, texel_units) = (units(bytes as u64), units(texels));
+        let checking_units = units(checking);
         Receiving {
             permits: Arc::new(Semaphore::new(body_units)),
             units: body_units,
             texels: Arc::new(Semaphore::new(texel_units)),
             texel_units,
+            checking: Arc::new(Semaphore::new(checking_units)),
+            checking_units,
         }
+    }
+
+    /// What checking a scene of `scene_bytes` bytes is charged.
+    pub fn check_cost(scene_bytes: usize) -> u64 {
+        (scene_bytes as u64).saturating_mul(CHECK_BYTES_PER_SCENE_BYTE)
     }
 
     /// The longest a submission waits for room at a time: at most 30 s, and no longer than
@@ -99,6 +123,7 @@ impl Receiving {
             bytes: 0,
             room: None,
             texels: None,
+            checking: None,
             refused: false,
             stalled: false,
         }
@@ -164,6 +189,32 @@ impl Held {
         self.texels = None;
     }
 
+    /// Takes room for checking a scene whose check may take `bytes` (at most the whole
+    /// budget), waiting up to `within`; once only, before the scene is parsed.
+    pub async fn grow_checking(&mut self, bytes: u64, within: Duration) -> Result<(), Full> {
+        let need = bytes.div_ceil(UNIT).min(self.budget.checking_units as u64);
+        let need = u32::try_from(need).unwrap_or(u32::MAX);
+        if need == 0 {
+            return Ok(());
+        }
+        let acquire = self.budget.checking.clone().acquire_many_owned(need);
+        match tokio::time::timeout(within, acquire).await {
+            Ok(Ok(room)) => {
+                self.checking = Some(room);
+                Ok(())
+            }
+            Ok(Err(_)) | Err(_) => {
+                self.refused = true;
+                Err(Full)
+            }
+        }
+    }
+
+    /// Gives back the room taken for checking the scene (it is checked and dropped).
+    pub fn release_checking(&mut self) {
+        self.checking = None;
+    }
+
     /// Marks the body cut for its silence.
     pub fn stall(&mut self) {
         self.stalled = true;
@@ -206,7 +257,7 @@ mod tests {
     /// byte at a time holds what it sent, not a unit per byte).
     #[tokio::test]
     async fn shares_grow_by_the_byte_and_wait_for_room() {
-        let budget = Receiving::new(1000 * UNIT as usize, UNIT);
+        let budget = Receiving::new(1000 * UNIT as usize, UNIT, UNIT);
         let mut first = budget.hold();
         for _ in 0..600 * UNIT {
             first.grow(1, LONG).await.expect("room");
@@ -242,7 +293,7 @@ mod tests {
     /// texels than there are takes them all once they are free.
     #[tokio::test]
     async fn texels_have_a_budget_of_their_own() {
-        let budget = Receiving::new(100 * UNIT as usize, 64 * UNIT);
+        let budget = Receiving::new(100 * UNIT as usize, 64 * UNIT, UNIT);
         let mut a = budget.hold();
         a.grow(60 * UNIT, LONG).await.expect("body");
         a.grow_texels(u64::MAX, LONG).await.expect("all the texels");
@@ -260,7 +311,7 @@ mod tests {
     /// instead of waiting for more room than there is.
     #[tokio::test]
     async fn a_share_past_the_budget_takes_all_of_it() {
-        let budget = Receiving::new(10 * UNIT as usize, UNIT);
+        let budget = Receiving::new(10 * UNIT as usize, UNIT, UNIT);
         let mut big = budget.hold();
         big.grow(u64::MAX / 2, LONG).await.expect("room");
         big.grow(u64::MAX / 2, LONG).await.expect("no more to ask");
@@ -268,5 +319,41 @@ mod tests {
         assert_eq!(budget.hold().grow(1, NOW).await, Err(Full));
         drop(big);
         budget.hold().grow(1, LONG).await.expect("room again");
+    }
+
+    /// Checks have a budget of their own, taken before texels: a share waits for its check's
+    /// room while another checks, and a share past the budget takes all of it.
+    #[tokio::test]
+    async fn checks_have_a_budget_of_their_own() {
+        let budget = Receiving::new(100 * UNIT as usize, 64 * UNIT, 100 * UNIT);
+        let mut a = budget.hold();
+        a.grow_checking(Receiving::check_cost(2 * UNIT as usize), LONG)
+            .await
+            .expect("room for a's check");
+        let mut b = budget.hold();
+        b.grow(10 * UNIT, LONG)
+            .await
+            .expect("b's body beside a's check");
+        assert_eq!(
+            b.grow_checking(Receiving::check_cost(2 * UNIT as usize), NOW)
+                .await,
+            Err(Full),
+            "64 KiB of 100 are a's"
+        );
+        a.release_checking();
+        b.grow_checking(u64::MAX, LONG)
+            .await
+            .expect("the whole budget once a's check is done");
+        assert_eq!(
+            budget.hold().grow_checking(1, NOW).await,
+            Err(Full),
+            "b holds it all"
+        );
+        drop(b);
+        budget
+            .hold()
+            .grow_checking(1, LONG)
+            .await
+            .expect("room again");
     }
 }

@@ -46,7 +46,11 @@ impl AppState {
     /// turns `true`, with nothing yet received, encoded or waited for.
     pub fn new(cfg: Config, store: Store, stopping: watch::Receiver<bool>) -> AppState {
         AppState {
-            receiving: Receiving::new(cfg.receiving_bytes(), cfg.max_scene_texture_pixels),
+            receiving: Receiving::new(
+                cfg.receiving_bytes(),
+                cfg.max_scene_texture_pixels,
+                cfg.max_checking_bytes,
+            ),
             cfg: Arc::new(cfg),
             store,
             work: Arc::default(),

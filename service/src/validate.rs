@@ -2,8 +2,9 @@
 //! scene is parsed and built (textures decoded) off the async threads before anything is
 //! stored, so a bad scene is a `400` naming line and column and leaves no trace.
 //!
-//! Room to decode textures is taken from the submission budget (`receiving`) first; the
-//! tile size follows `tiling`.
+//! Room to check the scene, then room to decode its textures, are taken from the
+//! submission budget (`receiving`) first; the memory checking took is given back to the
+//! operating system once the answer is known ([`Trim`]). The tile size follows `tiling`.
 
 use serde_json::{Value, json};
 use tessera_tracer::{MemoryAssets, Scene, SceneError, Texture, parse, tiles};
@@ -57,6 +58,35 @@ fn busy_decoding(state: &AppState) -> ApiError {
         "max_scene_texture_pixels",
         state.cfg.max_scene_texture_pixels,
     )
+}
+
+/// The `503` of a submission whose scene found no room to be checked in time
+/// (`--max-checking-bytes` at once), or none while the service stops.
+fn busy_checking(state: &AppState, cost: u64) -> ApiError {
+    try_again_shortly(
+        "the service is checking as many scenes as it takes at once \
+         (--max-checking-bytes); try again shortly",
+    )
+    .with("max_checking_bytes", state.cfg.max_checking_bytes)
+    .with("check_bytes", cost)
+}
+
+/// Checks at least this large give their memory back to the operating system when done.
+const TRIM_FROM: u64 = 16 << 20;
+
+/// Gives the memory a large check took back to the operating system when dropped, on every
+/// way out of the check: the allocator keeps freed memory for reuse otherwise, and a burst
+/// of large scenes would leave the service that much larger for good.
+struct Trim(u64);
+
+impl Drop for Trim {
+    fn drop(&mut self) {
+        if self.0 >= TRIM_FROM
+            && let Ok(rt) = tokio::runtime::Handle::try_current()
+        {
+            rt.spawn_blocking(crate::memory::give_back);
+        }
+    }
 }
 
 /// A scene's texture name as the upload it stands for: `/`-separated, resolved by
@@ -115,6 +145,22 @@ pub async fn validate(
         tracing::error!("scene validation panicked: {e}");
         ApiError::bad_request("the scene could not be checked (the validator failed)")
     };
+    // Room for the check before the scene is parsed (see `receiving`).
+    let cost = Receiving::check_cost(source.len());
+    {
+        let within = Receiving::wait_limit(state.cfg.longest_silence());
+        let mut held = held.lock().await;
+        let grown = tokio::select! {
+            biased;
+            room = held.grow_checking(cost, within) => room,
+            () = state.stopped() => Err(Full),
+        };
+        if grown.is_err() {
+            return Err(busy_checking(state, cost));
+        }
+    }
+    // Declared after the room is taken: dropped first, at every return below.
+    let _trim = Trim(cost);
     let matched = tokio::task::spawn_blocking(move || {
         let desc = parse(&source, &limits).map_err(|e| scene_error(&e))?;
         let chosen = desc
@@ -193,9 +239,13 @@ pub async fn validate(
     })
     .await
     .map_err(panicked)?;
-    // The decoded textures are gone: their room is another submission's while this one is
-    // stored.
-    held.lock().await.release_texels();
+    // The decoded textures and the checked scene are gone: their room is another
+    // submission's while this one is stored.
+    {
+        let mut held = held.lock().await;
+        held.release_texels();
+        held.release_checking();
+    }
     let checked = checked?;
     let (source, width, height, kept, rays) = checked;
     let tile = job_tile(width, height, rays, tile, state.cfg.max_tiles)?;
