@@ -23,6 +23,11 @@ pub enum TransformOp {
     Translate(DVec3),
 }
 
+/// The largest componentwise condition ([`Transform::condition`]) of an accepted transform.
+/// Past it the stored inverse undoes the matrix to fewer than about eight digits in either
+/// space, and a ray carried into object space lands measurably off the surface it aims at.
+pub const MAX_CONDITION: f64 = 1e8;
+
 /// An affine object-to-world transform with its inverse.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Transform {
@@ -92,19 +97,33 @@ impl Transform {
         )
     }
 
-    /// True when every matrix entry is finite and the two matrices are inverses of each other
-    /// to within rounding: a zero or overflowing scale (1e200 twice gives ∞, its inverse 0)
-    /// breaks that, and such a transform is refused.
+    /// True when every matrix entry is finite and the composite is not too ill-conditioned
+    /// for its stored inverse to undo it: the smaller of its two componentwise condition
+    /// numbers ([`Self::condition`]) is at most [`MAX_CONDITION`]. A zero or overflowing
+    /// scale (1e200 twice gives ∞, its inverse 0) fails the first test; a rotation between
+    /// two opposite extreme scales fails the second.
     pub fn is_valid(&self) -> bool {
         let finite = |a: &DAffine3| a.matrix3.is_finite() && a.translation.is_finite();
-        if !finite(&self.to_world) || !finite(&self.to_object) {
-            return false;
-        }
-        let product = self.to_world.matrix3 * self.to_object.matrix3;
-        (product - DMat3::IDENTITY)
-            .to_cols_array()
-            .iter()
-            .all(|e| e.abs() < 1e-9)
+        finite(&self.to_world) && finite(&self.to_object) && self.condition() <= MAX_CONDITION
+    }
+
+    /// The componentwise condition of the linear part `M` with its stored inverse `N`, in
+    /// `f64`: the smaller of `‖|N|·|M|‖∞` (object space) and `‖|M|·|N|‖∞` (world space).
+    /// Rounding leaves `N·M` within `γ(3)` times the first of the identity, and `M·N` within
+    /// `γ(3)` times the second, so one of them small means `N` inverts `M` to within rounding
+    /// in one space; the tracer's error bounds carry `|M|` and `|N|` for the other. Any
+    /// scale alone, before or after a rotation, keeps one of them near 1 however extreme.
+    pub fn condition(&self) -> f64 {
+        let abs = |m: &DMat3| DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
+        let (m, n) = (abs(&self.to_world.matrix3), abs(&self.to_object.matrix3));
+        let norm = |p: DMat3| {
+            let r = p.transpose();
+            [r.x_axis, r.y_axis, r.z_axis]
+                .iter()
+                .map(|row| row.element_sum())
+                .fold(0.0, f64::max)
+        };
+        norm(n * m).min(norm(m * n))
     }
 
     /// Object space to world space.
@@ -363,6 +382,38 @@ mod tests {
                 TransformOp::Scale(DVec3::splat(s)),
             ]);
             assert!(!t.is_valid(), "scale {s} twice");
+        }
+    }
+
+    #[test]
+    fn an_extreme_scale_is_judged_by_the_space_it_stays_accurate_in() {
+        let rotate = TransformOp::Rotate(DVec3::new(10.0, 20.0, 30.0));
+        let scale = TransformOp::Scale(DVec3::new(1e4, 1e-4, 1.0));
+        let big = TransformOp::Scale(DVec3::new(1e6, 1e-6, 1.0));
+        let unbig = TransformOp::Scale(DVec3::new(1e-6, 1e6, 1.0));
+        for (ops, valid) in [
+            (vec![scale], true),
+            (vec![rotate, scale], true),
+            (vec![scale, rotate], true),
+            (vec![big, rotate], true),
+            // A rotation between opposite extreme scales mixes axes 1e12 apart.
+            (vec![big, rotate, unbig], false),
+        ] {
+            let t = chain(&ops);
+            assert_eq!(t.is_valid(), valid, "{ops:?}: condition {}", t.condition());
+            if valid {
+                // The stored inverse undoes the matrix to within the accepted condition in the
+                // space it is judged in.
+                let (m, n) = (t.to_world().matrix3, t.to_object().matrix3);
+                let worst = |p: DMat3| {
+                    (p - DMat3::IDENTITY)
+                        .to_cols_array()
+                        .iter()
+                        .fold(0.0f64, |a, e| a.max(e.abs()))
+                };
+                let residual = worst(n * m).min(worst(m * n));
+                assert!(residual <= gamma(3) * MAX_CONDITION, "{ops:?}: {residual}");
+            }
         }
     }
 

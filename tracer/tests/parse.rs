@@ -272,6 +272,27 @@ fn wrong_value_types_name_what_was_expected() {
     );
 }
 
+/// An extreme scale after a rotation leaves the stored inverse as accurate as the scale
+/// alone does, so it is accepted; a scale that collapses an axis after a rotation is still
+/// refused at the step that collapses it.
+#[test]
+fn a_rotation_then_an_extreme_scale_is_judged_by_its_conditioning() {
+    let d =
+        ok("[OBJECT]\ntype = sphere\nrotate = <10, 20, 30>\nscale = <1e4, 1e-4, 1>\n[/OBJECT]\n");
+    assert_eq!(d.objects.len(), 1);
+    // 1e-15 to the 21st is below the smallest normal f64 and its inverse overflows: the
+    // matrix is singular in f64, refused at the 21st scale, line 24.
+    one_error(
+        &format!(
+            "[OBJECT]\ntype = sphere\nrotate = <10, 20, 30>\n{}[/OBJECT]\n",
+            "scale = <1e-15, 1, 1>\n".repeat(21)
+        ),
+        24,
+        1,
+        &["singular or non-finite"],
+    );
+}
+
 #[test]
 fn a_bad_vector_component_is_pointed_at() {
     //                       col 12 is '<'; the second component starts at col 16.

@@ -417,3 +417,33 @@ fn unused_features_cost_no_rays() {
     let (_, stats) = scene(&no_shadow).render_rect_linear(Rect::full(20, 20));
     assert_eq!(stats.shadow, 0, "shadow = 0 needs no shadow rays");
 }
+
+/// A unit sphere rotated and then scaled to an extreme ellipsoid is the same solid as the
+/// scaled sphere without the rotation: both are accepted and render the same pixels.
+#[test]
+fn a_rotation_before_an_extreme_scale_renders_as_the_scale_alone() {
+    let src = |rotate: &str| {
+        format!(
+            "[GLOBALS]\nwidth = 40\nheight = 30\nambient = 0.1\n[/GLOBALS]\n\
+             [CAMERA]\neye = <0, 10, 0>\nlook_at = <0, 0, 0>\nup = <0, 0, -1>\n[/CAMERA]\n\
+             [LIGHT]\nposition = <3, 10, 2>\n[/LIGHT]\n\
+             [OBJECT]\ntype = sphere\ncolor1 = 0.8\n{rotate}scale = <1e4, 1e-4, 2>\n[/OBJECT]\n"
+        )
+    };
+    let plain = scene(&src(""));
+    let rotated = scene(&src("rotate = <10, 20, 30>\n"));
+    let all = Rect::new(0, 0, 40, 30);
+    let (a, _) = plain.render_rect_linear(all);
+    let (b, _) = rotated.render_rect_linear(all);
+    let lit = a.iter().filter(|c| c.max_element() > 0.5).count();
+    assert!(
+        lit > 40,
+        "the ellipsoid covers a band of the image: {lit} lit pixels"
+    );
+    for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+        assert!(
+            (*x - *y).abs().max_element() < 1e-6,
+            "pixel {i}: {x:?} vs {y:?}"
+        );
+    }
+}
