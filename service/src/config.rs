@@ -124,8 +124,8 @@ pub struct Config {
     #[arg(long, env = "TESSERA_MAX_ATTEMPTS", default_value_t = 4,
           value_parser = clap::value_parser!(u32).range(1..))]
     pub max_attempts: u32,
-    /// Failures of one worker on one job after which it is kept away from the job (at
-    /// least 1).
+    /// Failures one worker reported on one job after which it is kept away from the job
+    /// (at least 1). Leases it lost by stopping answering do not count.
     #[arg(long, env = "TESSERA_KEEP_AWAY_AFTER", default_value_t = 2,
           value_parser = clap::value_parser!(u32).range(1..))]
     pub keep_away_after: u32,

@@ -228,6 +228,53 @@ fn chaos_killed_workers_and_a_restarted_service_still_give_the_exact_image(backe
 }
 on_both!(chaos_killed_workers_and_a_restarted_service_still_give_the_exact_image);
 
+/// A worker restarted under its fixed name (a container, a systemd unit) and killed again and
+/// again loses its leases each time: stalls, charged to the tile it held but never keeping
+/// the worker away. Counted as failures, the second kill kept the name away and failed the
+/// job ("every available worker failed this job") with its rendered tiles thrown away.
+fn a_worker_killed_again_and_again_is_not_kept_away(backend: Backend) {
+    let dir = TempDir::on(backend, "churn");
+    let svc = Service::start(
+        &dir,
+        &[
+            "--local-workers",
+            "0",
+            "--lease-ms",
+            "500",
+            "--keep-away-after",
+            "2",
+            "--max-attempts",
+            "10",
+        ],
+    );
+    let id = svc.submit_id(&read("thesis.ray"), "?tile=64");
+    let reaps = || {
+        svc.log()
+            .matches("expired leases: tiles handed out again")
+            .count()
+    };
+    // Four lives of the worker, each claiming a tile and vanishing (as a SIGKILL leaves it);
+    // each lease runs out a lease or more after the last, so each is a stall of its own.
+    for life in 0..4 {
+        let before = reaps();
+        let r = svc.claim("churn");
+        assert_eq!(r.status(), 200, "life {life}: kept away?\n{}", svc.log());
+        wait_until(
+            "the lost lease to be reaped",
+            Duration::from_secs(60),
+            || reaps() > before,
+        );
+        let job = svc.get_json(&format!("/jobs/{id}"));
+        assert_eq!(job["state"], "running", "life {life}: {job}");
+    }
+    // The name's next life renders the whole job, exactly.
+    let _w = Worker::start(&svc.url, "churn", &[]);
+    let job = svc.wait_finished(&id, JOB_TIME);
+    assert_eq!(job["state"], "done", "{job}\n{}", svc.log());
+    assert!(svc.image(&id) == local_png(&examples().join("thesis.ray"), None, None));
+}
+on_both!(a_worker_killed_again_and_again_is_not_kept_away);
+
 #[test]
 fn limits_refuse_oversized_input_and_store_nothing() {
     let dir = TempDir::new("limits");

@@ -1,15 +1,15 @@
 //! The reaper's charging rule, shared by every backend: which of one worker's expired leases
-//! on one job count a failure against their tile, and how many strikes the worker gets.
+//! on one job count a failure against their tile, and how many stalls the worker is counted.
 //! Pure: the backends read the leases and write the outcome in their own SQL.
 //!
 //! A worker's leases on one job that run out within `stall_ms` of each other are one stall,
-//! in one pass or across passes: one strike towards keeping the worker away. A failure is
-//! charged to each tile it said it was rendering (a renewal with `rendering`), one per
-//! thread of a worker of many; the tiles it held ahead go back uncharged. A worker that
+//! in one pass or across passes: one stall counted for the worker, apart from the failures it
+//! reports, and never a reason to keep it away. A failure is charged to each tile it said it
+//! was rendering (a renewal with `rendering`), one per thread of a worker of many; the tiles it held ahead go back uncharged. A worker that
 //! stalled before renewing anything said nothing: then the tile whose lease ran out first
 //! is charged (its held-ahead tiles were claimed later). Counted once a tile, one pause or
-//! crash of a lone worker would be two strikes, enough to fail its job, and tiles never
-//! begun would run out of attempts.
+//! crash of a lone worker would be two stalls, and tiles never begun would run out of
+//! attempts.
 
 /// One expired lease, as the rule needs it.
 #[derive(Debug, Clone, Copy)]
@@ -25,7 +25,7 @@ pub(crate) struct Lapse {
 pub(crate) struct Charges {
     /// Per lease, in the order given: whether its tile is charged a failure.
     pub charged: Vec<bool>,
-    /// Strikes against the worker.
+    /// Stalls counted for the worker.
     pub strikes: i64,
     /// The end of its latest stall, to be stored for the next pass.
     pub stall_until: i64,

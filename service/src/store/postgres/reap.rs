@@ -1,4 +1,4 @@
-//! Reaping: expired leases requeued and charged (one stall, one strike), keep-away, jobs
+//! Reaping: expired leases requeued and charged (one stall, one tile charged), keep-away, jobs
 //! failed when a tile is out of attempts or no live worker may take them.
 //!
 //! The maintenance lock makes one replica at a time reap; each statement is guarded as
@@ -35,7 +35,10 @@ impl PgStore {
     /// nothing wrong.
     ///
     /// A worker's leases on one job that run out within `keep.stall_ms` of each other are
-    /// one stall, in this pass or across passes: one strike towards keeping the worker away.
+    /// one stall, in this pass or across passes, counted apart from its reported failures
+    /// (`keep_away.stalls`): a worker that vanished, or was restarted under its name, says
+    /// nothing against itself, so stalls never keep it away; its tiles' failures end a job
+    /// whose tile keeps losing its workers.
     /// A failure is charged to each tile it said it was rendering (a renewal with
     /// `rendering`), one per thread of a worker of many; the tiles it held ahead go back to
     /// the queue uncharged. A worker that stalled before renewing anything said nothing:
@@ -141,12 +144,12 @@ impl PgStore {
                 strikes_of.iter().map(f).collect::<Vec<_>>()
             };
             sqlx::query(
-                "INSERT INTO keep_away (job_id, worker, failures, until, stall_until)
+                "INSERT INTO keep_away (job_id, worker, stalls, until, stall_until)
                  SELECT job_id, worker, strikes, 0, stall_until
                  FROM UNNEST($1::TEXT[], $2::TEXT[], $3::BIGINT[], $4::BIGINT[])
                       AS s(job_id, worker, strikes, stall_until)
                  ON CONFLICT (job_id, worker) DO UPDATE
-                 SET failures = keep_away.failures + excluded.failures,
+                 SET stalls = keep_away.stalls + excluded.stalls,
                      stall_until = excluded.stall_until",
             )
             .bind(col(|s| s.0.clone()))
@@ -154,14 +157,6 @@ impl PgStore {
             .bind(strikes_of.iter().map(|s| s.2).collect::<Vec<_>>())
             .bind(strikes_of.iter().map(|s| s.3).collect::<Vec<_>>())
             .execute(&mut *tx)
-            .await?;
-            Self::apply_keep_away(
-                &mut tx,
-                &col(|s| s.0.clone()),
-                &col(|s| s.1.clone()),
-                now,
-                keep,
-            )
             .await?;
         }
         let failed = Self::fail_exhausted(&mut tx, None, now, max_attempts).await?;

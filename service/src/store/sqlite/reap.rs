@@ -1,4 +1,4 @@
-//! Reaping: expired leases requeued and charged (one stall, one strike), keep-away, jobs
+//! Reaping: expired leases requeued and charged (one stall, one tile charged), keep-away, jobs
 //! failed when a tile is out of attempts or no live worker may take them, and the leases of
 //! a previous run's local workers given back.
 
@@ -30,13 +30,16 @@ impl SqliteStore {
     /// nothing wrong.
     ///
     /// A worker's leases on one job that run out within `keep.stall_ms` of each other are
-    /// one stall, in this pass or across passes: one strike towards keeping the worker away.
+    /// one stall, in this pass or across passes, counted apart from its reported failures
+    /// (`keep_away.stalls`): a worker that vanished, or was restarted under its name, says
+    /// nothing against itself, so stalls never keep it away; its tiles' failures end a job
+    /// whose tile keeps losing its workers.
     /// A failure is charged to each tile it said it was rendering (a renewal with
     /// `rendering`), one per thread of a worker of many; the tiles it held ahead go back to
     /// the queue uncharged. A worker that stalled before renewing anything said nothing:
     /// then the tile whose lease ran out first is charged (its held-ahead tiles were claimed
     /// later). Counted once a tile, one pause or crash of a lone worker would be two
-    /// strikes, enough to fail its job, and tiles never begun would run out of attempts.
+    /// stalls, and tiles never begun would run out of attempts.
     pub(crate) async fn reap(&self, now: i64, max_attempts: u32, keep: KeepAway) -> Result<u64> {
         let mut conn = self.writer.lock().await?;
         let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
@@ -97,10 +100,10 @@ impl SqliteStore {
             }
             if let Some(w) = worker {
                 sqlx::query(
-                    "INSERT INTO keep_away (job_id, worker, failures, until, stall_until)
+                    "INSERT INTO keep_away (job_id, worker, stalls, until, stall_until)
                      VALUES (?1, ?2, ?3, 0, ?4)
                      ON CONFLICT (job_id, worker) DO UPDATE
-                     SET failures = failures + ?3, stall_until = ?4",
+                     SET stalls = stalls + ?3, stall_until = ?4",
                 )
                 .bind(job)
                 .bind(w)
@@ -111,7 +114,6 @@ impl SqliteStore {
             }
         }
         if !expired.is_empty() {
-            Self::apply_keep_away(&mut tx, now, keep).await?;
             Self::fail_exhausted(&mut tx, now, max_attempts).await?;
         }
         tx.commit().await?;
