@@ -94,19 +94,13 @@ pub async fn serve(
              requeued (they ended with it)"
         );
     }
-    // After a restart, the workers that rode through it get a fresh term. Not on a shared
-    // database: the other replicas took renewals meanwhile, and extending every lease at
-    // each replica's start would keep a dead worker's tiles from being reaped.
-    let extended = if store.is_shared() {
-        0
-    } else {
-        store.extend_leases(now_ms(), cfg.lease_ms).await?
-    };
+    // After a restart, every lease held runs for a grace at most ([`restart_grace_ms`]): the
+    // workers that rode through renew or post within it, and the leases of those that died
+    // meanwhile are reaped at its end, not a full term later.
+    let grace = restart_grace_ms(cfg.lease_ms);
+    let extended = store.restart_leases(now_ms(), grace).await?;
     if extended > 0 {
-        info!(
-            "{extended} leases from before the restart extended by {} ms",
-            cfg.lease_ms
-        );
+        info!("{extended} leases from before the start run out in {grace} ms unless renewed");
     }
     let (stop_tx, stop_rx) = watch::channel(false);
     let state = AppState::new(cfg, store.clone(), stop_rx.clone());
@@ -229,3 +223,10 @@ fn check(cfg: &Config, addr: SocketAddr) -> Result<(), ServiceError> {
 /// How long requests still open when a stop begins (after the local workers are done) may
 /// take before their connections are closed.
 pub const DRAIN: Duration = Duration::from_secs(5);
+
+/// How long the leases held when a service starts run before they are reaped: half a lease,
+/// since a worker that rode through the restart renews every third of one; at least 3 s,
+/// since it retries the post of a rendered tile every 2 s at most; never past a lease.
+pub(crate) fn restart_grace_ms(lease_ms: u64) -> u64 {
+    (lease_ms / 2).max(3_000).min(lease_ms)
+}

@@ -275,6 +275,35 @@ fn a_worker_killed_again_and_again_is_not_kept_away(backend: Backend) {
 }
 on_both!(a_worker_killed_again_and_again_is_not_kept_away);
 
+/// A worker killed while its service was down never renews: after the restart its lease
+/// runs only for the restart's grace (half of this 12 s lease), so its tile is handed out
+/// again well before a full lease. With a fresh term for every lease, the job waited a
+/// whole lease more for a worker that was gone.
+fn a_dead_workers_lease_is_reaped_after_the_restart_grace(backend: Backend) {
+    let dir = TempDir::on(backend, "restart-grace");
+    let addr = free_addr();
+    let args = ["--local-workers", "0", "--lease-ms", "12000"];
+    let mut svc = Service::start_on(&dir, &addr, &args);
+    // One slow tile, so the worker is still rendering it when the service goes.
+    let id = svc.submit_id(&mirror_cave(256, 32), "?tile=256");
+    let mut w = Worker::start(&svc.url, "dies-in-the-outage", &[]);
+    wait_claimed(&svc, &id);
+    svc.kill();
+    w.kill9();
+    let restarted = Instant::now();
+    let svc = Service::start_on(&dir, &addr, &args);
+    wait_until("the dead worker's tile handed out again", JOB_TIME, || {
+        svc.claim("next").status() == 200
+    });
+    let took = restarted.elapsed();
+    assert!(
+        took < Duration::from_millis(11_000),
+        "handed out again {took:?} after the restart\n{}",
+        svc.log()
+    );
+}
+on_both!(a_dead_workers_lease_is_reaped_after_the_restart_grace);
+
 #[test]
 fn limits_refuse_oversized_input_and_store_nothing() {
     let dir = TempDir::new("limits");

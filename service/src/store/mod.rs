@@ -393,10 +393,21 @@ impl Store {
         on!(self, s => s.reap_unheard(now, lease_ms, within, max_attempts, keep).await)
     }
 
-    /// Gives every live lease a fresh `lease_ms` from `now` (after a restart, or a pause of
-    /// the service). Returns how many.
+    /// Sets every live lease to run out `lease_ms` from `now` (a restart's grace, or a fresh
+    /// term after a pause of the service). Returns how many.
     pub async fn extend_leases(&self, now: i64, lease_ms: u64) -> Result<u64> {
         on!(self, s => s.extend_leases(now, lease_ms).await)
+    }
+
+    /// When a service starts: every live lease runs out `grace_ms` from `now`. On SQLite
+    /// that lengthens the leases of workers that rode through the outage (nobody could renew
+    /// meanwhile) and shortens the others; on a shared database it only shortens, since the
+    /// other replicas took renewals. Returns how many leases changed.
+    pub async fn restart_leases(&self, now: i64, grace_ms: u64) -> Result<u64> {
+        match self {
+            Store::Sqlite(s) => s.extend_leases(now, grace_ms).await,
+            Store::Postgres(s) => s.cap_leases(now, grace_ms).await,
+        }
     }
 
     /// The ids of queued and running jobs.

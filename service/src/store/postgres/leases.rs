@@ -370,4 +370,19 @@ impl PgStore {
         .await?;
         Ok(r.rows_affected())
     }
+
+    /// When a replica starts: no live lease runs longer than `grace_ms` from `now`. Holders
+    /// that live renew within it (every third of a lease, to any replica); the leases of
+    /// those that died while the service was down are reaped at its end. Never lengthens a
+    /// lease, so replicas starting again and again keep no dead worker's tile.
+    pub(crate) async fn cap_leases(&self, now: i64, grace_ms: u64) -> Result<u64> {
+        let r = sqlx::query(concat!(
+            "UPDATE tiles SET lease_expires = $1 WHERE lease_expires > $1 AND state = ",
+            tile_sql!(Leased)
+        ))
+        .bind(now.saturating_add(grace_ms as i64))
+        .execute(&self.pool)
+        .await?;
+        Ok(r.rows_affected())
+    }
 }
