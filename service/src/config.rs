@@ -193,6 +193,17 @@ pub struct Config {
     #[arg(long, env = "TESSERA_IDLE_TIMEOUT_SECS", default_value_t = 120,
           value_parser = clap::value_parser!(u64).range(1..=86_400))]
     pub idle_timeout_secs: u64,
+    /// Slowest a submission's body may arrive, in bytes a second averaged from its first
+    /// read, judged once it has taken 10 s: a slower body is cut with `408` and its share of
+    /// `--max-receiving-bytes` given back. 0 turns the floor off; at most 1 GiB/s.
+    #[arg(long, env = "TESSERA_MIN_UPLOAD_RATE", default_value_t = 1_024,
+          value_parser = clap::value_parser!(u64).range(0..=1 << 30))]
+    pub min_upload_rate: u64,
+    /// Longest a submission's body may take to arrive, in seconds from its first read: one
+    /// still arriving then is cut with `408`. 1 to 86,400 (a day).
+    #[arg(long, env = "TESSERA_MAX_UPLOAD_SECS", default_value_t = 600,
+          value_parser = clap::value_parser!(u64).range(1..=86_400))]
+    pub max_upload_secs: u64,
     /// Most texels of all of a job's textures together (each texel is held while the scene
     /// is checked and rendered: 3 bytes).
     #[arg(long, env = "TESSERA_MAX_SCENE_TEXTURE_PIXELS", default_value_t = 32 << 20,

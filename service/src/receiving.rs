@@ -28,10 +28,9 @@
 //! its share given back. Everything is given back when the submission is answered.
 //!
 //! **What it is not.** It does not limit connections, nor other routes' bodies (a tile's is
-//! bounded by its size), nor what a job costs once stored. A client that keeps sending,
-//! however slowly (a byte a second), keeps its share, as it keeps its connection past the
-//! idle timeout: a rate floor would cut slow links too; put a proxy with one in front. A
-//! client that gives up while waiting for room is noticed only when its wait ends (nothing
+//! bounded by its size), nor what a job costs once stored. The pace of a body is `upload`'s
+//! to judge (a body below `--min-upload-rate` or past `--max-upload-secs` is cut there, and
+//! its share given back with it). A client that gives up while waiting for room is noticed only when its wait ends (nothing
 //! reads its connection meanwhile), so it can hold its place in line until then.
 
 use std::sync::Arc;
@@ -79,6 +78,8 @@ pub struct Held {
     refused: bool,
     /// Whether the body fell silent past [`BODY_SILENCE`]: the answer is `408`.
     stalled: bool,
+    /// Why the body was cut for arriving too slowly or for too long: the answer is `408`.
+    too_slow: Option<String>,
 }
 
 /// The budget stayed full for as long as a submission may wait.
@@ -126,6 +127,7 @@ impl Receiving {
             checking: None,
             refused: false,
             stalled: false,
+            too_slow: None,
         }
     }
 
@@ -218,6 +220,16 @@ impl Held {
     /// Marks the body cut for its silence.
     pub fn stall(&mut self) {
         self.stalled = true;
+    }
+
+    /// Marks the body cut for its pace (`why`, said to the client).
+    pub fn cut_slow(&mut self, why: String) {
+        self.too_slow = Some(why);
+    }
+
+    /// Why the body was cut for its pace, if it was.
+    pub fn too_slow(&self) -> Option<&str> {
+        self.too_slow.as_deref()
     }
 
     /// Whether the body was cut for its silence.

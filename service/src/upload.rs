@@ -7,6 +7,7 @@
 
 use std::collections::HashMap;
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use axum::body::{Body, Bytes};
 use axum::extract::{FromRequest, Multipart, Request};
@@ -67,6 +68,8 @@ pub async fn read_submission(
             let held = held.lock().await;
             Err(if held.refused() {
                 busy(state)
+            } else if let Some(why) = held.too_slow() {
+                ApiError::new(StatusCode::REQUEST_TIMEOUT, why)
             } else if held.stalled() {
                 stalled(state)
             } else {
@@ -81,13 +84,17 @@ pub async fn read_submission(
 /// byte is read, all or nothing, held until the submission is answered. A share that gets
 /// no room in time (or none while the service stops) ends the body with [`Full`], which
 /// [`read_submission`] answers `503`; a body silent for [`BODY_SILENCE`] (or a second under the
-/// idle timeout) ends with [`Stalled`], answered `408`.
+/// idle timeout) ends with [`Stalled`], answered `408`, and so does one that arrives slower
+/// than `--min-upload-rate` once it has taken [`BODY_SILENCE`], or for longer than
+/// `--max-upload-secs` in all: a trickling client holds no share of the budget for long.
 fn metered(req: Request, state: &AppState, held: Arc<tokio::sync::Mutex<Held>>) -> Request {
     use futures_util::StreamExt;
     let limit = state.cfg.max_body_bytes as u64;
     let want = crate::error::declared_length(req.headers()).map_or(limit, |n| n.min(limit));
     let within = Receiving::wait_limit(state.cfg.longest_silence());
     let silence = BODY_SILENCE.min(state.cfg.longest_silence());
+    let min_rate = state.cfg.min_upload_rate;
+    let most = Duration::from_secs(state.cfg.max_upload_secs);
     let (parts, body) = req.into_parts();
     struct Meter {
         body: axum::body::BodyDataStream,
@@ -95,12 +102,18 @@ fn metered(req: Request, state: &AppState, held: Arc<tokio::sync::Mutex<Held>>) 
         state: AppState,
         /// Whether the share holds the body's room yet (taken at the first read).
         holding: bool,
+        /// When the share got its room: the body's clock starts then.
+        since: Instant,
+        /// Bytes read so far.
+        read: u64,
     }
     let meter = Meter {
         body: body.into_data_stream(),
         held,
         state: state.clone(),
         holding: false,
+        since: Instant::now(),
+        read: 0,
     };
     let chunks = futures_util::stream::unfold(Some(meter), move |meter| async move {
         let mut m = meter?;
@@ -122,11 +135,36 @@ fn metered(req: Request, state: &AppState, held: Arc<tokio::sync::Mutex<Held>>) 
                 return Some((Err(axum::Error::new(e)), None));
             }
             m.holding = true;
+            m.since = Instant::now();
         }
-        match tokio::time::timeout(silence, m.body.next()).await {
-            Ok(Some(Ok(chunk))) => Some((Ok(chunk), Some(m))),
+        let left = most.saturating_sub(m.since.elapsed());
+        match tokio::time::timeout(silence.min(left), m.body.next()).await {
+            Ok(Some(Ok(chunk))) => {
+                m.read += chunk.len() as u64;
+                let took = m.since.elapsed();
+                let floor = min_rate as f64 * took.as_secs_f64();
+                if took >= most {
+                    m.held.lock().await.cut_slow(too_long(most));
+                    return Some((Err(axum::Error::new(Stalled)), None));
+                }
+                if min_rate > 0 && took >= BODY_SILENCE && (m.read as f64) < floor {
+                    let why = format!(
+                        "the body arrived at {:.0} bytes/s, below --min-upload-rate \
+                         ({min_rate}); send it again over a faster link (its room in \
+                         --max-receiving-bytes is given to others meanwhile)",
+                        m.read as f64 / took.as_secs_f64()
+                    );
+                    m.held.lock().await.cut_slow(why);
+                    return Some((Err(axum::Error::new(Stalled)), None));
+                }
+                Some((Ok(chunk), Some(m)))
+            }
             Ok(Some(Err(e))) => Some((Err(e), None)),
             Ok(None) => None,
+            Err(_) if m.since.elapsed() >= most => {
+                m.held.lock().await.cut_slow(too_long(most));
+                Some((Err(axum::Error::new(Stalled)), None))
+            }
             Err(_) => {
                 m.held.lock().await.stall();
                 Some((Err(axum::Error::new(Stalled)), None))
@@ -136,9 +174,18 @@ fn metered(req: Request, state: &AppState, held: Arc<tokio::sync::Mutex<Held>>) 
     Request::from_parts(parts, Body::from_stream(chunks))
 }
 
-/// A body that stopped arriving for [`BODY_SILENCE`].
+/// Why a body still arriving after `most` was cut.
+fn too_long(most: Duration) -> String {
+    format!(
+        "the body took longer than --max-upload-secs ({} s) to arrive; send it again over a \
+         faster link (its room in --max-receiving-bytes is given to others meanwhile)",
+        most.as_secs()
+    )
+}
+
+/// A body that stopped arriving for [`BODY_SILENCE`], or arrived too slowly.
 #[derive(Debug, thiserror::Error)]
-#[error("the body stopped arriving")]
+#[error("the body stopped arriving, or arrived too slowly")]
 struct Stalled;
 
 /// The `408` of a submission whose body stopped arriving.

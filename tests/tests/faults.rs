@@ -1068,6 +1068,79 @@ fn silent_connections_are_closed() {
     assert_eq!(r.status(), 204);
 }
 
+/// Two clients trickling their bodies a byte at a time hold the whole receiving budget; a
+/// small submission waiting for room gets it once they are cut for their pace (`408`
+/// naming `--min-upload-rate`) after 10 s, well within the 30 s it may wait. Before, they
+/// kept their shares for as long as they trickled and it was refused with `503`.
+#[test]
+fn trickling_uploads_are_cut_and_a_waiting_submission_goes_through() {
+    use std::io::{Read, Write};
+    use std::net::TcpStream;
+
+    let dir = TempDir::new("trickle");
+    // Two declared bodies of 32 KiB fill a budget of 64 KiB.
+    let svc = Service::start(
+        &dir,
+        &[
+            "--local-workers",
+            "0",
+            "--max-receiving-bytes",
+            "65536",
+            "--max-body-bytes",
+            "32768",
+        ],
+    );
+    let addr = svc.url.trim_start_matches("http://").to_string();
+    let tricklers: Vec<_> = (0..2)
+        .map(|_| {
+            let mut s = TcpStream::connect(&addr).expect("connect");
+            s.write_all(b"POST /jobs HTTP/1.1\r\nHost: x\r\nContent-Length: 32768\r\n\r\n[")
+                .expect("write");
+            std::thread::spawn(move || {
+                // A byte every half second (the client's pace, read timeouts between) until
+                // the service answers; the answer as text.
+                s.set_read_timeout(Some(Duration::from_millis(500)))
+                    .expect("timeout");
+                let mut got = Vec::new();
+                let mut buf = [0u8; 4096];
+                let deadline = Instant::now() + Duration::from_secs(60);
+                while Instant::now() < deadline {
+                    match s.read(&mut buf) {
+                        Ok(0) => break,
+                        Ok(n) => got.extend_from_slice(&buf[..n]),
+                        Err(e)
+                            if matches!(
+                                e.kind(),
+                                std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                            ) =>
+                        {
+                            if !got.is_empty() {
+                                break;
+                            }
+                            let _ = s.write_all(b" ");
+                        }
+                        Err(_) => break,
+                    }
+                }
+                String::from_utf8_lossy(&got).into_owned()
+            })
+        })
+        .collect();
+    // Both hold their shares once the service has read their headers; a round trip after
+    // them comes later.
+    assert_eq!(svc.get("/healthz").status(), 200);
+    let started = Instant::now();
+    let job = svc.submit(&read("thesis.ray"), "");
+    assert!(job["id"].is_string(), "{job}");
+    let waited = started.elapsed();
+    for t in tricklers {
+        let answer = t.join().expect("trickler");
+        assert!(answer.starts_with("HTTP/1.1 408"), "{answer}");
+        assert!(answer.contains("--min-upload-rate"), "{answer}");
+    }
+    assert!(waited < Duration::from_secs(30), "{waited:?}");
+}
+
 /// A service that was itself suspended longer than a lease does not blame its workers for
 /// the renewals it could not take: it gives every lease a fresh term, and a worker's lease
 /// from before the pause is still good after it (not reaped and its tile handed out again,
