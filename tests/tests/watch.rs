@@ -469,3 +469,77 @@ fn a_job_url_is_its_page_in_a_browser() {
     }
     assert_eq!(svc.get("/static/nothing.js").status(), 404);
 }
+
+/// Every answer, page, script, JSON or error, says `nosniff`, `no-referrer` and a strict
+/// content security policy; the pages need nothing that policy forbids (no inline script,
+/// style or handler).
+#[test]
+fn answers_carry_the_security_headers_and_the_pages_obey_them() {
+    let dir = TempDir::new("security-headers");
+    let svc = Service::start(&dir, &["--local-workers", "0"]);
+    let browser = "text/html,application/xhtml+xml,application/xml;q=0.9,*/*;q=0.8";
+    for path in [
+        "/",
+        "/api",
+        "/static/job.js",
+        "/static/app.css",
+        "/jobs",
+        "/healthz",
+        "/jobs/nosuchjob",
+    ] {
+        let r = client()
+            .get(format!("{}{path}", svc.url))
+            .header("accept", browser)
+            .send()
+            .expect("an answer");
+        let h = r.headers();
+        assert_eq!(h["x-content-type-options"], "nosniff", "{path}");
+        assert_eq!(h["referrer-policy"], "no-referrer", "{path}");
+        let csp = h["content-security-policy"].to_str().expect("ASCII");
+        for directive in [
+            "default-src 'none'",
+            "script-src 'self'",
+            "style-src 'self'",
+        ] {
+            assert!(csp.contains(directive), "{path}: {csp}");
+        }
+        assert!(!csp.contains("unsafe-inline"), "{path}: {csp}");
+    }
+    let web = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../service/web");
+    for entry in std::fs::read_dir(&web).expect("the page's files") {
+        let path = entry.expect("entry").path();
+        let text = std::fs::read_to_string(&path)
+            .unwrap_or_default()
+            .to_lowercase();
+        let name = path.display();
+        if path.extension().is_some_and(|e| e == "html") {
+            assert!(!text.contains("<style"), "{name}: an inline style sheet");
+            assert!(!text.contains(" style="), "{name}: an inline style");
+            assert!(!text.contains("javascript:"), "{name}: a javascript: URL");
+            for tag in text.split("<script").skip(1) {
+                let open = tag.split('>').next().unwrap_or_default();
+                assert!(open.contains("src="), "{name}: an inline script");
+            }
+            for attr in text.split_whitespace() {
+                let handler = attr.starts_with("on")
+                    && attr
+                        .split('=')
+                        .next()
+                        .is_some_and(|a| a.len() > 2 && a.bytes().all(|b| b.is_ascii_lowercase()))
+                    && attr.contains('=');
+                assert!(!handler, "{name}: an inline handler {attr}");
+            }
+        }
+        if path.extension().is_some_and(|e| e == "js") {
+            for forbidden in [
+                "eval(",
+                "new function(",
+                "setattribute(\"style",
+                "style=",
+                "on\" + ",
+            ] {
+                assert!(!text.contains(forbidden), "{name}: {forbidden}");
+            }
+        }
+    }
+}
