@@ -1,5 +1,5 @@
 //! Bearer tokens: the worker token guards the worker routes, the submit token guards job
-//! submission and deletion. Compared in constant time, so response timing reveals nothing
+//! submission and deletion, the read token (or the submit token) guards reads. Compared in constant time, so response timing reveals nothing
 //! about how much of a guess was right.
 //!
 //! This module only checks tokens; which routes need which token is decided in `routes`.
@@ -85,6 +85,70 @@ pub async fn require_submit_token(
         Ok(()) => next.run(req).await,
         Err(r) => *r,
     }
+}
+
+/// The `tessera_token` cookie's value (percent-decoded, as the pages encode it), which the
+/// pages send for what they load without headers (images, the event stream).
+fn cookie_token(req: &Request) -> Option<Vec<u8>> {
+    req.headers()
+        .get_all(header::COOKIE)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(';'))
+        .find_map(|c| c.trim().strip_prefix("tessera_token="))
+        .map(|t| crate::upload::percent_decode(t).into_bytes())
+}
+
+/// Whether a `GET` of `path` reads data that `--read-token` guards: not `/healthz`, the
+/// page's files, nor the page shells (`/`, `/api`, a job's page for a browser), which hold
+/// no data and must load for the token to be typed; nor the worker routes (their own token).
+fn guarded_read(req: &Request) -> bool {
+    let path = req.uri().path();
+    let open = matches!(path, "/" | "/api" | "/healthz" | "/favicon.ico")
+        || path.starts_with("/static/")
+        || path.starts_with("/worker/")
+        || (path.starts_with("/jobs/")
+            && path[6..].split('/').count() == 1
+            && crate::handlers::page::wants_html(req.headers()));
+    !open
+}
+
+/// Middleware for reads (`GET`, `HEAD`) when `--read-token` is set: the read token or the
+/// submit token, as a bearer token or the `tessera_token` cookie.
+pub async fn require_read_token(
+    State(state): State<AppState>,
+    req: Request,
+    next: Next,
+) -> Response {
+    let Some(read) = state.cfg.read_token.as_deref() else {
+        return next.run(req).await;
+    };
+    let is_read = matches!(
+        *req.method(),
+        axum::http::Method::GET | axum::http::Method::HEAD
+    );
+    if !is_read || !guarded_read(&req) {
+        return next.run(req).await;
+    }
+    let submit = state.cfg.submit_token.as_deref();
+    let accepted = |t: &[u8]| {
+        constant_time_eq(t, read.as_bytes())
+            | submit.is_some_and(|s| constant_time_eq(t, s.as_bytes()))
+    };
+    let ok =
+        presented(&req).is_some_and(accepted) || cookie_token(&req).is_some_and(|t| accepted(&t));
+    if ok {
+        return next.run(req).await;
+    }
+    (
+        [(header::WWW_AUTHENTICATE, "Bearer")],
+        ApiError::new(
+            StatusCode::UNAUTHORIZED,
+            "reading needs the read token (or the submit token): `Authorization: Bearer \
+             <token>`, or the page's token field",
+        ),
+    )
+        .into_response()
 }
 
 #[cfg(test)]

@@ -101,6 +101,12 @@ pub struct Config {
     /// only on a loopback address unless --open-submit is given). An empty one is refused.
     #[arg(long, env = "TESSERA_SUBMIT_TOKEN", hide_env_values = true)]
     pub submit_token: Option<String>,
+    /// Bearer token that reads require (the job list, jobs, scenes, images, previews, events,
+    /// the roster of workers, the API document); the submit token is accepted too, and the
+    /// browser pages send either as the `tessera_token` cookie. `/healthz`, the page shells
+    /// and `/static/` stay open (none: reads are open). An empty one is refused.
+    #[arg(long, env = "TESSERA_READ_TOKEN", hide_env_values = true)]
+    pub read_token: Option<String>,
     /// Accept jobs from anyone even when listening beyond loopback without --submit-token.
     #[arg(long, env = "TESSERA_OPEN_SUBMIT")]
     pub open_submit: bool,
@@ -232,6 +238,7 @@ impl Config {
                 "--submit-token (or TESSERA_SUBMIT_TOKEN)",
                 &self.submit_token,
             ),
+            ("--read-token (or TESSERA_READ_TOKEN)", &self.read_token),
         ]
         .into_iter()
         .find_map(|(flag, t)| {

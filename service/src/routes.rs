@@ -197,6 +197,10 @@ pub fn router(state: AppState) -> Router {
         .layer(axum::middleware::from_fn(metrics::count_requests))
         .fallback(error::no_route)
         .method_not_allowed_fallback(error::wrong_method)
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            auth::require_read_token,
+        ))
         .layer(axum::middleware::from_fn(error::json_errors))
         .layer(axum::middleware::from_fn(security_headers))
         .layer(tower_http::trace::TraceLayer::new_for_http().on_failure(log_failure))

@@ -543,3 +543,79 @@ fn answers_carry_the_security_headers_and_the_pages_obey_them() {
         }
     }
 }
+
+/// With `--read-token`, reads need it (or the submit token), as a bearer token or the
+/// pages' `tessera_token` cookie; `/healthz`, the page shells and their files stay open so
+/// that the token can be typed; writes still need the submit token.
+#[test]
+fn a_read_token_guards_reads() {
+    let dir = TempDir::new("read-token");
+    let svc = Service::start(
+        &dir,
+        &[
+            "--local-workers",
+            "0",
+            "--read-token",
+            "r3ad",
+            "--submit-token",
+            "subm1t",
+        ],
+    );
+    let scene = std::fs::read_to_string(examples().join("thesis.ray")).expect("example");
+    let submitted = client()
+        .post(format!("{}/jobs", svc.url))
+        .bearer_auth("subm1t")
+        .body(scene.clone())
+        .send()
+        .expect("an answer");
+    assert_eq!(submitted.status(), 201);
+    let job: Value = submitted.json().expect("JSON");
+    let id = job["id"].as_str().expect("id").to_string();
+    let get = |path: &str, auth: Option<&str>, cookie: Option<&str>, accept: &str| {
+        let mut r = client()
+            .get(format!("{}{path}", svc.url))
+            .header("accept", accept);
+        if let Some(t) = auth {
+            r = r.bearer_auth(t);
+        }
+        if let Some(c) = cookie {
+            r = r.header("cookie", c);
+        }
+        r.send().expect("an answer").status()
+    };
+    let json = "application/json";
+    let browser = "text/html,application/xhtml+xml,application/xml;q=0.9,*/*;q=0.8";
+    let job_path = format!("/jobs/{id}");
+    let scene_path = format!("/jobs/{id}/scene");
+    let events = format!("/jobs/{id}/events");
+    for path in [
+        "/jobs",
+        job_path.as_str(),
+        scene_path.as_str(),
+        "/workers",
+        "/openapi.json",
+    ] {
+        assert_eq!(get(path, None, None, json), 401, "{path} without a token");
+        assert_eq!(get(path, Some("wrong"), None, json), 401, "{path}");
+        assert_eq!(get(path, Some("r3ad"), None, json), 200, "{path}");
+        assert_eq!(get(path, Some("subm1t"), None, json), 200, "{path}");
+        assert_eq!(
+            get(path, None, Some("theme=dark; tessera_token=r3ad"), json),
+            200,
+            "{path} with the cookie"
+        );
+    }
+    assert_eq!(get(&events, None, None, "text/event-stream"), 401);
+    for path in ["/healthz", "/", "/api", "/static/common.js", "/favicon.ico"] {
+        assert_eq!(get(path, None, None, browser), 200, "{path} stays open");
+    }
+    // A job's page for a browser is a shell; its JSON is a read.
+    assert_eq!(get(&job_path, None, None, browser), 200);
+    // Writes still need the submit token, not the read token.
+    let r = client()
+        .delete(format!("{}/jobs/{id}", svc.url))
+        .bearer_auth("r3ad")
+        .send()
+        .expect("an answer");
+    assert_eq!(r.status(), 401);
+}
