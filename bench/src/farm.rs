@@ -42,7 +42,8 @@ pub struct Args {
     /// A tile edge for the overhead and scaling jobs (default: the service's choice).
     #[arg(long)]
     pub tile: Option<u32>,
-    /// Only these parts (overhead, scaling, tiles, queue, postgres, memory); default all.
+    /// Only these parts (overhead, scaling, tiles, preview, queue, postgres, memory);
+    /// default all.
     #[arg(long, value_delimiter = ',')]
     pub parts: Vec<String>,
     /// A PostgreSQL server for the PostgreSQL figures, as a URL whose user may create
@@ -257,6 +258,107 @@ impl Service {
     }
 }
 
+/// What watching jobs cost: previews fetched whole and their time, and those answered 304.
+#[derive(Debug, Default)]
+struct Watch {
+    full: u32,
+    not_modified: u32,
+    time: Duration,
+    longest: Duration,
+    bytes: u64,
+}
+
+impl Watch {
+    fn add(&mut self, other: &Watch) {
+        self.full += other.full;
+        self.not_modified += other.not_modified;
+        self.time += other.time;
+        self.longest = self.longest.max(other.longest);
+        self.bytes += other.bytes;
+    }
+
+    fn mean_ms(&self) -> f64 {
+        self.time.as_secs_f64() * 1e3 / f64::from(self.full.max(1))
+    }
+
+    fn mean_kib(&self) -> f64 {
+        self.bytes as f64 / 1024.0 / f64::from(self.full.max(1))
+    }
+}
+
+impl Service {
+    /// As [`Service::render`], with the job watched as its page watches it: its events
+    /// open, its preview fetched every second with the `ETag` held. Returns what the
+    /// previews cost too.
+    fn render_watched(
+        &self,
+        http: &reqwest::blocking::Client,
+        scene: &str,
+        query: &str,
+    ) -> Result<(Vec<u8>, Duration, Watch)> {
+        let start = Instant::now();
+        let r = http
+            .post(format!("{}/jobs{query}", self.url))
+            .body(scene.to_string())
+            .send()?;
+        if r.status() != 201 {
+            bail!("submit: {} {}", r.status(), r.text().unwrap_or_default());
+        }
+        let job: Value = r.json()?;
+        let id = job["id"].as_str().context("job id")?.to_string();
+        let events = http
+            .get(format!("{}/jobs/{id}/events", self.url))
+            .timeout(Duration::from_secs(3600))
+            .send()?;
+        // Read to its end (the job's end) on a thread of its own, as a browser would.
+        let reader =
+            std::thread::spawn(move || std::io::copy(&mut { events }, &mut std::io::sink()));
+        let mut watch = Watch::default();
+        let mut etag: Option<String> = None;
+        loop {
+            let asked = Instant::now();
+            let mut req = http.get(format!("{}/jobs/{id}/preview.png", self.url));
+            if let Some(tag) = &etag {
+                req = req.header("If-None-Match", tag);
+            }
+            let r = req.send()?;
+            if r.status() == 304 {
+                watch.not_modified += 1;
+            } else if r.status() == 200 {
+                etag = r
+                    .headers()
+                    .get("etag")
+                    .and_then(|v| v.to_str().ok())
+                    .map(str::to_string);
+                watch.bytes += r.bytes()?.len() as u64;
+                let took = asked.elapsed();
+                watch.full += 1;
+                watch.time += took;
+                watch.longest = watch.longest.max(took);
+            } else {
+                bail!("preview: {}", r.status());
+            }
+            let j: Value = http
+                .get(format!("{}/jobs/{id}?wait=1", self.url))
+                .send()?
+                .json()?;
+            match j["state"].as_str() {
+                Some("done") => break,
+                Some("queued" | "running") => {}
+                _ => bail!("job ended: {j}"),
+            }
+        }
+        let elapsed = start.elapsed();
+        let _ = reader.join();
+        let png = http
+            .get(format!("{}/jobs/{id}/image.png", self.url))
+            .send()?
+            .bytes()?
+            .to_vec();
+        Ok((png, elapsed, watch))
+    }
+}
+
 impl Drop for Service {
     fn drop(&mut self) {
         let _ = self.child.kill();
@@ -419,6 +521,42 @@ pub fn run(args: &Args) -> Result<()> {
                     sqlite * 100.0,
                 );
             }
+        }
+        if samples.is_some() && args.wants("preview") {
+            // A job watched as the job page watches it (its preview fetched every second
+            // with the ETag held, its events open) against the same job unwatched, in
+            // back-to-back pairs on one service.
+            let svc = Service::start(&service_args(threads, args.tile))?;
+            let (mut plain, mut watched, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
+            let mut fetches = Watch::default();
+            for _ in 0..reps.max(1) {
+                let (png_plain, tp) = svc.render(&http, &scene, &query)?;
+                let (png_watched, tw, seen) = svc.render_watched(&http, &scene, &query)?;
+                if png_plain != png_watched {
+                    bail!("a watched job's PNG differs");
+                }
+                fetches.add(&seen);
+                ratios.push(tw.as_secs_f64() / tp.as_secs_f64());
+                plain.push(tp);
+                watched.push(tw);
+            }
+            drop(svc);
+            let ratio = Spread::of(ratios);
+            let pct = |r: f64| (r - 1.0) * 100.0;
+            println!(
+                "  preview ({label}): unwatched {:.3} s, watched {:.3} s: {:+.1} % (median of {} back-to-back pairs; range {:+.1} to {:+.1} %; PNG identical: yes); {} previews fetched, {:.1} ms each on average ({:.1} ms the longest, {:.0} KiB on average), {} answered 304",
+                median(plain).as_secs_f64(),
+                median(watched).as_secs_f64(),
+                pct(ratio.median),
+                ratio.count,
+                pct(ratio.lo),
+                pct(ratio.hi),
+                fetches.full,
+                fetches.mean_ms(),
+                fetches.longest.as_secs_f64() * 1e3,
+                fetches.mean_kib(),
+                fetches.not_modified,
+            );
         }
         if !args.quick && args.wants("tiles") {
             // The measurement behind the automatic tile size (`auto_tile` in the service).
