@@ -99,7 +99,7 @@ impl Transform {
 
     /// True when every matrix entry is finite and the composite is not too ill-conditioned
     /// for its stored inverse to undo it: the smaller of its two componentwise condition
-    /// numbers ([`Self::condition`]) is at most [`MAX_CONDITION`]. A zero or overflowing
+    /// numbers ([`Self::condition`]) is at most `MAX_CONDITION`. A zero or overflowing
     /// scale (1e200 twice gives ∞, its inverse 0) fails the first test; a rotation between
     /// two opposite extreme scales fails the second.
     pub fn is_valid(&self) -> bool {
