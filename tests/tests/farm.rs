@@ -444,8 +444,15 @@ fn bad_requests_get_json_errors_and_store_nothing(backend: Backend) {
     assert_eq!(svc.get_json(&format!("/jobs/{active}"))["state"], "queued");
 
     assert_eq!(svc.get("/healthz").status(), 200);
+    // The page's form, and the script behind it that submits to `/jobs` (the browser
+    // tests drive both).
     let page = svc.get("/").text().expect("page");
-    assert!(page.contains("<form") && page.contains("/jobs"));
+    assert!(
+        page.contains("<form") && page.contains("/static/list.js"),
+        "{page}"
+    );
+    let script = svc.get("/static/list.js").text().expect("script");
+    assert!(script.contains("/jobs"));
 }
 on_both!(bad_requests_get_json_errors_and_store_nothing);
 
