@@ -1,6 +1,6 @@
 // A job's page (`/jobs/{id}` in a browser): its facts, the image as far as it is rendered
 // with a map of its tiles over it, which worker holds which tile, failures, the scene, and
-// the actions (cancel, delete, retry, priority). Kept current by the job's server-sent
+// the actions (cancel, delete, priority). Kept current by the job's server-sent
 // events (`/jobs/{id}/events`), not by polling.
 "use strict";
 
@@ -37,7 +37,6 @@ function drawJob() {
   $("prioform").hidden = !active;
   if (document.activeElement !== $("newpriority")) $("newpriority").value = String(j.priority);
   $("delete").hidden = active;
-  $("retry").hidden = !(j.state === "failed" || j.state === "cancelled");
   $("download").hidden = j.state !== "done";
   if (j.state === "done") {
     $("download").href = j.image_url;
@@ -68,8 +67,6 @@ async function act(what, request, after) {
 }
 
 $("cancel").onclick = () => act("Cancelled.", () => api(jobPath, { method: "DELETE" }));
-$("retry").onclick = () => act("Queued again: only the missing tiles render.",
-  () => api(jobPath + "/retry", { method: "POST" }), () => follow());
 $("delete").onclick = () => {
   const question = job && job.state === "done" ? "Delete this job and its image?" : "Delete this job?";
   if (!confirm(question)) return;

@@ -1,7 +1,7 @@
 // Watching a job in Chromium: a scene submitted through the form, its page (at its own
 // address), the tile map, the preview filling in while the job runs (its pixels read back),
-// which worker holds which tile, the priority changed, cancel, retry where the service
-// offers it, delete, the API page, and a phone's width. Against a service with one worker,
+// which worker holds which tile, the priority changed, cancel,
+// delete, the API page, and a phone's width. Against a service with one worker,
 // `checks.worker_pid`, which the Rust side started and stopped (SIGSTOP): this script lets
 // it run (SIGCONT) and stops it again to hold the job part-way. Run by
 // `tests/tests/browser.rs`.
