@@ -44,6 +44,10 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
             _ = tokio::time::sleep(every) => {}
             _ = stop.wait_for(|s| *s) => return,
         }
+        // A full disk keeps the farm paused for as long as it stays full.
+        state
+            .store
+            .recheck_storage(now_ms(), crate::store::STORAGE_PAUSE);
         match state.store.share(now_ms()).await {
             Ok(()) if unshared => {
                 unshared = false;

@@ -1862,6 +1862,60 @@ fn a_full_disk_under_the_spool_pauses_the_farm_and_loses_nothing() {
     assert_eq!(svc.get("/healthz").status(), 200);
 }
 
+/// A disk that stays full keeps the farm paused for as long as it does, not for 5 s after
+/// the last failed result: here the job's spool file and the spool's probe file are both
+/// `/dev/full`, so the disk has no room for anything. The job says `paused` and `/healthz`
+/// fails for well past 5 s; once there is room again the pause lapses and the job finishes
+/// with the exact image.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_disk_that_stays_full_keeps_the_farm_paused() {
+    let dir = TempDir::new("still-full");
+    let svc = Service::start(&dir, &["--local-workers", "0", "--lease-ms", "1000"]);
+    let id = svc.submit_id(&read("checker.ray"), "?tile=64");
+    let spool = std::path::PathBuf::from(format!("{}-tiles", svc.db.display()));
+    let (job_file, probe_file) = (spool.join(format!("{id}.rgb")), spool.join("probe.tmp"));
+    std::os::unix::fs::symlink("/dev/full", &job_file).expect("a full file");
+    std::os::unix::fs::symlink("/dev/full", &probe_file).expect("a full probe");
+    let c: Value = svc.claim("t").json().expect("claim");
+    let u = |k: &str| c[k].as_u64().expect("number") as u32;
+    let rect = Rect::new(u("x"), u("y"), u("w"), u("h"));
+    let r = client()
+        .put(format!(
+            "{}/worker/jobs/{id}/tiles/{}?lease={}",
+            svc.url,
+            c["idx"],
+            c["lease"].as_str().expect("lease")
+        ))
+        .body(encode_tile(rect, &vec![7u8; rect.pixel_count() * 3]))
+        .send()
+        .expect("answer");
+    assert_eq!(r.status(), 503);
+    // Nothing else writes meanwhile: the pause holds on the service's own looks.
+    let held_until = Instant::now() + Duration::from_secs(8);
+    while Instant::now() < held_until {
+        let job = svc.get_json(&format!("/jobs/{id}"));
+        assert!(
+            job["paused"].is_string(),
+            "the pause lapsed on a full disk: {job}"
+        );
+        assert_eq!(svc.get("/healthz").status(), 503);
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    std::fs::remove_file(&job_file).expect("room again");
+    std::fs::remove_file(&probe_file).expect("room again");
+    wait_until("the pause to lapse", Duration::from_secs(15), || {
+        svc.get_json(&format!("/jobs/{id}"))["paused"].is_null()
+    });
+    let _w = Worker::start(&svc.url, "w", &[]);
+    let job = svc.wait_finished(&id, JOB_TIME);
+    assert_eq!(job["state"], "done", "{job}");
+    assert_eq!(
+        svc.image(&id),
+        local_png(&examples().join("checker.ray"), None, None)
+    );
+}
+
 /// A worker whose claim is answered `503` with `Retry-After` (a service pausing its farm
 /// for a full disk says 5 s) asks again no sooner: it backed off from 25 ms, some fifteen
 /// claims in a five-second pause.

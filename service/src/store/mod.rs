@@ -336,6 +336,15 @@ impl Store {
         }
     }
 
+    /// While the farm is paused for want of room to store tile pixels, looks again: the pause
+    /// lasts as long as there is none (the reaper's every pass).
+    pub fn recheck_storage(&self, now: i64, within: Duration) {
+        match self {
+            Store::Sqlite(s) => s.recheck_storage(now, within),
+            Store::Postgres(_) => {}
+        }
+    }
+
     /// Requeues tiles whose lease expired before `now`, charging the stalls to their tiles
     /// and workers, and fails jobs with a tile out of attempts. Returns how many tiles were
     /// requeued.

@@ -42,6 +42,14 @@ impl SqliteStore {
         self.spool.as_ref().and_then(|s| s.trouble(now, within))
     }
 
+    /// Renews the record of a lack of room while the spool's folder still has none (see
+    /// `Spool::recheck`).
+    pub(crate) fn recheck_storage(&self, now: i64, within: Duration) {
+        if let Some(s) = &self.spool {
+            s.recheck(now, within);
+        }
+    }
+
     /// [`SqliteStore::noted`], for a renewal or a result under `lease` that failed: its
     /// worker is alive and asked in time, so while the storage fails the reaper gives the
     /// lease a fresh term rather than reap it ([`SqliteStore::reap_unheard`]). Only refusals

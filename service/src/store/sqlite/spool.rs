@@ -173,6 +173,23 @@ impl Spool {
         }
     }
 
+    /// While a lack of room is recorded (within `within` before `now`), probes the folder;
+    /// a probe that finds no room renews the record at `now`. So the farm stays paused as
+    /// long as the disk stays full, not only for `within` after the last failed result:
+    /// with no room, workers hold back their results and nothing else would fail a write.
+    /// A probe that writes leaves the record to lapse as it would.
+    pub fn recheck(&self, now: i64, within: Duration) {
+        if self.trouble(now, within).is_none() {
+            return;
+        }
+        if let Err(e) = self.probe()
+            && e.is_capacity()
+        {
+            *self.failing.lock().unwrap_or_else(PoisonError::into_inner) =
+                Some((now, e.to_string()));
+        }
+    }
+
     /// The folder.
     pub fn dir(&self) -> &Path {
         &self.dir
