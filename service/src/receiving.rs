@@ -168,22 +168,9 @@ impl Held {
     /// Takes room for `texels` texels of textures to decode (at most the whole texel budget),
     /// waiting up to `within`; once only, before the textures are decoded.
     pub async fn grow_texels(&mut self, texels: u64, within: Duration) -> Result<(), Full> {
-        let need = texels.div_ceil(UNIT).min(self.budget.texel_units as u64);
-        let need = u32::try_from(need).unwrap_or(u32::MAX);
-        if need == 0 {
-            return Ok(());
-        }
-        let acquire = self.budget.texels.clone().acquire_many_owned(need);
-        match tokio::time::timeout(within, acquire).await {
-            Ok(Ok(room)) => {
-                self.texels = Some(room);
-                Ok(())
-            }
-            Ok(Err(_)) | Err(_) => {
-                self.refused = true;
-                Err(Full)
-            }
-        }
+        let budget = (self.budget.texels.clone(), self.budget.texel_units);
+        self.texels = self.take_once(budget, texels, within).await?;
+        Ok(())
     }
 
     /// Gives back the room taken for texels (the textures are decoded and dropped).
@@ -194,17 +181,28 @@ impl Held {
     /// Takes room for checking a scene whose check may take `bytes` (at most the whole
     /// budget), waiting up to `within`; once only, before the scene is parsed.
     pub async fn grow_checking(&mut self, bytes: u64, within: Duration) -> Result<(), Full> {
-        let need = bytes.div_ceil(UNIT).min(self.budget.checking_units as u64);
+        let budget = (self.budget.checking.clone(), self.budget.checking_units);
+        self.checking = self.take_once(budget, bytes, within).await?;
+        Ok(())
+    }
+
+    /// Room for `amount` (in units of 1,024, at most the whole of `budget`: its semaphore and
+    /// its size) taken at once, waiting up to `within`; `None` when nothing is asked. On
+    /// [`Full`] the share remembers the refusal ([`Held::refused`]).
+    async fn take_once(
+        &mut self,
+        (budget, units): (Arc<Semaphore>, usize),
+        amount: u64,
+        within: Duration,
+    ) -> Result<Option<OwnedSemaphorePermit>, Full> {
+        let need = amount.div_ceil(UNIT).min(units as u64);
         let need = u32::try_from(need).unwrap_or(u32::MAX);
         if need == 0 {
-            return Ok(());
+            return Ok(None);
         }
-        let acquire = self.budget.checking.clone().acquire_many_owned(need);
-        match tokio::time::timeout(within, acquire).await {
-            Ok(Ok(room)) => {
-                self.checking = Some(room);
-                Ok(())
-            }
+        match tokio::time::timeout(within, budget.acquire_many_owned(need)).await {
+            Ok(Ok(room)) => Ok(Some(room)),
+            // The semaphore is never closed; a closed one admits no one.
             Ok(Err(_)) | Err(_) => {
                 self.refused = true;
                 Err(Full)

@@ -1798,6 +1798,24 @@ fn a_multipart_type_in_any_case_is_multipart() {
     }
 }
 
+/// Claims a tile of job `id` as worker `t` and posts it in grey (bytes of 7); the answer to
+/// the post.
+fn claim_and_post_grey(svc: &Service, id: &str) -> reqwest::blocking::Response {
+    let c: Value = svc.claim("t").json().expect("claim");
+    let u = |k: &str| c[k].as_u64().expect("number") as u32;
+    let rect = Rect::new(u("x"), u("y"), u("w"), u("h"));
+    client()
+        .put(format!(
+            "{}/worker/jobs/{id}/tiles/{}?lease={}",
+            svc.url,
+            c["idx"],
+            c["lease"].as_str().expect("lease")
+        ))
+        .body(encode_tile(rect, &vec![7u8; rect.pixel_count() * 3]))
+        .send()
+        .expect("answer")
+}
+
 /// A disk that fills under the tile spool (here the job's spool file is `/dev/full`, where
 /// every write fails with "no space left"): the result is answered `503` with the reason
 /// and its tile queued again, claims get `503` and the health check fails meanwhile; once
@@ -1813,19 +1831,7 @@ fn a_full_disk_under_the_spool_pauses_the_farm_and_loses_nothing() {
     let spool_file =
         std::path::PathBuf::from(format!("{}-tiles", svc.db.display())).join(format!("{id}.rgb"));
     std::os::unix::fs::symlink("/dev/full", &spool_file).expect("a full file");
-    let c: Value = svc.claim("t").json().expect("claim");
-    let u = |k: &str| c[k].as_u64().expect("number") as u32;
-    let rect = Rect::new(u("x"), u("y"), u("w"), u("h"));
-    let r = client()
-        .put(format!(
-            "{}/worker/jobs/{id}/tiles/{}?lease={}",
-            svc.url,
-            c["idx"],
-            c["lease"].as_str().expect("lease")
-        ))
-        .body(encode_tile(rect, &vec![7u8; rect.pixel_count() * 3]))
-        .send()
-        .expect("answer");
+    let r = claim_and_post_grey(&svc, &id);
     assert_eq!(r.status(), 503);
     assert!(r.headers().contains_key("retry-after"));
     let e: Value = r.json().expect("json");
@@ -1877,19 +1883,7 @@ fn a_disk_that_stays_full_keeps_the_farm_paused() {
     let (job_file, probe_file) = (spool.join(format!("{id}.rgb")), spool.join("probe.tmp"));
     std::os::unix::fs::symlink("/dev/full", &job_file).expect("a full file");
     std::os::unix::fs::symlink("/dev/full", &probe_file).expect("a full probe");
-    let c: Value = svc.claim("t").json().expect("claim");
-    let u = |k: &str| c[k].as_u64().expect("number") as u32;
-    let rect = Rect::new(u("x"), u("y"), u("w"), u("h"));
-    let r = client()
-        .put(format!(
-            "{}/worker/jobs/{id}/tiles/{}?lease={}",
-            svc.url,
-            c["idx"],
-            c["lease"].as_str().expect("lease")
-        ))
-        .body(encode_tile(rect, &vec![7u8; rect.pixel_count() * 3]))
-        .send()
-        .expect("answer");
+    let r = claim_and_post_grey(&svc, &id);
     assert_eq!(r.status(), 503);
     // Nothing else writes meanwhile: the pause holds on the service's own looks.
     let held_until = Instant::now() + Duration::from_secs(8);
