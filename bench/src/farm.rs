@@ -219,6 +219,18 @@ impl Service {
             .map(|(png, t, _)| (png, t))
     }
 
+    /// Submits `scene` with `query`; the job as the service answers it (`201`).
+    fn submit(&self, http: &reqwest::blocking::Client, scene: &str, query: &str) -> Result<Value> {
+        let r = http
+            .post(format!("{}/jobs{query}", self.url))
+            .body(scene.to_string())
+            .send()?;
+        if r.status() != 201 {
+            bail!("submit: {} {}", r.status(), r.text().unwrap_or_default());
+        }
+        Ok(r.json()?)
+    }
+
     /// As [`Service::render`], also returning the tile edge the service used.
     fn render_job(
         &self,
@@ -227,14 +239,7 @@ impl Service {
         query: &str,
     ) -> Result<(Vec<u8>, Duration, u64)> {
         let start = Instant::now();
-        let r = http
-            .post(format!("{}/jobs{query}", self.url))
-            .body(scene.to_string())
-            .send()?;
-        if r.status() != 201 {
-            bail!("submit: {} {}", r.status(), r.text().unwrap_or_default());
-        }
-        let job: Value = r.json()?;
+        let job = self.submit(http, scene, query)?;
         let id = job["id"].as_str().context("job id")?.to_string();
         let tile = job["tile"].as_u64().context("job tile")?;
         loop {
@@ -297,14 +302,7 @@ impl Service {
         query: &str,
     ) -> Result<(Vec<u8>, Duration, Watch)> {
         let start = Instant::now();
-        let r = http
-            .post(format!("{}/jobs{query}", self.url))
-            .body(scene.to_string())
-            .send()?;
-        if r.status() != 201 {
-            bail!("submit: {} {}", r.status(), r.text().unwrap_or_default());
-        }
-        let job: Value = r.json()?;
+        let job = self.submit(http, scene, query)?;
         let id = job["id"].as_str().context("job id")?.to_string();
         let events = http
             .get(format!("{}/jobs/{id}/events", self.url))
