@@ -99,12 +99,16 @@ fn cookie_token(req: &Request) -> Option<Vec<u8>> {
         .map(|t| crate::upload::percent_decode(t).into_bytes())
 }
 
-/// Whether a `GET` of `path` reads data that `--read-token` guards: not `/healthz`, the
-/// page's files, nor the page shells (`/`, `/api`, a job's page for a browser), which hold
-/// no data and must load for the token to be typed; nor the worker routes (their own token).
+/// The paths whose `GET` is open whatever `--read-token` says: the page shells, which hold
+/// no data and must load for the token to be typed, the health check, and the icon.
+pub const OPEN_READS: [&str; 4] = ["/", "/api", "/healthz", "/favicon.ico"];
+
+/// Whether a `GET` of `path` reads data that `--read-token` guards: not [`OPEN_READS`], the
+/// page's files, nor a job's page for a browser (a shell too); nor the worker routes (their
+/// own token).
 fn guarded_read(req: &Request) -> bool {
     let path = req.uri().path();
-    let open = matches!(path, "/" | "/api" | "/healthz" | "/favicon.ico")
+    let open = OPEN_READS.contains(&path)
         || path.starts_with("/static/")
         || path.starts_with("/worker/")
         || (path.starts_with("/jobs/")

@@ -48,7 +48,7 @@ fn user_routes(body_limit: usize) -> OpenApiRouter<AppState> {
         .routes(routes!(page::openapi))
 }
 
-/// The document's own parts: what the service is, and the submit token's scheme.
+/// The document's own parts: what the service is, and the schemes of its tokens.
 fn base_document() -> OpenApi {
     let mut doc = OpenApiBuilder::new()
         .info(
@@ -58,7 +58,8 @@ fn base_document() -> OpenApi {
                 .description(Some(
                     "A distributed ray-tracing farm: submit a `.ray` scene, watch its tiles \
                      render, download the PNG. Routes that change jobs need the submit token \
-                     when the service is started with one (`Authorization: Bearer <token>`). \
+                     when the service is started with one (`Authorization: Bearer <token>`), \
+                     and reads need the read token when it has one. \
                      Every error answer is JSON `{\"error\": \"...\"}` with a fitting status.",
                 ))
                 .license(Some(
@@ -72,11 +73,44 @@ fn base_document() -> OpenApi {
             Tag::new("pages"),
         ]))
         .build();
-    let scheme = SecurityScheme::Http(HttpBuilder::new().scheme(HttpAuthScheme::Bearer).build());
-    doc.components
-        .get_or_insert_with(Default::default)
-        .add_security_scheme("submit_token", scheme);
+    let bearer = |about: &str| {
+        SecurityScheme::Http(
+            HttpBuilder::new()
+                .scheme(HttpAuthScheme::Bearer)
+                .description(Some(about))
+                .build(),
+        )
+    };
+    let components = doc.components.get_or_insert_with(Default::default);
+    components.add_security_scheme(
+        "submit_token",
+        bearer("The service's `--submit-token`, for routes that change jobs, when it has one."),
+    );
+    components.add_security_scheme(
+        "read_token",
+        bearer(
+            "The service's `--read-token` (or its submit token), for reads, when it has one. \
+             The pages send it as the `tessera_token` cookie instead.",
+        ),
+    );
     doc
+}
+
+/// Declares the read token on every read that `--read-token` guards (each `GET` but
+/// [`auth::OPEN_READS`]): optional, as it is until the service is started with one.
+fn declare_read_token(doc: &mut OpenApi) {
+    use utoipa::openapi::security::SecurityRequirement;
+    for (path, item) in doc.paths.paths.iter_mut() {
+        if auth::OPEN_READS.contains(&path.as_str()) {
+            continue;
+        }
+        if let Some(op) = item.get.as_mut() {
+            op.security = Some(vec![
+                SecurityRequirement::default(),
+                SecurityRequirement::new("read_token", Vec::<String>::new()),
+            ]);
+        }
+    }
 }
 
 /// Links the job a submission answers to the routes of one job (`id` from the answer's
@@ -151,6 +185,7 @@ pub fn document() -> &'static str {
         let mut doc = user_routes(0).into_openapi();
         link_submission(&mut doc);
         example_scene(&mut doc);
+        declare_read_token(&mut doc);
         // Serializing a document of strings and numbers cannot fail.
         doc.to_pretty_json()
             .unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))

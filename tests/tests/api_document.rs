@@ -98,6 +98,44 @@ fn the_document_is_the_routers_own() {
     assert_eq!(props, fields);
 }
 
+/// The document declares the read token on exactly the reads that `--read-token` guards:
+/// asked for without it, every read that declares it is refused, and every other read is
+/// answered.
+#[test]
+fn the_read_token_is_declared_where_reads_need_it() {
+    let dir = TempDir::new("openapi-read");
+    let svc = Service::start(&dir, &["--local-workers", "0", "--read-token", "r3ad"]);
+    let doc: Value = client()
+        .get(format!("{}/openapi.json", svc.url))
+        .bearer_auth("r3ad")
+        .send()
+        .expect("an answer")
+        .json()
+        .expect("the document");
+    let scheme = &doc["components"]["securitySchemes"]["read_token"];
+    assert_eq!(
+        (scheme["type"].as_str(), scheme["scheme"].as_str()),
+        (Some("http"), Some("bearer")),
+        "{scheme}"
+    );
+    let paths = doc["paths"].as_object().expect("paths");
+    let mut guarded = 0;
+    for (path, item) in paths {
+        let Some(op) = item.get("get") else { continue };
+        let declared = op["security"]
+            .as_array()
+            .is_some_and(|s| s.iter().any(|r| r.get("read_token").is_some()));
+        let r = client()
+            .get(format!("{}{}", svc.url, path.replace("{id}", "nosuchjob")))
+            .header("Accept", "application/json")
+            .send()
+            .expect("an answer");
+        assert_eq!(r.status() == 401, declared, "GET {path}: {}", r.status());
+        guarded += usize::from(declared);
+    }
+    assert!(guarded >= 8, "{guarded} reads declare the read token");
+}
+
 /// schemathesis's command: `TESSERA_SCHEMATHESIS`, the one `.ci/run` installs, or the PATH's.
 fn schemathesis() -> Option<PathBuf> {
     if let Some(p) = std::env::var_os("TESSERA_SCHEMATHESIS") {
