@@ -34,6 +34,8 @@ pub const TILES_REAPED: &str = "tessera_tiles_reaped_total";
 pub const RAYS_TRACED: &str = "tessera_rays_traced_total";
 /// Jobs accepted.
 pub const JOBS_SUBMITTED: &str = "tessera_jobs_submitted_total";
+/// Failed or cancelled jobs made active again (`POST /jobs/{id}/retry`).
+pub const JOBS_RETRIED: &str = "tessera_jobs_retried_total";
 /// How long a claim answered with a tile waited at the service for one.
 pub const CLAIM_WAIT: &str = "tessera_claim_wait_seconds";
 /// The render-thread time a stored tile took, as its worker measured it.
@@ -102,6 +104,10 @@ fn describe() {
         "Rays traced for the stored tiles, as their workers counted them."
     );
     describe_counter!(JOBS_SUBMITTED, "Jobs accepted.");
+    describe_counter!(
+        JOBS_RETRIED,
+        "Failed or cancelled jobs made active again by a retry."
+    );
     describe_histogram!(
         CLAIM_WAIT,
         Unit::Seconds,

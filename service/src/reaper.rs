@@ -162,7 +162,7 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
             }
             Err(e) => warn!("reaping expired leases: {}", state.store.noted(e, now_ms())),
         }
-        // The spool files of jobs that ended without an image (cancelled, failed, deleted).
+        // The spool files of deleted jobs (and of finished ones a crash left behind).
         if swept.elapsed() >= SWEEP_EVERY {
             swept = std::time::Instant::now();
             if let Err(e) = state.store.sweep_spool().await {

@@ -29,6 +29,7 @@ fn user_routes(body_limit: usize) -> OpenApiRouter<AppState> {
     let job_routes = OpenApiRouter::new()
         .routes(routes!(jobs::list_jobs, jobs::submit))
         .routes(routes!(jobs::get_job, jobs::delete_job, jobs::patch_job))
+        .routes(routes!(jobs::retry_job))
         .layer(DefaultBodyLimit::max(body_limit))
         .route_layer(axum::middleware::from_fn(move |req, next| {
             error::declared_length_within(body_limit, req, next)
@@ -124,7 +125,7 @@ fn link_submission(doc: &mut OpenApi) {
         .iter()
         .filter(|(path, _)| path.starts_with("/jobs/{id}"))
         .flat_map(|(_, item)| {
-            [&item.get, &item.delete, &item.patch]
+            [&item.get, &item.post, &item.delete, &item.patch]
                 .into_iter()
                 .filter_map(|op| op.as_ref()?.operation_id.clone())
                 .collect::<Vec<_>>()

@@ -106,7 +106,7 @@ pub async fn serve(
     let state = AppState::new(cfg, store.clone(), stop_rx.clone());
     match store.sweep_spool().await {
         Ok(0) => {}
-        Ok(n) => info!("{n} spool files of ended jobs removed"),
+        Ok(n) => info!("{n} spool files of finished or deleted jobs removed"),
         Err(e) => warn!("sweeping the tile spool: {e}"),
     }
     for job in store.unassembled().await? {

@@ -9,7 +9,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use sqlx::Connection;
-use tessera_service::store::{Completion, KeepAway, NewJob, Store, StoreError};
+use tessera_service::store::{
+    Completion, JobState, KeepAway, NewJob, Retried, Store, StoreError, TileState,
+};
 use tessera_tracer::{Rect, tiles};
 
 const KEEP: KeepAway = KeepAway {
@@ -175,11 +177,11 @@ async fn one_replica_at_a_time_maintains() {
     }
 }
 
-/// A result whose job is cancelled between its tile's check and its count is refused,
-/// and leaves no pixels behind: the cancellation dropped the pixels it saw, the result
-/// drops its own.
+/// A result whose job is cancelled between its tile's check and its count is stored and
+/// counted, as every tile the job stored before its end: the tile's state, the job's count
+/// and the pixels agree, and a retry keeps the tile.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_result_racing_its_jobs_cancellation_leaves_nothing() {
+async fn a_result_racing_its_jobs_cancellation_is_kept_and_counted() {
     let db = database();
     let url = db.url.clone();
     let q = Store::open(&url).await.expect("open");
@@ -195,6 +197,7 @@ async fn a_result_racing_its_jobs_cancellation_leaves_nothing() {
         .execute(&mut *tx)
         .await
         .expect("lock the job");
+    let idx = c.idx;
     let posting = tokio::spawn({
         let q = q.clone();
         async move {
@@ -226,14 +229,22 @@ async fn a_result_racing_its_jobs_cancellation_leaves_nothing() {
     tx.commit().await.expect("commit");
     let posted = posting.await.expect("ran").expect("complete");
     assert!(
-        matches!(&posted, Completion::Stale(why) if why.contains("cancelled")),
+        matches!(&posted, Completion::Stored { last: false, .. }),
         "{posted:?}"
     );
-    let left: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM tile_pixels")
+    let kept: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM tile_pixels")
         .fetch_one(&mut watcher)
         .await
         .expect("count");
-    assert_eq!(left, 0);
+    assert_eq!(kept, 1);
     let j = q.job("j").await.expect("read").expect("job");
-    assert_eq!(j.tiles_done, 0);
+    assert_eq!((j.state, j.tiles_done), (JobState::Cancelled, 1));
+    assert_eq!(
+        q.retry("j", 2).await.expect("retry"),
+        Retried::Retried { complete: false }
+    );
+    let j = q.job("j").await.expect("read").expect("job");
+    assert_eq!(j.tiles_done, 1);
+    let tile = q.tile("j", idx).await.expect("read").expect("tile");
+    assert_eq!(tile.state, TileState::Done);
 }

@@ -11,7 +11,9 @@ use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use tessera_service::store::{Cancel, Completion, JobState, KeepAway, NewJob, Store, StoreError};
+use tessera_service::store::{
+    Cancel, Completion, JobState, KeepAway, NewJob, Retried, Store, StoreError,
+};
 use tessera_tracer::{Rect, tiles};
 
 /// The throwaway PostgreSQL server, shared with the end-to-end tests.
@@ -664,9 +666,13 @@ async fn a_job_with_every_tile_in_is_not_cancelled(db: Db) {
 }
 on_both!(a_job_with_every_tile_in_is_not_cancelled);
 
-async fn a_job_that_ends_without_an_image_drops_what_it_stored(db: Db) {
+/// A job that ends without an image (cancelled, failed) drops the chunks of its PNG
+/// encoded so far, and keeps its stored tiles: a retry makes it active again with them, and
+/// hands out only the others.
+async fn a_job_that_ends_without_an_image_keeps_its_tiles_for_a_retry(db: Db) {
     let q = open_store(&db.url()).await.expect("open");
-    // A job of two tiles stores one of them, and the first chunk of its PNG.
+    // A job of two tiles stores one of them, and the first chunk of its PNG; returns the
+    // stored tile's index.
     let store_one = async |id: &str| {
         job(&q, id, 16, 8, 8).await;
         let c = q
@@ -685,24 +691,66 @@ async fn a_job_that_ends_without_an_image_drops_what_it_stored(db: Db) {
             .await
             .expect("chunk");
         assert_eq!(q.image_chunks(id).await.expect("count"), 1);
+        c
+    };
+    // What an ended job keeps: its stored tile's pixels, no chunk of its image.
+    let kept = async |id: &str, c: &tessera_protocol::Claim| {
+        let mut buf = Vec::new();
+        let tiles = q.stored_band(id, (16, 8), 0, &mut buf).await.expect("band");
+        assert_eq!(tiles.len(), 1);
+        assert_eq!(buf[tiles[0].bytes.clone()], pixels(c.rect()));
+        assert_eq!(q.image_chunks(id).await.expect("count"), 0);
+    };
+    // Retried: active again with the tile counted; the other is the only one handed out.
+    let retried = async |id: &str, c: &tessera_protocol::Claim| {
+        assert_eq!(
+            q.retry(id, 9).await.expect("retry"),
+            Retried::Retried { complete: false }
+        );
+        let j = q.job(id).await.expect("read").expect("job");
+        assert_eq!(
+            (j.state, j.tiles_done, j.error),
+            (JobState::Running, 1, None)
+        );
+        assert_eq!(band(&q, id, 0).await.len(), 1);
+        let next = q
+            .claim("w", 10, 1_000, 1)
+            .await
+            .expect("claim")
+            .expect("the missing tile");
+        assert_eq!(next.job, id);
+        assert_ne!(next.idx, c.idx);
+        assert!(q.claim("w", 10, 1_000, 1).await.expect("claim").is_none());
+        let stored = q
+            .complete(
+                id,
+                next.idx,
+                &next.lease,
+                next.rect(),
+                &pixels(next.rect()),
+                0,
+            )
+            .await
+            .expect("complete");
+        assert!(matches!(stored, Completion::Stored { last: true, .. }));
     };
 
-    store_one("cancelled").await;
+    let c = store_one("cancelled").await;
     assert_eq!(
         q.cancel("cancelled", 5).await.expect("cancel"),
         Cancel::Cancelled {
             from: JobState::Running
         }
     );
-    assert!(band(&q, "cancelled", 0).await.is_empty());
-    assert_eq!(q.image_chunks("cancelled").await.expect("count"), 0);
+    kept("cancelled", &c).await;
     // An encoding still under way cannot bring the image back.
     q.put_image_chunk("cancelled", 1, b"more")
         .await
         .expect("chunk");
     assert_eq!(q.image_chunks("cancelled").await.expect("count"), 0);
+    retried("cancelled", &c).await;
 
-    store_one("failed").await;
+    let stored = store_one("failed").await;
     let c = q
         .claim("w", 0, 1_000, 1)
         .await
@@ -718,10 +766,19 @@ async fn a_job_that_ends_without_an_image_drops_what_it_stored(db: Db) {
         q.job("failed").await.expect("read").expect("job").state,
         JobState::Failed
     );
-    assert!(band(&q, "failed", 0).await.is_empty());
-    assert_eq!(q.image_chunks("failed").await.expect("count"), 0);
+    kept("failed", &stored).await;
+    // The worker that failed it is no longer kept away, and the tile has its attempts back.
+    retried("failed", &stored).await;
+
+    // Only an ended job is retried.
+    assert_eq!(q.retry("nope", 11).await.expect("retry"), Retried::Unknown);
+    job(&q, "active", 16, 8, 8).await;
+    assert_eq!(
+        q.retry("active", 11).await.expect("retry"),
+        Retried::NotEnded(JobState::Queued)
+    );
 }
-on_both!(a_job_that_ends_without_an_image_drops_what_it_stored);
+on_both!(a_job_that_ends_without_an_image_keeps_its_tiles_for_a_retry);
 
 /// A job of more tiles than one insert statement holds (1,000) is stored tile for tile as
 /// the tiler cut it: every index once, each with its own rectangle, in claim order.
@@ -998,8 +1055,8 @@ async fn a_tile_lost_again_and_again_fails_its_job() {
     assert!(q.claim("w", 0, 60_000, 2).await.expect("claim").is_none());
 }
 
-/// The files of jobs that ended without an image or were deleted are swept; an active
-/// job's file is kept.
+/// The files of deleted jobs and of jobs whose image is stored are swept; those of active
+/// jobs and of jobs that ended without an image (kept for a retry) are not.
 ///
 /// SQLite only: its tile spool.
 #[tokio::test]
@@ -1007,7 +1064,7 @@ async fn ended_jobs_spool_files_are_swept() {
     let db = Db::sqlite("spool-sweep");
     let q = open_store(&db.url()).await.expect("open");
     let dir = q.spool_dir().expect("spool").to_path_buf();
-    for id in ["a", "b"] {
+    for id in ["a", "b", "d"] {
         job(&q, id, 16, 16, 16).await;
         let c = q
             .claim("w", 0, 60_000, 1)
@@ -1021,14 +1078,25 @@ async fn ended_jobs_spool_files_are_swept() {
             .await
             .expect("complete");
     }
-    assert!(dir.join("a.rgb").exists() && dir.join("b.rgb").exists());
-    // A file left by a job that no longer exists (a crash between its deletion and the
-    // file's), and job `b` ended.
-    std::fs::write(dir.join("gone.rgb"), b"x").expect("write");
+    assert!(
+        ["a", "b", "d"]
+            .iter()
+            .all(|id| dir.join(format!("{id}.rgb")).exists())
+    );
+    // Job `b` failed; job `d` is done, its file (which went with its image) back as a crash
+    // between the two would leave it; a file of a job that no longer exists.
     q.fail_job("b", "test", 0).await.expect("fail");
+    assert!(q.finish_image("d", 1, 0).await.expect("finish"));
+    assert!(
+        !dir.join("d.rgb").exists(),
+        "a stored image's file goes at once"
+    );
+    std::fs::write(dir.join("d.rgb"), b"x").expect("write");
+    std::fs::write(dir.join("gone.rgb"), b"x").expect("write");
     assert_eq!(q.sweep_spool().await.expect("sweep"), 2);
     assert!(dir.join("a.rgb").exists(), "an active job's file is kept");
-    assert!(!dir.join("b.rgb").exists() && !dir.join("gone.rgb").exists());
+    assert!(dir.join("b.rgb").exists(), "a failed job's file is kept");
+    assert!(!dir.join("d.rgb").exists() && !dir.join("gone.rgb").exists());
 }
 
 /// A submission's scene and textures count towards the next checkpoint as tile pixels do,
@@ -1716,11 +1784,12 @@ async fn a_loss_found_ahead_after_the_last_tile_waits_for_the_tile() {
     finish_after_loss(&q, &progress, "g", rects[2], &whole).await;
 }
 
-/// Cancelling or deleting a job removes its spool file at once.
+/// Cancelling a job keeps its spool file (its tiles wait for a retry); deleting a job
+/// removes its file at once.
 ///
 /// SQLite only: its tile spool.
 #[tokio::test]
-async fn cancel_and_delete_remove_the_spool_file() {
+async fn cancel_keeps_the_spool_file_and_delete_removes_it() {
     let db = Db::sqlite("spool-cancel");
     let q = open_store(&db.url()).await.expect("open");
     let dir = q.spool_dir().expect("spool").to_path_buf();
@@ -1740,6 +1809,8 @@ async fn cancel_and_delete_remove_the_spool_file() {
         q.cancel("c", 0).await.expect("cancel"),
         Cancel::Cancelled { .. }
     ));
+    assert!(dir.join("c.rgb").exists());
+    assert!(q.delete("c").await.expect("delete"));
     assert!(!dir.join("c.rgb").exists());
     assert!(q.delete("d").await.expect("delete"));
     assert!(!dir.join("d.rgb").exists());

@@ -1,6 +1,6 @@
 // A job's page (`/jobs/{id}` in a browser): its facts, the image as far as it is rendered
 // with a map of its tiles over it, which worker holds which tile, failures, the scene, and
-// the actions (cancel, delete, priority). Kept current by the job's server-sent
+// the actions (cancel, retry, delete, priority). Kept current by the job's server-sent
 // events (`/jobs/{id}/events`), not by polling.
 "use strict";
 
@@ -37,6 +37,7 @@ function drawJob() {
   $("prioform").hidden = !active;
   if (document.activeElement !== $("newpriority")) $("newpriority").value = String(j.priority);
   $("delete").hidden = active;
+  $("retry").hidden = !(j.state === "failed" || j.state === "cancelled");
   $("download").hidden = j.state !== "done";
   if (j.state === "done") {
     $("download").href = j.image_url;
@@ -67,6 +68,9 @@ async function act(what, request, after) {
 }
 
 $("cancel").onclick = () => act("Cancelled.", () => api(jobPath, { method: "DELETE" }));
+// The job's events ended with it: they are followed again once it is active.
+$("retry").onclick = () => act("Queued again: only the missing tiles render.",
+  () => api(jobPath + "/retry", { method: "POST" }), (j) => { job = j; drawJob(); follow(); });
 $("delete").onclick = () => {
   const question = job && job.state === "done" ? "Delete this job and its image?" : "Delete this job?";
   if (!confirm(question)) return;

@@ -1,7 +1,7 @@
 // Watching a job in Chromium: a scene submitted through the form, its page (at its own
 // address), the tile map, the preview filling in while the job runs (its pixels read back),
-// which worker holds which tile, the priority changed, cancel,
-// delete, the API page, and a phone's width. Against a service with one worker,
+// which worker holds which tile, the priority changed, cancel, retry (only the missing
+// tiles render), delete, the API page, and a phone's width. Against a service with one worker,
 // `checks.worker_pid`, which the Rust side started and stopped (SIGSTOP): this script lets
 // it run (SIGCONT) and stops it again to hold the job part-way. Run by
 // `tests/tests/browser.rs`.
@@ -96,17 +96,32 @@ run(async () => {
   await until("cancelled", async () => (await page.textContent("#state")) === "cancelled");
   assert.equal(await page.locator("#delete").isVisible(), true);
   assert.equal(await page.locator("#cancel").isVisible(), false);
+  assert.equal(await page.locator("#retry").isVisible(), true);
+  const kept = (await api(`/jobs/${id}/tiles`)).body.filter((t) => t.state === "done");
+  assert.ok(kept.some((t) => t.idx === doneTile.idx), "the cancelled job keeps its stored tiles");
   process.kill(checks.worker_pid, "SIGCONT");
-  step("cancelled");
+  step("cancelled", { kept: kept.length });
 
-  // 8. Delete from the page (it asks first) goes back to the list, without the job.
+  // 8. Retry from the page: the job runs again, its stored tiles are not handed out again,
+  // and it ends done with its PNG offered.
+  await page.click("#retry");
+  await until("done after the retry", async () => (await page.textContent("#state")) === "done");
+  assert.equal(await page.locator("#retry").isVisible(), false);
+  assert.equal(await page.locator("#download").isVisible(), true);
+  const after = new Map((await api(`/jobs/${id}/tiles`)).body.map((t) => [t.idx, t]));
+  for (const t of kept) {
+    assert.equal(after.get(t.idx).attempts, t.attempts, `tile ${t.idx} was handed out again`);
+  }
+  step("retried");
+
+  // 9. Delete from the page (it asks first) goes back to the list, without the job.
   page.once("dialog", (d) => d.accept());
   await page.click("#delete");
   await page.waitForURL(base + "/");
   assert.equal((await api("/jobs/" + id)).status, 404);
   step("deleted");
 
-  // 9. The API page lists every route of the document.
+  // 10. The API page lists every route of the document.
   await page.goto(base + "/api");
   const doc = (await api("/openapi.json")).body;
   const routes = Object.values(doc.paths).reduce((n, item) => n + Object.keys(item).filter((k) =>

@@ -23,6 +23,7 @@ const USER_ROUTES: &[(&str, &str)] = &[
     ("/jobs/{id}", "get"),
     ("/jobs/{id}", "delete"),
     ("/jobs/{id}", "patch"),
+    ("/jobs/{id}/retry", "post"),
     ("/jobs/{id}/image.png", "get"),
     ("/jobs/{id}/preview.png", "get"),
     ("/jobs/{id}/events", "get"),

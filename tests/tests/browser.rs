@@ -220,6 +220,7 @@ fn watching_a_job() {
             "preview",
             "narrow",
             "cancelled",
+            "retried",
             "deleted",
             "api page",
         ]

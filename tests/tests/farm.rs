@@ -736,3 +736,139 @@ fn jobs_are_listed_newest_first_a_page_at_a_time(backend: Backend) {
     }
 }
 on_both!(jobs_are_listed_newest_first_a_page_at_a_time);
+
+/// The done tiles of job `id`, by index, with how often each was handed out.
+fn stored_tiles(svc: &Service, id: &str) -> Vec<(u64, u64)> {
+    let tiles = svc.get_json(&format!("/jobs/{id}/tiles"));
+    tiles
+        .as_array()
+        .expect("tiles")
+        .iter()
+        .filter(|t| t["state"] == "done")
+        .map(|t| {
+            let n = |k: &str| t[k].as_u64().expect("a count");
+            (n("idx"), n("attempts"))
+        })
+        .collect()
+}
+
+/// A worker's `POST /worker/jobs/{id}/tiles/{idx}/fail` for the tile a claim handed out.
+fn report_failure(svc: &Service, claim: &Value, worker: &str) {
+    let r = client()
+        .post(format!(
+            "{}/worker/jobs/{}/tiles/{}/fail?lease={}",
+            svc.url,
+            claim["job"].as_str().expect("a job"),
+            claim["idx"],
+            claim["lease"].as_str().expect("a lease")
+        ))
+        .json(&serde_json::json!({ "worker": worker, "reason": "out of paint" }))
+        .send()
+        .expect("an answer");
+    assert_eq!(r.status(), 200);
+}
+
+/// Sends `SIGSTOP` or `SIGCONT` to a worker.
+fn pause(worker: &Worker, sig: &str) {
+    let status = std::process::Command::new("kill")
+        .args([format!("-{sig}"), worker.pid().to_string()])
+        .status()
+        .expect("kill runs");
+    assert!(status.success());
+}
+
+/// A failed job and a cancelled one keep the tiles they stored (across a restart, whose
+/// sweep of the tile spool keeps them too) and are retried rendering only the others: no
+/// stored tile is handed out again, and the PNG is `tessera-render`'s.
+fn a_failed_or_cancelled_job_is_retried_rendering_only_what_is_missing(backend: Backend) {
+    let dir = TempDir::on(backend, "retry");
+    let args = ["--local-workers", "0", "--max-attempts", "1"];
+    let mut svc = Service::start(&dir, &args);
+    let scene = read("thesis.ray");
+    let want = local_png(&examples().join("thesis.ray"), None, None);
+    let retry = |svc: &Service, id: &str| {
+        client()
+            .post(format!("{}/jobs/{id}/retry", svc.url))
+            .send()
+            .expect("an answer")
+    };
+    let tiles_done = |svc: &Service, id: &str| {
+        svc.get_json(&format!("/jobs/{id}"))["tiles_done"]
+            .as_u64()
+            .expect("a count")
+    };
+    assert_eq!(retry(&svc, "nosuchjob").status(), 404);
+
+    // A job fails part-way: the test holds its first tile while a worker stores others,
+    // then reports that tile failed (one attempt allowed).
+    let failed = svc.submit_id(&scene, "?tile=64");
+    let r = retry(&svc, &failed);
+    assert_eq!(r.status(), 409);
+    assert_eq!(r.json::<Value>().expect("json")["state"], "queued");
+    let held: Value = svc.claim("holder").json().expect("a claim");
+    assert_eq!(held["job"], failed.as_str());
+    let mut worker = Worker::start(&svc.url, "renderer", &[]);
+    // Half the image or more: the top rows of the scene are sky, whose tiles are alike.
+    common::wait_until("tiles stored", JOB_TIME, || tiles_done(&svc, &failed) >= 40);
+    report_failure(&svc, &held, "holder");
+    let job = svc.wait_finished(&failed, JOB_TIME);
+    assert_eq!(job["state"], "failed", "{job}");
+    worker.kill9();
+
+    // Across a restart: its stored tiles are still counted and listed.
+    drop(svc);
+    svc = Service::start(&dir, &args);
+    let kept = stored_tiles(&svc, &failed);
+    let job = svc.get_json(&format!("/jobs/{failed}"));
+    assert!(!kept.is_empty() && kept.len() < 80, "{kept:?}");
+    assert_eq!(job["tiles_done"].as_u64(), Some(kept.len() as u64));
+
+    // Retried: active again with those tiles, its error gone; only the others render.
+    let r = retry(&svc, &failed);
+    assert_eq!(r.status(), 200);
+    let job: Value = r.json().expect("json");
+    assert_eq!(job["state"], "running", "{job}");
+    assert_eq!(job["tiles_done"].as_u64(), Some(kept.len() as u64));
+    assert!(job["error"].is_null(), "{job}");
+    let worker = Worker::start(&svc.url, "renderer", &[]);
+    let job = svc.wait_finished(&failed, JOB_TIME);
+    assert_eq!(job["state"], "done", "{job}");
+    assert!(svc.image(&failed) == want, "the retried PNG differs");
+    let after = stored_tiles(&svc, &failed);
+    assert_eq!(after.len(), 80);
+    for tile in &kept {
+        assert!(after.contains(tile), "tile {tile:?} was handed out again");
+    }
+    // A done job is not retried.
+    let r = retry(&svc, &failed);
+    assert_eq!(r.status(), 409);
+    assert_eq!(r.json::<Value>().expect("json")["state"], "done");
+
+    // A job cancelled part-way: the test holds one tile so that it cannot finish first.
+    pause(&worker, "STOP");
+    let cancelled = svc.submit_id(&scene, "?tile=64");
+    let held: Value = svc.claim("holder").json().expect("a claim");
+    assert_eq!(held["job"], cancelled.as_str());
+    pause(&worker, "CONT");
+    common::wait_until("tiles stored", JOB_TIME, || {
+        tiles_done(&svc, &cancelled) >= 40
+    });
+    let r = client()
+        .delete(format!("{}/jobs/{cancelled}", svc.url))
+        .send()
+        .expect("an answer");
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.json::<Value>().expect("json")["state"], "cancelled");
+    let kept = stored_tiles(&svc, &cancelled);
+    assert!(!kept.is_empty() && kept.len() < 80, "{kept:?}");
+    assert_eq!(tiles_done(&svc, &cancelled), kept.len() as u64);
+    assert_eq!(retry(&svc, &cancelled).status(), 200);
+    let job = svc.wait_finished(&cancelled, JOB_TIME);
+    assert_eq!(job["state"], "done", "{job}");
+    assert!(svc.image(&cancelled) == want, "the retried PNG differs");
+    let after = stored_tiles(&svc, &cancelled);
+    for tile in &kept {
+        assert!(after.contains(tile), "tile {tile:?} was handed out again");
+    }
+}
+on_both!(a_failed_or_cancelled_job_is_retried_rendering_only_what_is_missing);

@@ -1,6 +1,6 @@
 //! The job routes: submit a scene (`POST /jobs`), list jobs, get one (optionally waiting for
-//! its end; a browser gets the job's page), change its priority, cancel or purge one. Each
-//! checks what was sent, calls the queue and maps the answer; reading the body is
+//! its end; a browser gets the job's page), change its priority, retry, cancel or purge
+//! one. Each checks what was sent, calls the queue and maps the answer; reading the body is
 //! `upload`'s, checking the scene `validate`'s.
 
 use std::sync::Arc;
@@ -25,7 +25,7 @@ use crate::params::{
     MIN_PRIORITY, Params, SubmitParams,
 };
 use crate::state::AppState;
-use crate::store::{Cancel, JobRow, JobState, Reprioritized};
+use crate::store::{Cancel, JobRow, JobState, Reprioritized, Retried};
 use crate::tiling::{MAX_TILE, MIN_TILE};
 use crate::upload::read_submission;
 use crate::validate::{scene_source, validate};
@@ -201,6 +201,59 @@ pub async fn delete_job(
         .with("state", job.row.state));
     }
     Ok(ok_json(job).into_response())
+}
+
+/// `POST /jobs/{id}/retry`: makes a failed or cancelled job active again, rendering only
+/// what is missing (`200` with the job). Its stored tiles stay, its other tiles are queued
+/// with their failures forgotten, no worker is kept away from it, and it keeps its place in
+/// the queue (priority and submission). A queued, running or done job is answered `409`.
+#[utoipa::path(
+    post, path = "/jobs/{id}/retry", tag = "jobs",
+    summary = "Retry a failed or cancelled job",
+    description = "Makes a failed or cancelled job active again. The tiles it stored stay; only the others are rendered, and the PNG is the same as a render without the interruption. Its failures are forgotten and no worker is kept away from it.",
+    security((), ("submit_token" = [])),
+    params(("id" = String, Path, description = "The job's id")),
+    responses(
+        (status = 200, description = "The job, queued or running again", body = JobView),
+        (status = 400, description = "A query parameter, which this route takes none of", body = ErrorBody),
+        (status = 401, description = "The submit token is required and missing or wrong", body = ErrorBody),
+        (status = 404, description = "No such job", body = ErrorBody),
+        (status = 409, description = "The job is queued, running or done", body = ErrorBody),
+        (status = 503, description = "The database is busy or failing; try again", body = ErrorBody),
+    )
+)]
+pub async fn retry_job(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    Params(crate::params::NoParams {}): Params<crate::params::NoParams>,
+) -> Result<Json<Value>, ApiError> {
+    // What this process encoded of the image before the job ended is gone with its chunks:
+    // the retried job's image is encoded whole once its last tile is in.
+    state.progress.forget(&id);
+    match state.store.retry(&id, now_ms()).await? {
+        Retried::Unknown => return Err(ApiError::no_job(&id)),
+        Retried::NotEnded(s) => {
+            return Err(ApiError::conflict(format!(
+                "job `{id}` is {s}: only a failed or cancelled job can be retried"
+            ))
+            .with("state", s));
+        }
+        Retried::Retried { complete } => {
+            crate::metrics::count(crate::metrics::JOBS_RETRIED, 1);
+            if complete {
+                state.spawn_assembly(id.clone());
+            } else {
+                state.work.notify_waiters();
+            }
+        }
+    }
+    state.changes.job(&id);
+    let row = state
+        .store
+        .job(&id)
+        .await?
+        .ok_or_else(|| ApiError::no_job(&id))?;
+    Ok(ok_json(JobView::of(&state, row)))
 }
 
 /// `PATCH /jobs/{id}` body: what to change.

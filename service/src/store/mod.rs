@@ -47,7 +47,7 @@ pub use sqlite::SqliteStore;
 pub use state::{JobState, TileState, UnknownState};
 pub use types::{
     BandTile, Cancel, Checkpoint, Completion, FarmCounts, HeldTile, JobRow, KeepAway, NewJob,
-    Reprioritized, STORAGE_PAUSE, TileInfo, TileView, WorkerSeen,
+    Reprioritized, Retried, STORAGE_PAUSE, TileInfo, TileView, WorkerSeen,
 };
 
 pub(crate) use postgres::{is_postgres, redacted};
@@ -229,9 +229,16 @@ impl Store {
     }
 
     /// Cancels a queued or running job at `now`, unless every tile is already in (see
-    /// [`Cancel`]); its partial pixels and image go.
+    /// [`Cancel`]); its stored tiles stay until it is deleted (see [`Store::retry`]).
     pub async fn cancel(&self, id: &str, now: i64) -> Result<Cancel> {
         on!(self, s => s.cancel(id, now).await)
+    }
+
+    /// Makes a failed or cancelled job active again at `now`, rendering only what is
+    /// missing: its stored tiles stay, the others are queued with their failures
+    /// forgotten, and no worker is kept away from it (see [`Retried`]).
+    pub async fn retry(&self, id: &str, now: i64) -> Result<Retried> {
+        on!(self, s => s.retry(id, now).await)
     }
 
     /// Removes a job and everything stored for it; false if there was none.
@@ -424,8 +431,9 @@ impl Store {
         on!(self, s => s.active_jobs().await)
     }
 
-    /// Deletes the tile pixels kept for jobs that have ended (a SQLite store's spool
-    /// files); returns how many files went.
+    /// Deletes the tile pixels kept for jobs whose image is stored or that were deleted (a
+    /// SQLite store's spool files); returns how many files went. Jobs that ended without
+    /// an image keep theirs for a retry.
     pub async fn sweep_spool(&self) -> Result<usize> {
         match self {
             Store::Sqlite(s) => s.sweep_spool().await,
@@ -494,7 +502,7 @@ impl Store {
     }
 
     /// Marks an assembled job done at `now` and drops its tile pixels. False (and the image
-    /// dropped) when the job was cancelled meanwhile.
+    /// dropped) when the job ended meanwhile; its pixels then stay for a retry.
     pub async fn finish_image(&self, id: &str, png_bytes: u64, now: i64) -> Result<bool> {
         on!(self, s => s.finish_image(id, png_bytes, now).await)
     }

@@ -292,3 +292,19 @@ pub enum Reprioritized {
     /// The job has ended (its state): nothing changed.
     Ended(JobState),
 }
+
+/// What [`crate::store::Store::retry`] found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Retried {
+    /// No such job.
+    Unknown,
+    /// The job is queued, running or done (its state): nothing changed.
+    NotEnded(JobState),
+    /// The failed or cancelled job is active again, its stored tiles kept and the others
+    /// queued with their failures forgotten. `complete`: every tile was already stored (an
+    /// image whose assembly failed), so only the image is left to write.
+    Retried {
+        /// Every tile is stored: nothing to render, only the image to assemble.
+        complete: bool,
+    },
+}

@@ -166,7 +166,7 @@ impl PgStore {
     }
 
     /// Marks an assembled job done and drops its tile pixels. False (and the image dropped)
-    /// when the job was cancelled meanwhile.
+    /// when the job ended meanwhile; its pixels then stay for a retry.
     pub(crate) async fn finish_image(&self, id: &str, png_bytes: u64, now: i64) -> Result<bool> {
         let mut tx = self.pool.begin().await?;
         let r = sqlx::query(concat!(
@@ -189,18 +189,14 @@ impl PgStore {
                 .execute(&mut *tx)
                 .await?;
         }
-        // The pixels go unless the job is still active: then a tile was handed out again
-        // meanwhile (its pixels lost), and the others' wait for the next assembly.
-        sqlx::query(concat!(
-            "DELETE FROM tile_pixels WHERE job_id = $1
-               AND NOT EXISTS (SELECT 1 FROM jobs WHERE id = $1 AND state IN ",
-            job_sql!(active),
-            ")"
-        ))
-        .bind(id)
-        .execute(&mut *tx)
-        .await?;
+        // The pixels go with a stored image only. A job still active had a tile handed
+        // out again meanwhile (its pixels lost), and the others wait for the next
+        // assembly; one that ended without an image keeps them for a retry.
         if done {
+            sqlx::query("DELETE FROM tile_pixels WHERE job_id = $1")
+                .bind(id)
+                .execute(&mut *tx)
+                .await?;
             sqlx::query(notify_sql(ENDED)).execute(&mut *tx).await?;
         }
         tx.commit().await?;

@@ -7,7 +7,7 @@ use tessera_tracer::Rect;
 use super::notify::{ENDED, WORK, channel, notify_sql};
 use super::{PgStore, Result, job_state};
 use crate::store::state::{JobState, job_sql, tile_sql};
-use crate::store::types::{Cancel, JobRow, NewJob};
+use crate::store::types::{Cancel, JobRow, NewJob, Retried};
 
 /// The columns of a [`JobRow`], in its order.
 macro_rules! job_columns {
@@ -141,10 +141,11 @@ impl PgStore {
     }
 
     /// Cancels a queued or running job (its tiles are no longer handed out and results for
-    /// it are refused) and drops its partial pixels and image (by the schema's trigger),
-    /// unless every tile is already in: then the job is as good as done (its image is being
-    /// written). The job's row is locked first, so a result counted meanwhile is either
-    /// before (and seen here) or refused after.
+    /// it are refused) and drops the chunks of its image encoded so far (by the schema's
+    /// trigger; its stored tiles stay for a retry), unless every tile is already in: then
+    /// the job is as good as done (its image is being written). The job's row is locked
+    /// first, so a result counted meanwhile is either before (and seen here) or after (and
+    /// kept with the others).
     pub(crate) async fn cancel(&self, id: &str, now: i64) -> Result<Cancel> {
         let mut tx = self.pool.begin().await?;
         let before: Option<(String, i64, i64)> = sqlx::query_as(
@@ -177,6 +178,68 @@ impl PgStore {
         };
         tx.commit().await?;
         Ok(outcome)
+    }
+
+    /// Makes a failed or cancelled job active again: its stored tiles stay, every other tile
+    /// is queued with its failures forgotten, and no worker is kept away from it any more.
+    /// Its time so far is kept (its start moves by the time it spent ended). Wakes the
+    /// claims waiting on every replica once it commits.
+    pub(crate) async fn retry(&self, id: &str, now: i64) -> Result<Retried> {
+        let mut tx = self.pool.begin().await?;
+        let state: Option<String> =
+            sqlx::query_scalar("SELECT state FROM jobs WHERE id = $1 FOR UPDATE")
+                .bind(id)
+                .fetch_optional(&mut *tx)
+                .await?;
+        let state = match state {
+            None => return Ok(Retried::Unknown),
+            Some(s) => job_state(s)?,
+        };
+        if !matches!(state, JobState::Failed | JobState::Cancelled) {
+            return Ok(Retried::NotEnded(state));
+        }
+        // A tile is kept only with its pixels: a `done` row without them (stored under a
+        // schema that dropped an ended job's pixels) is rendered again.
+        sqlx::query(concat!(
+            "UPDATE tiles SET state = ",
+            tile_sql!(Queued),
+            ", lease = NULL, worker = NULL, lease_expires = NULL, rendering = FALSE,
+                   failures = 0, last_error = NULL
+             WHERE job_id = $1 AND (state <> ",
+            tile_sql!(Done),
+            " OR NOT EXISTS (SELECT 1 FROM tile_pixels p
+                             WHERE p.job_id = tiles.job_id AND p.idx = tiles.idx))"
+        ))
+        .bind(id)
+        .execute(&mut *tx)
+        .await?;
+        sqlx::query("DELETE FROM keep_away WHERE job_id = $1")
+            .bind(id)
+            .execute(&mut *tx)
+            .await?;
+        // `running` once started, so that the first claim does not date its start again.
+        let (done, total): (i64, i64) = sqlx::query_as(concat!(
+            "UPDATE jobs SET
+                 state = CASE WHEN started_at IS NULL THEN ",
+            job_sql!(Queued),
+            " ELSE ",
+            job_sql!(Running),
+            " END,
+                 started_at = $2 - (COALESCE(finished_at, $2) - started_at),
+                 finished_at = NULL, error = NULL, png_bytes = NULL,
+                 tiles_done = (SELECT COUNT(*) FROM tile_pixels WHERE job_id = $1)
+             WHERE id = $1
+             RETURNING tiles_done, tiles_total"
+        ))
+        .bind(id)
+        .bind(now)
+        .fetch_one(&mut *tx)
+        .await?;
+        sqlx::query(notify_sql(WORK)).execute(&mut *tx).await?;
+        tx.commit().await?;
+        Ok(Retried::Retried {
+            complete: done >= total,
+        })
     }
 
     /// Removes a job and everything stored for it.

@@ -194,8 +194,11 @@ impl PgStore {
     /// post under the same lease wait, then find the tile done and change nothing), the
     /// pixels are inserted from its row, and the job counts the tile, `RETURNING` the count
     /// after: the job's row lock orders the results of one job, so exactly one sees every
-    /// tile in (`last`). Only when nothing was stored does a second query find out why.
-    /// `now` is not needed: the pixels go into the database, whose failures are errors.
+    /// tile in (`last`). The count is not guarded by the job's state: a job that ended
+    /// (cancelled, failed) between the tile's check and its count keeps the tile, as it
+    /// keeps every stored tile for a retry, and counts it. Only when nothing was stored does
+    /// a second query find out why. `now` is not needed: the pixels go into the database,
+    /// whose failures are errors.
     #[allow(clippy::too_many_arguments)]
     pub(crate) async fn complete(
         &self,
@@ -224,9 +227,7 @@ impl PgStore {
                 INSERT INTO tile_pixels (job_id, idx, rgb) SELECT job_id, idx, $4 FROM t
             ), j AS (
                 UPDATE jobs SET tiles_done = tiles_done + 1
-                WHERE id = (SELECT job_id FROM t) AND state IN ",
-            job_sql!(active),
-            "
+                WHERE id = (SELECT job_id FROM t)
                 RETURNING tiles_done, tiles_total
             )
             SELECT t.worker, j.tiles_done, j.tiles_total FROM t LEFT JOIN j ON TRUE"
@@ -241,36 +242,17 @@ impl PgStore {
         .bind(i64::from(rect.height))
         .fetch_optional(&self.pool)
         .await?;
-        match stored {
-            Some((worker, Some(done), Some(total))) => {
-                return Ok(Completion::Stored {
-                    last: done == total,
-                    worker,
-                });
-            }
-            // The job ended (cancelled, failed) after the tile's check and before its
-            // count: its pixels, which the job's end did not see, go now.
-            Some(_) => {
-                sqlx::query(concat!(
-                    "DELETE FROM tile_pixels WHERE job_id = $1 AND idx = $2
-                       AND NOT EXISTS (SELECT 1 FROM jobs WHERE id = $1 AND state IN ",
-                    job_sql!(active),
-                    ")"
-                ))
-                .bind(job)
-                .bind(i64::from(idx))
-                .execute(&self.pool)
-                .await?;
-            }
-            None => {}
+        if let Some((worker, Some(done), Some(total))) = stored {
+            return Ok(Completion::Stored {
+                last: done == total,
+                worker,
+            });
         }
-        // A tile done under this lease is a repeat of a post before, unless this post's
-        // pixels were undone above (its job ended under it).
-        let repeat = stored.is_none();
+        // A tile done under this lease is a repeat of a post before.
         Ok(Completion::refused(
             self.tile(job, idx).await?,
             lease,
-            repeat,
+            stored.is_none(),
         ))
     }
 

@@ -5,7 +5,7 @@ use sqlx::{Connection, Row};
 use tessera_tracer::Rect;
 
 use super::spool::Spool;
-use super::{Result, SqliteStore};
+use super::{Result, SqliteStore, job_state};
 use crate::store::error::StoreError;
 use crate::store::state::{job_sql, tile_sql};
 use crate::store::types::BandTile;
@@ -191,7 +191,7 @@ impl SqliteStore {
     }
 
     /// Marks an assembled job done and drops its tile pixels. False (and the image dropped)
-    /// when the job was cancelled meanwhile.
+    /// when the job ended meanwhile; its pixels then stay for a retry.
     pub(crate) async fn finish_image(&self, id: &str, png_bytes: u64, now: i64) -> Result<bool> {
         let mut conn = self.writer.lock().await?;
         let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
@@ -215,20 +215,18 @@ impl SqliteStore {
                 .execute(&mut *tx)
                 .await?;
         }
-        // The pixels go unless the job is still active: then a tile was handed out again
-        // meanwhile (its pixels lost), and the others' wait for the next assembly.
-        let ended = sqlx::query(concat!(
-            "DELETE FROM tile_pixels WHERE job_id = ?1
-               AND NOT EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND state IN ",
-            job_sql!(active),
-            ")"
-        ))
-        .bind(id)
-        .execute(&mut *tx)
-        .await?;
+        // The pixels go with a stored image only. A job still active had a tile handed
+        // out again meanwhile (its pixels lost), and the others wait for the next
+        // assembly; one that ended without an image keeps them for a retry.
+        if done {
+            sqlx::query("DELETE FROM tile_pixels WHERE job_id = ?1")
+                .bind(id)
+                .execute(&mut *tx)
+                .await?;
+        }
         tx.commit().await?;
         drop(conn);
-        if done || ended.rows_affected() > 0 {
+        if done {
             self.forget_job(id);
         }
         Ok(done)
@@ -253,9 +251,10 @@ impl SqliteStore {
         )
     }
 
-    /// Deletes the spool files of jobs that have ended or were deleted (see
-    /// [`Spool::sweep`]); returns how many. A finished image's file goes at once; this
-    /// catches the rest (cancelled and failed jobs, deletions, a crash).
+    /// Deletes the spool files of jobs whose image is stored or that were deleted, and
+    /// closes those of jobs that ended without an image (kept for a retry; see
+    /// [`Spool::sweep`]); returns how many files went. A finished image's file goes at
+    /// once; this catches the rest (deletions, a crash).
     pub(crate) async fn sweep_spool(&self) -> Result<usize> {
         let Some(spool) = &self.spool else {
             return Ok(0);
@@ -264,12 +263,25 @@ impl SqliteStore {
         if listing.is_empty() && self.issued_map().is_empty() {
             return Ok(0);
         }
-        let active = self.active_jobs().await?;
+        let jobs: Vec<(String, String)> = sqlx::query_as(concat!(
+            "SELECT id, state FROM jobs WHERE state <> ",
+            job_sql!(Done)
+        ))
+        .fetch_all(&mut *self.reader().await?)
+        .await?;
+        let mut active = Vec::new();
+        let mut kept = Vec::with_capacity(jobs.len());
+        for (id, state) in jobs {
+            if job_state(state)?.is_active() {
+                active.push(id.clone());
+            }
+            kept.push(id);
+        }
         // A job submitted since `active` was read loses its entries here: its results then
         // read their tile's row instead, one query slower.
         self.issued_map()
             .retain(|(job, _), _| active.iter().any(|a| a == job));
-        Ok(spool.sweep(&listing, &active))
+        Ok(spool.sweep(&listing, &active, &kept))
     }
 
     /// The spool's folder; `None` for an in-memory database.

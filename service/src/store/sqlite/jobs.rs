@@ -8,7 +8,7 @@ use tessera_tracer::Rect;
 use super::{Result, SqliteStore, job_state};
 use crate::store::error::StoreError;
 use crate::store::state::{JobState, job_sql, tile_sql};
-use crate::store::types::{Cancel, JobRow, NewJob};
+use crate::store::types::{Cancel, JobRow, NewJob, Retried};
 
 const JOB_COLUMNS: &str = "id, state, name, width, height, tile, sampler, samples, threshold, \
      tiles_total, tiles_done, error, created_at, started_at, finished_at, png_bytes, priority";
@@ -152,8 +152,8 @@ impl SqliteStore {
     }
 
     /// Cancels a queued or running job (its tiles are no longer handed out and results for
-    /// it are refused) and drops its partial pixels and image (by the migrations' trigger),
-    /// unless every tile is already in: then the job is as good as done (its image is being
+    /// it are refused) and drops the chunks of its image encoded so far (by the migrations'
+    /// trigger; its stored tiles stay for a retry), unless every tile is already in: then the job is as good as done (its image is being
     /// written), and throwing the pixels away would lose a finished render that a worker was
     /// told was stored.
     pub(crate) async fn cancel(&self, id: &str, now: i64) -> Result<Cancel> {
@@ -172,7 +172,7 @@ impl SqliteStore {
             None => Cancel::Unknown,
             Some((_, done, total)) if done >= total => Cancel::Complete,
             Some((from, _, _)) if from.is_active() => {
-                // The `job_ended_without_image` trigger drops its pixels and image chunks.
+                // The `job_ended_without_image` trigger drops its image chunks.
                 sqlx::query(concat!(
                     "UPDATE jobs SET state = ",
                     job_sql!(Cancelled),
@@ -189,9 +189,73 @@ impl SqliteStore {
         tx.commit().await?;
         drop(conn);
         if let Cancel::Cancelled { .. } = outcome {
-            self.forget_job(id);
+            self.close_job(id);
         }
         Ok(outcome)
+    }
+
+    /// Makes a failed or cancelled job active again: its stored tiles stay, every other tile
+    /// is queued with its failures forgotten, and no worker is kept away from it any more.
+    /// Its time so far is kept (its start moves by the time it spent ended), so that its
+    /// elapsed time and time left go on from where they were.
+    pub(crate) async fn retry(&self, id: &str, now: i64) -> Result<Retried> {
+        let mut conn = self.writer.lock().await?;
+        let mut tx = conn.begin_with("BEGIN IMMEDIATE").await?;
+        let state: Option<String> = sqlx::query_scalar("SELECT state FROM jobs WHERE id = ?1")
+            .bind(id)
+            .fetch_optional(&mut *tx)
+            .await?;
+        let state = match state {
+            None => return Ok(Retried::Unknown),
+            Some(s) => job_state(s)?,
+        };
+        if !matches!(state, JobState::Failed | JobState::Cancelled) {
+            return Ok(Retried::NotEnded(state));
+        }
+        // A tile is kept only with its pixels: a `done` row without them (stored under a
+        // schema that dropped an ended job's pixels) is rendered again.
+        sqlx::query(concat!(
+            "UPDATE tiles SET state = ",
+            tile_sql!(Queued),
+            ", lease = NULL, worker = NULL, lease_expires = NULL, rendering = 0,
+                   failures = 0, last_error = NULL
+             WHERE job_id = ?1 AND (state <> ",
+            tile_sql!(Done),
+            " OR NOT EXISTS (SELECT 1 FROM tile_pixels p
+                             WHERE p.job_id = tiles.job_id AND p.idx = tiles.idx))"
+        ))
+        .bind(id)
+        .execute(&mut *tx)
+        .await?;
+        sqlx::query("DELETE FROM keep_away WHERE job_id = ?1")
+            .bind(id)
+            .execute(&mut *tx)
+            .await?;
+        // `running` once started, so that the first claim (the `job_started` trigger) does
+        // not date its start again.
+        let (done, total): (i64, i64) = sqlx::query_as(concat!(
+            "UPDATE jobs SET
+                 state = CASE WHEN started_at IS NULL THEN ",
+            job_sql!(Queued),
+            " ELSE ",
+            job_sql!(Running),
+            " END,
+                 started_at = ?2 - (COALESCE(finished_at, ?2) - started_at),
+                 finished_at = NULL, error = NULL, png_bytes = NULL,
+                 tiles_done = (SELECT COUNT(*) FROM tile_pixels WHERE job_id = ?1)
+             WHERE id = ?1
+             RETURNING tiles_done, tiles_total"
+        ))
+        .bind(id)
+        .bind(now)
+        .fetch_one(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        drop(conn);
+        self.close_job(id);
+        Ok(Retried::Retried {
+            complete: done >= total,
+        })
     }
 
     /// Removes a finished job and everything stored for it.

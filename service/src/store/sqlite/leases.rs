@@ -270,11 +270,21 @@ impl SqliteStore {
         }))
     }
 
-    /// Drops what this process keeps of an ended (or deleted) job: its spool file and the
-    /// leases it handed out.
+    /// Drops what this process keeps of a job whose image is stored, or that was deleted:
+    /// its spool file and the leases it handed out.
     pub(super) fn forget_job(&self, id: &str) {
         if let Some(spool) = &self.spool {
             spool.remove(id);
+            self.issued_map().retain(|(job, _), _| job != id);
+        }
+    }
+
+    /// Drops the leases this process handed out for job `id` and closes its spool file,
+    /// keeping the file: the job ended without an image (its tiles wait for a retry or its
+    /// deletion), or it is retried (its tiles are handed out under new leases).
+    pub(super) fn close_job(&self, id: &str) {
+        if let Some(spool) = &self.spool {
+            spool.close(id);
             self.issued_map().retain(|(job, _), _| job != id);
         }
     }

@@ -365,12 +365,18 @@ impl Spool {
         good
     }
 
-    /// Deletes job `id`'s file (its image is stored, or it ended without one).
-    pub fn remove(&self, id: &str) {
+    /// Closes job `id`'s file, keeping it: the job ended without an image, and its tiles
+    /// wait for a retry or its deletion. The next read or write opens it again.
+    pub fn close(&self, id: &str) {
         self.open
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
             .remove(id);
+    }
+
+    /// Deletes job `id`'s file (its image is stored, or the job was deleted).
+    pub fn remove(&self, id: &str) {
+        self.close(id);
         match std::fs::remove_file(self.path(id)) {
             Ok(()) => {}
             Err(e) if e.kind() == io::ErrorKind::NotFound => {}
@@ -390,16 +396,19 @@ impl Spool {
             .collect())
     }
 
-    /// Deletes the files of `listing` (taken before `active` was read) that belong to no job
-    /// of `active`: jobs that ended since, or were deleted. A job submitted after the
-    /// listing is not in it, so its file is safe however late `active` was read. Returns how
-    /// many files it deleted.
-    pub fn sweep(&self, listing: &[PathBuf], active: &[String]) -> usize {
-        let keep: HashSet<PathBuf> = active.iter().map(|id| self.path(id)).collect();
-        let mut removed = 0;
+    /// Closes the files of jobs not in `active`, and deletes the files of `listing` (taken
+    /// before `kept` was read) that belong to no job of `kept`: jobs whose image is stored
+    /// since, or that were deleted. `kept` holds the active jobs and those that ended
+    /// without an image (their tiles wait for a retry). A job submitted after the listing is
+    /// not in it, so its file is safe however late `kept` was read. Returns how many files
+    /// it deleted.
+    pub fn sweep(&self, listing: &[PathBuf], active: &[String], kept: &[String]) -> usize {
+        let open_ones: HashSet<&str> = active.iter().map(String::as_str).collect();
         let mut open = self.open.lock().unwrap_or_else(PoisonError::into_inner);
-        open.retain(|id, _| keep.contains(&self.path(id)));
+        open.retain(|id, _| open_ones.contains(id.as_str()));
         drop(open);
+        let keep: HashSet<PathBuf> = kept.iter().map(|id| self.path(id)).collect();
+        let mut removed = 0;
         for path in listing.iter().filter(|p| !keep.contains(*p)) {
             match std::fs::remove_file(path) {
                 Ok(()) => removed += 1,
