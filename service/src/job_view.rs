@@ -25,7 +25,8 @@ pub struct JobView {
     /// Its server-sent events.
     pub events_url: String,
     /// Why a job still to finish makes no progress now: the service cannot store tile
-    /// pixels (a full disk), so no tile is handed out until it can again. Absent otherwise.
+    /// pixels (a full disk), or it started without room to write, so no tile is handed out
+    /// until it can again. Absent otherwise.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub paused: Option<String>,
 }
@@ -58,7 +59,13 @@ impl JobView {
     pub(crate) fn of(state: &AppState, row: JobRow) -> JobView {
         let waiting = row.state.is_active() && row.tiles_done < row.tiles_total;
         let mut view = JobView::from(row);
-        if waiting
+        if waiting && state.read_only.why().is_some() {
+            view.paused = Some(
+                "the service started without room to write, and takes no work until the \
+                 disk has room"
+                    .to_string(),
+            );
+        } else if waiting
             && state
                 .store
                 .storage_trouble(now_ms(), STORAGE_PAUSE)

@@ -51,6 +51,7 @@ mod metrics;
 mod names;
 mod params;
 mod preview;
+mod read_only;
 mod reaper;
 mod receiving;
 mod rlimit;

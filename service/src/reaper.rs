@@ -7,6 +7,9 @@
 //! database several processes share, only the one holding the maintenance lock
 //! ([`crate::store::Store::maintains`]) does the rest, so that no two reap at once.
 //!
+//! A service that started without room to write does none of it: each pass only tries the
+//! start's writes again (`startup::take_writes`), until they go through.
+//!
 //! It decides nothing the queue does not: it calls the queue with the time and the
 //! configuration's limits, and wakes waiting requests when something changed.
 
@@ -43,6 +46,12 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
         tokio::select! {
             _ = tokio::time::sleep(every) => {}
             _ = stop.wait_for(|s| *s) => return,
+        }
+        // Started without room to write: nothing else is done until the start's writes go
+        // through (leases are given their grace then, so none is reaped for the wait).
+        if state.read_only.why().is_some() && !crate::startup::take_writes(&state).await {
+            last = std::time::Instant::now();
+            continue;
         }
         // A full disk keeps the farm paused for as long as it stays full.
         state

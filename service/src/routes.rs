@@ -22,7 +22,7 @@ use utoipa_axum::routes;
 use crate::handlers::{image, jobs, live, page, workers};
 use crate::state::AppState;
 use crate::tiling::protocol_limit;
-use crate::{auth, error, metrics};
+use crate::{auth, error, metrics, read_only};
 
 /// The user routes with their body limits and token checks, and their OpenAPI document.
 fn user_routes(body_limit: usize) -> OpenApiRouter<AppState> {
@@ -216,14 +216,24 @@ pub fn router(state: AppState) -> Router {
         }))
         .route_layer(axum::middleware::from_fn_with_state(
             state.clone(),
+            read_only::refuse_writes,
+        ))
+        .route_layer(axum::middleware::from_fn_with_state(
+            state.clone(),
             auth::require_worker_token,
         ));
     let (user_routes, _) = user_routes(body_limit).split_for_parts();
-    // The submit token guards every user route but reads (`auth` lets `GET`s through).
-    let user_routes = user_routes.route_layer(axum::middleware::from_fn_with_state(
-        state.clone(),
-        auth::require_submit_token,
-    ));
+    // The submit token guards every user route but reads (`auth` lets `GET`s through);
+    // a service started without room to write refuses writes once the token is checked.
+    let user_routes = user_routes
+        .route_layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            read_only::refuse_writes,
+        ))
+        .route_layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            auth::require_submit_token,
+        ));
     Router::new()
         .route("/static/{file}", get(page::asset))
         .route("/favicon.ico", get(page::favicon))

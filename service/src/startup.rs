@@ -80,38 +80,25 @@ pub async fn serve(
              enforced by name, so no service may use the file under another of them"
         );
     }
-    let store = Store::open(&cfg.database)
+    let store = open_store(&cfg.database)
         .await?
         .max_attempts(cfg.max_attempts);
     let local_count = local_worker_count(&cfg);
     let local_prefix = local_prefix();
-    let requeued = store
-        .forget_local_workers((local_count > 0).then_some(local_prefix.as_str()))
-        .await?;
-    if requeued > 0 {
-        info!(
-            "{requeued} tiles held by the local workers of the service's previous run \
-             requeued (they ended with it)"
-        );
-    }
-    // After a restart, every lease held runs for a grace at most ([`restart_grace_ms`]): the
-    // workers that rode through renew or post within it, and the leases of those that died
-    // meanwhile are reaped at its end, not a full term later.
-    let grace = restart_grace_ms(cfg.lease_ms);
-    let extended = store.restart_leases(now_ms(), grace).await?;
-    if extended > 0 {
-        info!("{extended} leases from before the start run out in {grace} ms unless renewed");
-    }
     let (stop_tx, stop_rx) = watch::channel(false);
-    let state = AppState::new(cfg, store.clone(), stop_rx.clone());
-    match store.sweep_spool().await {
-        Ok(0) => {}
-        Ok(n) => info!("{n} spool files of finished or deleted jobs removed"),
-        Err(e) => warn!("sweeping the tile spool: {e}"),
-    }
-    for job in store.unassembled().await? {
-        info!(job = %job, "all tiles were in before the restart: assembling");
-        state.spawn_assembly(job);
+    let mut state = AppState::new(cfg, store.clone(), stop_rx.clone());
+    state.local_prefix = (local_count > 0).then(|| local_prefix.clone());
+    // Without room to write, the service starts read-only, and the maintenance pass tries
+    // these writes again until they go through (see `read_only`).
+    if let Err(e) = settle(&state).await {
+        if !e.is_storage() {
+            return Err(e.into());
+        }
+        warn!(
+            "no room to write: serving reads only, and refusing writes until the disk has \
+             room ({e})"
+        );
+        state.read_only.set(Some(e.to_string()));
     }
 
     tokio::spawn(async move {
@@ -166,6 +153,85 @@ pub async fn serve(
     }
     info!("stopped");
     Ok(())
+}
+
+/// Opens the store at `url`. A SQLite file on a disk too full to open it as usual is opened
+/// on one exclusive connection instead (see `Store::open_exclusive`), so that the service can
+/// start read-only; if that fails too, the first error is the one reported.
+async fn open_store(url: &str) -> Result<Store, StoreError> {
+    match Store::open(url).await {
+        Err(e) if e.is_storage() => match Store::open_exclusive(url).await {
+            Some(Ok(store)) => {
+                warn!(
+                    "the database could not be opened as usual ({e}): one connection serves \
+                     its reads and writes until the service restarts"
+                );
+                Ok(store)
+            }
+            _ => Err(e),
+        },
+        opened => opened,
+    }
+}
+
+/// Puts the store right after a start, with the writes that needs: checks that the store
+/// takes writes, requeues what the local workers of the last run held, gives the leases
+/// held a short grace, sweeps the tile spool, and assembles the images whose tiles were all
+/// in. Run at the start, and again by the maintenance pass while the service is read-only
+/// (see [`take_writes`]).
+async fn settle(state: &AppState) -> Result<(), StoreError> {
+    let store = &state.store;
+    store
+        .probe_write(now_ms(), crate::handlers::page::HEALTH_WRITE_WITHIN)
+        .await?;
+    let requeued = store
+        .forget_local_workers(state.local_prefix.as_deref())
+        .await?;
+    if requeued > 0 {
+        info!(
+            "{requeued} tiles held by the local workers of the service's previous run \
+             requeued (they ended with it)"
+        );
+    }
+    // After a restart, every lease held runs for a grace at most ([`restart_grace_ms`]): the
+    // workers that rode through renew or post within it, and the leases of those that died
+    // meanwhile are reaped at its end, not a full term later.
+    let grace = restart_grace_ms(state.cfg.lease_ms);
+    let extended = store.restart_leases(now_ms(), grace).await?;
+    if extended > 0 {
+        info!("{extended} leases from before the start run out in {grace} ms unless renewed");
+    }
+    match store.sweep_spool().await {
+        Ok(0) => {}
+        Ok(n) => info!("{n} spool files of finished or deleted jobs removed"),
+        Err(e) => warn!("sweeping the tile spool: {e}"),
+    }
+    for job in store.unassembled().await? {
+        info!(job = %job, "all tiles were in before the restart: assembling");
+        state.spawn_assembly(job);
+    }
+    Ok(())
+}
+
+/// While the service is read-only, tries the start's writes again ([`settle`]): true once
+/// they went through and the service takes writes again.
+pub(crate) async fn take_writes(state: &AppState) -> bool {
+    match settle(state).await {
+        Ok(()) => {
+            state.read_only.set(None);
+            info!("the disk has room again: taking writes");
+            state.work.notify_waiters();
+            state.changes.any();
+            true
+        }
+        Err(e) => {
+            tracing::debug!("still no room to write: {e}");
+            if e.is_storage() {
+                state.read_only.set(Some(e.to_string()));
+            }
+            false
+        }
+    }
 }
 
 /// Refuses a configuration the service cannot run with: open submission beyond loopback

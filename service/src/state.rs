@@ -11,6 +11,7 @@ use tracing::{error, warn};
 
 use crate::changes::Changes;
 use crate::config::Config;
+use crate::read_only::ReadOnly;
 use crate::receiving::Receiving;
 use crate::store::{KeepAway, Store};
 use crate::{assemble, now_ms, preview};
@@ -39,6 +40,10 @@ pub struct AppState {
     pub changes: Changes,
     /// Previews encoded lately, shared by every viewer of a job.
     pub previews: Arc<preview::Cache>,
+    /// Why the service takes no writes, while it has had no room to write since it started.
+    pub read_only: Arc<ReadOnly>,
+    /// The name prefix of this process's local workers; `None` without any.
+    pub local_prefix: Option<String>,
 }
 
 impl AppState {
@@ -59,6 +64,8 @@ impl AppState {
             stopping,
             changes: Changes::default(),
             previews: Arc::default(),
+            read_only: Arc::default(),
+            local_prefix: None,
         }
     }
 

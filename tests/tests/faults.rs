@@ -1959,3 +1959,109 @@ fn a_worker_waits_as_long_as_retry_after_says() {
         );
     }
 }
+
+/// What a service started without room to write does: it serves reads (the page, the job
+/// list, a done job's image, `png`), and answers writes (a submission, a worker's claim)
+/// and the health check `503` saying it is read-only; a refused write is told when to ask
+/// again.
+fn serves_reads_only(svc: &Service, id: &str, png: &[u8]) {
+    assert_eq!(svc.get("/").status(), 200);
+    let jobs = svc.get_json("/jobs");
+    assert!(
+        jobs.as_array()
+            .is_some_and(|j| j.iter().any(|j| j["id"] == id)),
+        "{jobs}"
+    );
+    assert!(svc.image(id) == png, "the image read back differs");
+    let health = svc.get("/healthz");
+    assert_eq!(health.status(), 503);
+    let said = health.text().unwrap_or_default();
+    assert!(said.contains("read-only"), "{said}");
+    let r = client()
+        .post(format!("{}/jobs", svc.url))
+        .body(read("thesis.ray"))
+        .send()
+        .expect("an answer");
+    assert_eq!(r.status(), 503);
+    assert!(r.headers().contains_key("retry-after"));
+    let said = r.text().unwrap_or_default();
+    assert!(said.contains("read-only"), "{said}");
+    assert_eq!(svc.claim("w").status(), 503);
+}
+
+/// Once the disk has room again, the same service takes writes without a restart: a new
+/// job renders (by its local worker) to `tessera-render`'s image.
+fn takes_writes_again(svc: &Service) {
+    wait_until(
+        "the service to take writes",
+        Duration::from_secs(30),
+        || svc.get("/healthz").status() == 200,
+    );
+    let id = svc.submit_id(&read("thesis.ray"), "?tile=64");
+    let job = svc.wait_finished(&id, JOB_TIME);
+    assert_eq!(job["state"], "done", "{job}");
+    assert!(svc.image(&id) == local_png(&examples().join("thesis.ray"), None, None));
+}
+
+/// A service that starts while its tile folder has no room (the spool's probe file is
+/// `/dev/full`) starts read-only, and takes writes once there is room.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_service_started_without_room_for_tiles_serves_reads_until_it_has_room() {
+    let dir = TempDir::new("start-full-spool");
+    let args = ["--local-workers", "1"];
+    let svc = Service::start(&dir, &args);
+    let id = svc.submit_id(&read("thesis.ray"), "?tile=64");
+    assert_eq!(svc.wait_finished(&id, JOB_TIME)["state"], "done");
+    let png = svc.image(&id);
+    let probe = std::path::PathBuf::from(format!("{}-tiles", svc.db.display())).join("probe.tmp");
+    drop(svc);
+    std::os::unix::fs::symlink("/dev/full", &probe).expect("a full probe");
+    let svc = Service::start(&dir, &args);
+    serves_reads_only(&svc, &id, &png);
+    std::fs::remove_file(&probe).expect("room again");
+    takes_writes_again(&svc);
+}
+
+/// A service that starts on a disk that is full (a small file system of its own, filled to
+/// the last byte), where SQLite cannot open its database as usual, starts read-only, and
+/// takes writes once a file is deleted. Mounting needs the privilege to; where the test may
+/// not, it says so and checks nothing.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_service_started_on_a_full_disk_serves_reads_until_it_has_room() {
+    let Some(dir) = TempDir::on_small_disk("start-full-disk", 16 << 20) else {
+        eprintln!("note: no file system could be mounted here; the full-disk start is untested");
+        return;
+    };
+    let args = ["--local-workers", "1"];
+    let mut svc = Service::start(&dir, &args);
+    let id = svc.submit_id(&read("thesis.ray"), "?tile=64");
+    assert_eq!(svc.wait_finished(&id, JOB_TIME)["state"], "done");
+    let png = svc.image(&id);
+    assert!(svc.terminate().success());
+    // Without the index its connections share (which SQLite removes when the last one
+    // closes, unless that races the exit, and rebuilds from the WAL), the database cannot be
+    // opened as usual on a full disk: SQLite cannot make that file again.
+    let _ = std::fs::remove_file(dir.db_file().with_file_name("tessera.db-shm"));
+    // The disk filled to its last byte by another program's file.
+    let filler = dir.db_file().with_file_name("filler");
+    {
+        use std::io::Write;
+        let mut f = std::fs::File::create(&filler).expect("a file");
+        let block = vec![0u8; 64 << 10];
+        while f.write_all(&block).is_ok() {}
+        let byte = [0u8; 1];
+        while f.write_all(&byte).is_ok() {}
+    }
+    let svc = Service::start(&dir, &args);
+    assert!(
+        svc.log()
+            .contains("one connection serves its reads and writes"),
+        "the database opened as usual: {}",
+        svc.log()
+    );
+    serves_reads_only(&svc, &id, &png);
+    std::fs::remove_file(&filler).expect("room again");
+    takes_writes_again(&svc);
+}

@@ -181,11 +181,14 @@ pub async fn openapi(Extension(doc): Extension<Document>) -> Response {
     responses(
         (status = 200, description = "The service and its database answer and take writes", body = Value,
          example = json!({"status": "ok"})),
-        (status = 503, description = "What fails: the database, or the storage of tile pixels", body = ErrorBody),
+        (status = 503, description = "What fails: the database, the storage of tile pixels, or room to write since the start (the service is then read-only)", body = ErrorBody),
     )
 )]
 pub async fn healthz(State(state): State<AppState>) -> Result<Json<Value>, ApiError> {
     state.store.ping().await?;
+    if let Some(why) = state.read_only.why() {
+        return Err(crate::read_only::ReadOnly::refusal(&why));
+    }
     if let Some(why) = state.store.storage_trouble(now_ms(), STORAGE_PAUSE) {
         return Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,

@@ -75,24 +75,34 @@ impl StoreError {
     /// or the tile spool's writes.
     pub fn is_storage(&self) -> bool {
         match self {
-            StoreError::Db(sqlx::Error::Database(e))
-                if e.try_downcast_ref::<sqlx::postgres::PgDatabaseError>()
-                    .is_some() =>
-            {
-                e.code().is_some_and(|c| {
-                    ["08", "53", "57P", "58"]
-                        .iter()
-                        .any(|class| c.starts_with(class))
-                })
-            }
-            StoreError::Db(sqlx::Error::Database(e)) => e
-                .code()
-                .and_then(|c| c.parse::<i32>().ok())
-                .is_some_and(|c| matches!(c & 0xff, 8 | 10 | 13)),
-            StoreError::Db(sqlx::Error::Io(_) | sqlx::Error::PoolClosed) => true,
+            StoreError::Db(e) => storage_failed(e),
+            // Opening a database on a full disk fails too: SQLite cannot size its `-shm`.
+            StoreError::Open { source, .. } => storage_failed(source),
             StoreError::Spool(SpoolError::Io { .. } | SpoolError::Unwritable { .. }) => true,
             _ => false,
         }
+    }
+}
+
+/// [`StoreError::is_storage`] for what the driver said.
+fn storage_failed(e: &sqlx::Error) -> bool {
+    match e {
+        sqlx::Error::Database(e)
+            if e.try_downcast_ref::<sqlx::postgres::PgDatabaseError>()
+                .is_some() =>
+        {
+            e.code().is_some_and(|c| {
+                ["08", "53", "57P", "58"]
+                    .iter()
+                    .any(|class| c.starts_with(class))
+            })
+        }
+        sqlx::Error::Database(e) => e
+            .code()
+            .and_then(|c| c.parse::<i32>().ok())
+            .is_some_and(|c| matches!(c & 0xff, 8 | 10 | 13)),
+        sqlx::Error::Io(_) | sqlx::Error::PoolClosed => true,
+        _ => false,
     }
 }
 

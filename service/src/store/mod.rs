@@ -107,6 +107,16 @@ impl Store {
         Ok(Store::Sqlite(SqliteStore::open(url).await?))
     }
 
+    /// Opens the SQLite database file at `url` on a disk too full for [`Store::open`], on
+    /// one exclusive connection (see `SqliteStore::open_exclusive`), so that the service
+    /// can serve its reads; `None` for a URL that names no SQLite file.
+    pub async fn open_exclusive(url: &str) -> Option<Result<Store>> {
+        if is_postgres(url) || url.contains(":memory:") {
+            return None;
+        }
+        Some(SqliteStore::open_exclusive(url).await.map(Store::Sqlite))
+    }
+
     /// The same store, failing a job whose tile lost its pixels `n` times (the service's
     /// `--max-attempts`; 4 until set).
     pub fn max_attempts(self, n: u32) -> Store {

@@ -57,6 +57,8 @@ macro_rules! on_both {
 pub struct TempDir {
     path: PathBuf,
     database: Option<pg::Database>,
+    /// A small file system of its own mounted in it, which holds the SQLite file.
+    disk: Option<PathBuf>,
 }
 
 impl TempDir {
@@ -78,7 +80,31 @@ impl TempDir {
         TempDir {
             path: p,
             database: (backend == Backend::Postgres).then(pg::database),
+            disk: None,
         }
+    }
+
+    /// A directory whose services use a SQLite file on a disk of `bytes` of its own (a tmpfs
+    /// mounted in it, unmounted when dropped), which a test may fill; the logs stay off it.
+    /// `None` where this process may not mount one (not root, or a container that forbids
+    /// it).
+    pub fn on_small_disk(tag: &str, bytes: u64) -> Option<TempDir> {
+        let mut dir = TempDir::new(tag);
+        let disk = dir.path.join("disk");
+        std::fs::create_dir_all(&disk).expect("a mount point");
+        let mounted = Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={bytes}"), "tmpfs"])
+            .arg(&disk)
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        dir.disk = Some(disk);
+        mounted.then_some(dir)
+    }
+
+    /// The SQLite file of the services (unused on PostgreSQL).
+    pub fn db_file(&self) -> PathBuf {
+        self.disk.as_ref().unwrap_or(&self.path).join("tessera.db")
     }
 
     pub fn path(&self) -> &Path {
@@ -89,7 +115,7 @@ impl TempDir {
     pub fn database(&self) -> String {
         match &self.database {
             Some(db) => db.url.clone(),
-            None => format!("sqlite://{}", self.path.join("tessera.db").display()),
+            None => format!("sqlite://{}", self.db_file().display()),
         }
     }
 
@@ -101,6 +127,13 @@ impl TempDir {
 
 impl Drop for TempDir {
     fn drop(&mut self) {
+        if let Some(disk) = &self.disk {
+            let _ = Command::new("umount")
+                .arg("-l")
+                .arg(disk)
+                .stderr(Stdio::null())
+                .status();
+        }
         let _ = std::fs::remove_dir_all(&self.path);
     }
 }
@@ -146,7 +179,7 @@ impl Service {
 
     /// Starts a service on `listen` (a fixed port, to restart on the same address).
     pub fn start_on(dir: &TempDir, listen: &str, args: &[&str]) -> Service {
-        let db = dir.path().join("tessera.db");
+        let db = dir.db_file();
         let log = dir.path().join(format!(
             "service-{}.log",
             std::time::SystemTime::now()

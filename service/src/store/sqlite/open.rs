@@ -5,7 +5,10 @@ use std::str::FromStr;
 use std::sync::Arc;
 use std::time::Duration;
 
-use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
+use sqlx::sqlite::{
+    SqliteConnectOptions, SqliteJournalMode, SqliteLockingMode, SqlitePoolOptions,
+    SqliteSynchronous,
+};
 use tokio::sync::Mutex;
 
 use super::checkpoint::{CHECKPOINT_EVERY_BYTES, WRITER_CHECKPOINT_PAGES, WalKeeper};
@@ -38,6 +41,20 @@ impl SqliteStore {
     /// Opens (creating if missing) the database at `url` (`sqlite://path`, or
     /// `sqlite::memory:`) and brings its schema up to date.
     pub(crate) async fn open(url: &str) -> Result<SqliteStore> {
+        SqliteStore::open_with(url, false).await
+    }
+
+    /// Opens the database file at `url` on a full disk, where [`SqliteStore::open`] fails:
+    /// SQLite cannot size the `-shm` file that its connections share. One connection, in
+    /// exclusive locking mode, keeps that index in its own memory instead, and serves the
+    /// reads as well as the writes (as for an in-memory database). The schema must be up to
+    /// date already: migrating would write. The connection takes writes once the disk has
+    /// room again; it stays the only one until the service restarts.
+    pub(crate) async fn open_exclusive(url: &str) -> Result<SqliteStore> {
+        SqliteStore::open_with(url, true).await
+    }
+
+    async fn open_with(url: &str, exclusive: bool) -> Result<SqliteStore> {
         // sqlx reads any other scheme as a file name ("unable to open database file"). A bare
         // path (`tessera.db`) is a SQLite file.
         if is_uri_file_name(url) {
@@ -106,10 +123,15 @@ impl SqliteStore {
         //   once however often it was rewritten since the last, so checkpointing once per
         //   several jobs instead of several times per job copies far less. The cost: a WAL
         //   file of a few times [`CHECKPOINT_EVERY_BYTES`] at most beside the database.
-        let writer_opts = opts
+        let mut writer_opts = opts
             .clone()
             .pragma("cache_size", "-16384")
             .pragma("wal_autocheckpoint", WRITER_CHECKPOINT_PAGES.to_string());
+        if exclusive {
+            // Set before the database is read, so that the WAL index is never looked for
+            // in the `-shm` file.
+            writer_opts = writer_opts.locking_mode(SqliteLockingMode::Exclusive);
+        }
         // Migrated through a pool of its one connection, which is then taken out of it
         // (an in-memory database lives on that connection only).
         let migrating = SqlitePoolOptions::new()
@@ -131,8 +153,9 @@ impl SqliteStore {
             Some(dir) => Some(Arc::new(Spool::open(dir)?)),
             None => None,
         };
-        // An in-memory database exists once per connection: it has only the writer's.
-        let pool = if in_memory {
+        // An in-memory database exists once per connection: it has only the writer's; so
+        // has an exclusive one, which no other connection may read.
+        let pool = if in_memory || exclusive {
             None
         } else {
             Some(connect(8, opts).await?)

@@ -152,8 +152,12 @@ impl Spool {
             stuck: Mutex::new(HashSet::new()),
             failing: Mutex::new(None),
         };
-        spool.probe()?;
-        Ok(spool)
+        // A folder that cannot take files is refused; a full disk is not: the service then
+        // starts read-only (see the service's `startup`), and takes writes once it has room.
+        match spool.probe() {
+            Err(e) if !e.is_capacity() => Err(e),
+            _ => Ok(spool),
+        }
     }
 
     /// Writes and removes a small file in the folder: whether tile pixels can be stored now
