@@ -54,6 +54,7 @@ mod preview;
 mod read_only;
 mod reaper;
 mod receiving;
+mod restart;
 mod rlimit;
 mod routes;
 mod startup;

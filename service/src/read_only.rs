@@ -2,19 +2,16 @@
 //! previews, workers, metrics) and refuses every write with `503` until the disk has room
 //! again, so that a supervisor that restarts it brings back at least the reads.
 //!
-//! What is decided here: whether the service is read-only now and why ([`ReadOnly`]), and
-//! the refusal of writes ([`refuse_writes`]). Not here: finding out that the disk has room
-//! (the maintenance pass tries the start's writes again, see `startup::take_writes`).
+//! What is decided here: whether the service is read-only now and why, and what a refused
+//! write is answered ([`ReadOnly`]). Not here: the middleware that refuses writes
+//! (`routes`), nor finding out that the disk has room (the maintenance pass tries the
+//! start's writes again, see `restart`).
 
 use std::sync::{PoisonError, RwLock};
 
-use axum::extract::{Request, State};
-use axum::http::{Method, StatusCode};
-use axum::middleware::Next;
-use axum::response::{IntoResponse, Response};
+use axum::http::StatusCode;
 
 use crate::error::ApiError;
-use crate::state::AppState;
 
 /// How long a refused writer is told to wait before it asks again, in seconds: about two
 /// maintenance passes, each of which looks for room.
@@ -48,17 +45,5 @@ impl ReadOnly {
             ),
         )
         .retry_after(RETRY_AFTER_SECS)
-    }
-}
-
-/// Middleware: while the service is read-only, every request but a read (`GET`, `HEAD`)
-/// is answered `503` with `Retry-After`, before its handler runs.
-pub async fn refuse_writes(State(state): State<AppState>, req: Request, next: Next) -> Response {
-    if matches!(*req.method(), Method::GET | Method::HEAD) {
-        return next.run(req).await;
-    }
-    match state.read_only.why() {
-        Some(why) => ReadOnly::refusal(&why).into_response(),
-        None => next.run(req).await,
     }
 }

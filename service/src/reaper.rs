@@ -8,7 +8,7 @@
 //! ([`crate::store::Store::maintains`]) does the rest, so that no two reap at once.
 //!
 //! A service that started without room to write does none of it: each pass only tries the
-//! start's writes again (`startup::take_writes`), until they go through.
+//! start's writes again (`restart::take_writes`), until they go through.
 //!
 //! It decides nothing the queue does not: it calls the queue with the time and the
 //! configuration's limits, and wakes waiting requests when something changed.
@@ -49,7 +49,7 @@ pub async fn reaper(state: AppState, mut stop: watch::Receiver<bool>) {
         }
         // Started without room to write: nothing else is done until the start's writes go
         // through (leases are given their grace then, so none is reaped for the wait).
-        if state.read_only.why().is_some() && !crate::startup::take_writes(&state).await {
+        if state.read_only.why().is_some() && !crate::restart::take_writes(&state).await {
             last = std::time::Instant::now();
             continue;
         }

@@ -20,9 +20,10 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use crate::handlers::{image, jobs, live, page, workers};
+use crate::read_only::ReadOnly;
 use crate::state::AppState;
 use crate::tiling::protocol_limit;
-use crate::{auth, error, metrics, read_only};
+use crate::{auth, error, metrics};
 
 /// The user routes with their body limits and token checks, and their OpenAPI document.
 fn user_routes(body_limit: usize) -> OpenApiRouter<AppState> {
@@ -216,7 +217,7 @@ pub fn router(state: AppState) -> Router {
         }))
         .route_layer(axum::middleware::from_fn_with_state(
             state.clone(),
-            read_only::refuse_writes,
+            refuse_writes,
         ))
         .route_layer(axum::middleware::from_fn_with_state(
             state.clone(),
@@ -228,7 +229,7 @@ pub fn router(state: AppState) -> Router {
     let user_routes = user_routes
         .route_layer(axum::middleware::from_fn_with_state(
             state.clone(),
-            read_only::refuse_writes,
+            refuse_writes,
         ))
         .route_layer(axum::middleware::from_fn_with_state(
             state.clone(),
@@ -251,6 +252,24 @@ pub fn router(state: AppState) -> Router {
         .layer(axum::middleware::from_fn(security_headers))
         .layer(tower_http::trace::TraceLayer::new_for_http().on_failure(log_failure))
         .with_state(state)
+}
+
+/// While the service is read-only (it started without room to write), every request but a
+/// read (`GET`, `HEAD`) is answered `503` with `Retry-After`, before its handler runs.
+async fn refuse_writes(
+    axum::extract::State(state): axum::extract::State<AppState>,
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    use axum::http::Method;
+    use axum::response::IntoResponse;
+    if matches!(*req.method(), Method::GET | Method::HEAD) {
+        return next.run(req).await;
+    }
+    match state.read_only.why() {
+        Some(why) => ReadOnly::refusal(&why).into_response(),
+        None => next.run(req).await,
+    }
 }
 
 /// The policy of every answer: the pages load their scripts, styles and icon from

@@ -1,9 +1,9 @@
 //! Starting and stopping the service: the configuration's cross-checks, the database lock,
-//! opening the store and putting it right after a restart, listening, and the graceful stop
-//! (local workers finish, open requests get [`DRAIN`] to complete).
+//! opening the store (on a full disk too), listening, and the graceful stop (local workers
+//! finish, open requests get [`DRAIN`] to complete).
 //!
-//! The periodic maintenance is `reaper`'s, the in-process workers `local_workers`'; this
-//! module only starts them.
+//! Putting the store right after a restart is `restart`'s, the periodic maintenance
+//! `reaper`'s, the in-process workers `local_workers`'; this module only starts them.
 
 use std::future::{Future, IntoFuture};
 use std::net::SocketAddr;
@@ -20,7 +20,7 @@ use crate::routes::router;
 use crate::state::AppState;
 use crate::store::{Store, StoreError};
 use crate::tiling::{MAX_TILE, MIN_TILE};
-use crate::{db_lock, idle, now_ms};
+use crate::{db_lock, idle, restart};
 
 /// Why the service could not start or run.
 #[derive(Debug, thiserror::Error)]
@@ -89,8 +89,8 @@ pub async fn serve(
     let mut state = AppState::new(cfg, store.clone(), stop_rx.clone());
     state.local_prefix = (local_count > 0).then(|| local_prefix.clone());
     // Without room to write, the service starts read-only, and the maintenance pass tries
-    // these writes again until they go through (see `read_only`).
-    if let Err(e) = settle(&state).await {
+    // these writes again until they go through (see `restart`).
+    if let Err(e) = restart::settle(&state).await {
         if !e.is_storage() {
             return Err(e.into());
         }
@@ -174,66 +174,6 @@ async fn open_store(url: &str) -> Result<Store, StoreError> {
     }
 }
 
-/// Puts the store right after a start, with the writes that needs: checks that the store
-/// takes writes, requeues what the local workers of the last run held, gives the leases
-/// held a short grace, sweeps the tile spool, and assembles the images whose tiles were all
-/// in. Run at the start, and again by the maintenance pass while the service is read-only
-/// (see [`take_writes`]).
-async fn settle(state: &AppState) -> Result<(), StoreError> {
-    let store = &state.store;
-    store
-        .probe_write(now_ms(), crate::handlers::page::HEALTH_WRITE_WITHIN)
-        .await?;
-    let requeued = store
-        .forget_local_workers(state.local_prefix.as_deref())
-        .await?;
-    if requeued > 0 {
-        info!(
-            "{requeued} tiles held by the local workers of the service's previous run \
-             requeued (they ended with it)"
-        );
-    }
-    // After a restart, every lease held runs for a grace at most ([`restart_grace_ms`]): the
-    // workers that rode through renew or post within it, and the leases of those that died
-    // meanwhile are reaped at its end, not a full term later.
-    let grace = restart_grace_ms(state.cfg.lease_ms);
-    let extended = store.restart_leases(now_ms(), grace).await?;
-    if extended > 0 {
-        info!("{extended} leases from before the start run out in {grace} ms unless renewed");
-    }
-    match store.sweep_spool().await {
-        Ok(0) => {}
-        Ok(n) => info!("{n} spool files of finished or deleted jobs removed"),
-        Err(e) => warn!("sweeping the tile spool: {e}"),
-    }
-    for job in store.unassembled().await? {
-        info!(job = %job, "all tiles were in before the restart: assembling");
-        state.spawn_assembly(job);
-    }
-    Ok(())
-}
-
-/// While the service is read-only, tries the start's writes again ([`settle`]): true once
-/// they went through and the service takes writes again.
-pub(crate) async fn take_writes(state: &AppState) -> bool {
-    match settle(state).await {
-        Ok(()) => {
-            state.read_only.set(None);
-            info!("the disk has room again: taking writes");
-            state.work.notify_waiters();
-            state.changes.any();
-            true
-        }
-        Err(e) => {
-            tracing::debug!("still no room to write: {e}");
-            if e.is_storage() {
-                state.read_only.set(Some(e.to_string()));
-            }
-            false
-        }
-    }
-}
-
 /// Refuses a configuration the service cannot run with: open submission beyond loopback
 /// without `--open-submit`, and limits out of their ranges. The command line refuses the
 /// latter already (clap ranges); a `Config` built in code is checked here.
@@ -289,10 +229,3 @@ fn check(cfg: &Config, addr: SocketAddr) -> Result<(), ServiceError> {
 /// How long requests still open when a stop begins (after the local workers are done) may
 /// take before their connections are closed.
 pub const DRAIN: Duration = Duration::from_secs(5);
-
-/// How long the leases held when a service starts run before they are reaped: half a lease,
-/// since a worker that rode through the restart renews every third of one; at least 3 s,
-/// since it retries the post of a rendered tile every 2 s at most; never past a lease.
-pub(crate) fn restart_grace_ms(lease_ms: u64) -> u64 {
-    (lease_ms / 2).max(3_000).min(lease_ms)
-}
