@@ -47,6 +47,11 @@ use crate::world::{Hit, Scene};
 /// 1e-12, a light 1e-3 under a plane at 1e9 would shine through it.)
 pub const SHADOW_END_REL: f64 = 1e-14;
 
+/// The most pixels of a band that a rectangle is rendered in (see `Scene::rect_bytes`):
+/// their linear values are 96 KiB, under the allocator's threshold for fresh pages, so one
+/// buffer serves every band and stays in the cache.
+const BAND_PIXELS: usize = 4096;
+
 /// Counts of rays traced, for benchmarks ("rays per pixel").
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct RayStats {
@@ -291,13 +296,64 @@ impl Scene {
         sampler: &Sampler,
         stopped: impl Fn() -> bool,
     ) -> (Vec<Color>, RayStats) {
+        let mut out = Vec::new();
+        let stats = self.rect_linear_into(rect, sampler, stopped, &mut out);
+        (out, stats)
+    }
+
+    /// [`Self::rect_linear`] into `out`, whose allocation is reused (its contents are
+    /// replaced).
+    fn rect_linear_into(
+        &self,
+        rect: Rect,
+        sampler: &Sampler,
+        stopped: impl Fn() -> bool,
+        out: &mut Vec<Color>,
+    ) -> RayStats {
+        out.clear();
+        out.resize(rect.pixel_count(), Color::ZERO);
         // Chosen once per rectangle: the tracing compiled without any look at the eye's and
         // the lights' tables, for scenes that have none, is the plain one (see `radiance`).
         if self.has_point_tables() {
-            self.rect_linear_in::<true>(rect, sampler, stopped)
+            self.rect_linear_in::<true>(rect, sampler, stopped, out)
         } else {
-            self.rect_linear_in::<false>(rect, sampler, stopped)
+            self.rect_linear_in::<false>(rect, sampler, stopped, out)
         }
+    }
+
+    /// The sRGB bytes of `rect` with the rays they took, unless `stopped()` turns true
+    /// meanwhile (then `None`). The rectangle is rendered a band of rows at a time into one
+    /// reused buffer of linear values (see [`BAND_PIXELS`]): a pixel's value depends only on
+    /// the scene and the pixel, so the bands give the rectangle's very bytes, and a large
+    /// rectangle costs 3 bytes a pixel instead of 27. The adaptive sampler renders the
+    /// rectangle whole: it looks past each band's edges.
+    fn rect_bytes(
+        &self,
+        rect: Rect,
+        sampler: &Sampler,
+        stopped: impl Fn() -> bool,
+    ) -> Option<(Vec<u8>, RayStats)> {
+        let rows = if matches!(sampler, Sampler::Adaptive { .. }) {
+            rect.height
+        } else {
+            (BAND_PIXELS / rect.width.max(1) as usize).clamp(1, rect.height.max(1) as usize) as u32
+        };
+        let mut bytes = Vec::with_capacity(rect.pixel_count() * 3);
+        let mut linear = Vec::new();
+        let mut stats = RayStats::default();
+        let mut y = rect.y;
+        while y < rect.y + rect.height {
+            let band = Rect::new(rect.x, y, rect.width, rows.min(rect.y + rect.height - y));
+            stats.add(&self.rect_linear_into(band, sampler, &stopped, &mut linear));
+            if stopped() {
+                return None;
+            }
+            for &c in &linear {
+                bytes.extend_from_slice(&srgb::encode_rgb8(c));
+            }
+            y += band.height;
+        }
+        Some((bytes, stats))
     }
 
     fn rect_linear_in<const TABLES: bool>(
@@ -305,9 +361,9 @@ impl Scene {
         rect: Rect,
         sampler: &Sampler,
         stopped: impl Fn() -> bool,
-    ) -> (Vec<Color>, RayStats) {
+        out: &mut [Color],
+    ) -> RayStats {
         let counters = Counters::default();
-        let mut out = vec![Color::ZERO; rect.pixel_count()];
         let trace = |x, y| {
             if stopped() {
                 return Sample {
@@ -329,11 +385,11 @@ impl Scene {
                 height: rect.height as usize + 2 * border,
             };
             let footprints = Footprints::new(self, region);
-            sampler.render_rect_probed(rect, trace, &footprints, &mut out);
+            sampler.render_rect_probed(rect, trace, &footprints, out);
         } else {
-            sampler.render_rect(rect, trace, &mut out);
+            sampler.render_rect(rect, trace, out);
         }
-        (out, counters.stats())
+        counters.stats()
     }
 
     /// A high-rate estimate of the exact image over `rect` (`n × n` stratified samples per
@@ -364,8 +420,9 @@ impl Scene {
     /// [`Self::render_rect_stats`] with another sampler than the scene's (a farm job's
     /// override).
     pub fn render_rect_stats_with(&self, rect: Rect, sampler: &Sampler) -> (Vec<u8>, RayStats) {
-        let (linear, stats) = self.render_rect_linear_with(rect, sampler);
-        (encode_rgb8(linear), stats)
+        // `stopped` is constantly false: there is always a result.
+        self.rect_bytes(rect, sampler, || false)
+            .unwrap_or_else(|| (Vec::new(), RayStats::default()))
     }
 
     /// [`Self::render_rect_stats_with`], given up once `stop` is set: the tile's remaining
@@ -379,11 +436,7 @@ impl Scene {
         sampler: &Sampler,
         stop: &AtomicBool,
     ) -> Option<(Vec<u8>, RayStats)> {
-        let (linear, stats) = self.rect_linear(rect, sampler, || stop.load(Ordering::Relaxed));
-        if stop.load(Ordering::Relaxed) {
-            return None;
-        }
-        Some((encode_rgb8(linear), stats))
+        self.rect_bytes(rect, sampler, || stop.load(Ordering::Relaxed))
     }
 
     /// Renders the whole image as 8-bit sRGB RGB rows, on the current rayon pool, in tiles of
@@ -415,13 +468,4 @@ impl Scene {
         }
         (image, total)
     }
-}
-
-/// 8-bit sRGB bytes of linear pixel values, 3 a pixel.
-fn encode_rgb8(linear: Vec<Color>) -> Vec<u8> {
-    let mut bytes = Vec::with_capacity(linear.len() * 3);
-    for c in linear {
-        bytes.extend_from_slice(&srgb::encode_rgb8(c));
-    }
-    bytes
 }

@@ -553,3 +553,42 @@ fn pieces_hold_every_hit() {
         assert!(s.objects[0].pieces().is_empty(), "{shape}");
     }
 }
+
+/// A rectangle rendered to bytes a band of rows at a time gives the bytes of its pixels
+/// rendered whole, with the same rays, for every sampler (the adaptive one is not banded);
+/// and a render told to stop gives nothing.
+#[test]
+fn a_rectangle_rendered_in_bands_is_the_rectangle_rendered_whole() {
+    use std::sync::atomic::AtomicBool;
+    // 300 pixels wide: bands of 13 rows, the last one short.
+    let s = scene(
+        "[GLOBALS]\nwidth = 300\nheight = 40\nlight = <5, 10, 10>\n[/GLOBALS]\n\
+         [CAMERA]\neye = <0, 2, 8>\nlook_at = <0, 0.5, 0>\n[/CAMERA]\n\
+         [OBJECT]\ntype = plane\ncolor1 = 0.9\ncolor2 = 0.1\n[/OBJECT]\n\
+         [OBJECT]\ntype = sphere\ntranslate = <0, 1, 0>\nmirror = 0.5\n[/OBJECT]\n",
+    );
+    let rect = Rect::new(3, 2, 297, 38);
+    for sampler in [
+        crate::Sampler::Center,
+        crate::Sampler::Thesis,
+        crate::Sampler::Jitter { n: 2 },
+        crate::Sampler::Adaptive {
+            max: 4,
+            threshold: 0.05,
+        },
+    ] {
+        let (linear, whole) = s.render_rect_linear_with(rect, &sampler);
+        let expected: Vec<u8> = linear
+            .iter()
+            .flat_map(|&c| crate::srgb::encode_rgb8(c))
+            .collect();
+        let (bytes, banded) = s.render_rect_stats_with(rect, &sampler);
+        assert!(bytes == expected, "{sampler:?}: the bands' bytes differ");
+        assert_eq!(banded.total(), whole.total(), "{sampler:?}");
+    }
+    let stop = AtomicBool::new(true);
+    assert!(
+        s.render_rect_stats_until(rect, &crate::Sampler::Center, &stop)
+            .is_none()
+    );
+}
