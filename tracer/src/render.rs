@@ -30,6 +30,7 @@ use crate::sampler::{Sample, Sampler};
 use crate::shape::LocalHit;
 use crate::srgb;
 use crate::tile::{Rect, tiles};
+use crate::transform::Transform;
 use crate::world::{Hit, Scene};
 
 /// A shadow ray stops this far short of its light, as a fraction of its scale
@@ -99,39 +100,54 @@ impl Counters {
     }
 }
 
-/// A hit point ready to spawn secondary rays: its world position, the bound its origin
-/// must clear, and the normal facing the ray that arrived.
+/// A hit point ready to spawn secondary rays: its world position, what bounds its error,
+/// and the normal facing the ray that arrived. The bound an origin must clear is worked out
+/// only when a secondary ray is spawned ([`SurfacePoint::err`]): most hits on a scene
+/// without mirrors, or lit by lights known clear, spawn none.
 #[derive(Debug, Clone, Copy)]
-pub struct SurfacePoint {
+pub struct SurfacePoint<'a> {
     /// The hit point in world space.
     pub p: DVec3,
-    /// Per-axis bound the offset must clear: the hit point's own error plus the rounding of
-    /// carrying a point near it back into this object's space for the next intersection test.
-    pub err: DVec3,
+    /// The hit point's own error bound, per axis.
+    p_err: DVec3,
+    /// The object's placement, which carries the next intersection test's origin back.
+    transform: &'a Transform,
     /// Unit normal facing the incoming ray.
     pub n: DVec3,
     /// Whether the incoming ray arrived from the outside of the solid.
     pub outside: bool,
 }
 
-impl SurfacePoint {
+impl<'a> SurfacePoint<'a> {
     /// The world-space surface point of `hit` on `obj`, for a ray arriving along `incoming`.
-    pub fn new(obj: &Object, hit: &LocalHit, incoming: DVec3) -> SurfacePoint {
+    pub fn new(obj: &'a Object, hit: &LocalHit, incoming: DVec3) -> SurfacePoint<'a> {
         let (p, p_err) = obj.transform.point_to_world(hit.p, hit.p_err);
         let outward = obj.transform.normal_to_world(hit.n).normalize();
         let outside = outward.dot(incoming) <= 0.0;
         let n = if outside { outward } else { -outward };
-        // The factor 2 leaves room for the intersection routine's own rounding when it
-        // classifies the new origin as off the surface (a few ulps of the unit shape).
-        let err = 2.0 * (p_err + obj.transform.round_trip_error(p));
-        SurfacePoint { p, err, n, outside }
+        SurfacePoint {
+            p,
+            p_err,
+            transform: &obj.transform,
+            n,
+            outside,
+        }
+    }
+
+    /// Per-axis bound the offset of a secondary ray's origin must clear: the hit point's own
+    /// error plus the rounding of carrying a point near it back into this object's space for
+    /// the next intersection test. The factor 2 leaves room for the intersection routine's
+    /// own rounding when it classifies the new origin as off the surface (a few ulps of the
+    /// unit shape).
+    pub fn err(&self) -> DVec3 {
+        2.0 * (self.p_err + self.transform.round_trip_error(self.p))
     }
 
     /// Origin for a secondary ray leaving towards `dir`: off the surface, on `dir`'s side.
     // Used through `crate::internals` (feature `bench`) and by the tests.
     #[cfg_attr(not(feature = "bench"), allow(dead_code))]
     pub fn origin_towards(&self, dir: DVec3) -> DVec3 {
-        offset_ray_origin(self.p, self.err, self.n, dir)
+        offset_ray_origin(self.p, self.err(), self.n, dir)
     }
 
     /// Origin for a secondary ray leaving on the side the incoming ray came from (`n`'s):
@@ -139,7 +155,7 @@ impl SurfacePoint {
     /// and a mirror ray by reflection. It is [`Self::origin_towards`] of any such direction,
     /// computed once per hit rather than once per ray.
     pub fn origin_ahead(&self) -> DVec3 {
-        offset_ray_origin(self.p, self.err, self.n, self.n)
+        offset_ray_origin(self.p, self.err(), self.n, self.n)
     }
 }
 
