@@ -8,13 +8,16 @@
 //! - `features`: what each feature of a scene costs in rays and time, and that unused
 //!   features cost nothing.
 //! - `povray`: trace time and image difference against POV-Ray 3.7 on the same scenes.
+//! - `embree`: rays per second against Intel Embree 3 tracing the same picture (skipped
+//!   where Embree is not installed).
 //! - `tracer`: rays per second on the bench scenes, and how the per-ray cost grows with the
 //!   number of objects with and without the BVH.
 //! - `farm`: the farm's overhead against the local tracer, two-worker scaling, queue
 //!   throughput and the service's peak memory on a large image.
-//! - `all`: `tracer`, `farm` and `povray` in one run: every performance figure.
+//! - `all`: `tracer`, `farm`, `povray` and `embree` in one run: every performance figure.
 
 mod chart;
+mod embree;
 mod farm;
 mod features;
 mod povray;
@@ -39,11 +42,13 @@ enum Command {
     Features(features::Args),
     /// Trace time and image difference against POV-Ray 3.7 on the same scenes.
     Povray(povray::Args),
+    /// Rays per second against an Embree 3 reference tracing the same picture.
+    Embree(embree::Args),
     /// Rays per second per thread, and the BVH's scaling with the object count.
     Tracer(tracer::Args),
     /// The farm: overhead against the local tracer, scaling, queue throughput, memory.
     Farm(farm::Args),
-    /// Every performance figure in one run: `tracer`, `farm` and `povray`.
+    /// Every performance figure in one run: `tracer`, `farm`, `povray` and `embree`.
     All {
         /// The short modes (CI).
         #[arg(long)]
@@ -57,9 +62,10 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Chart(args) => chart::run(&args),
         Command::Features(args) => features::run(&args),
         Command::Povray(args) => povray::run(&args),
+        Command::Embree(args) => embree::run(&args),
         Command::Tracer(args) => tracer::run(&args),
         Command::All { quick } => {
-            for sub in ["tracer", "farm", "povray"] {
+            for sub in ["tracer", "farm", "povray", "embree"] {
                 let mut argv = vec!["tessera-bench", sub];
                 if quick {
                     argv.push("--quick");

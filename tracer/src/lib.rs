@@ -86,6 +86,7 @@ pub mod internals {
     pub use crate::render::{SHADOW_END_REL, SurfacePoint};
     pub use crate::sampler::Sample;
     pub use crate::shape::LocalHit;
+    pub use crate::srgb::encode_rgb8;
     pub use crate::world::Hit;
 
     use glam::DVec3;
