@@ -137,8 +137,8 @@ fn tracer_quick_reports_rates_and_the_bvh_scaling() {
         })
         .collect();
     assert!(rates.iter().all(|r| r.is_finite() && *r > 0.0), "{stdout}");
-    // Two scaling tables, the cloud then the layer: N, rays, ns/ray, ratio, linear ns/ray,
-    // linear/BVH.
+    // Two scaling tables, the cloud then the layer: N, build ms, peak and kept bytes per
+    // sphere, rays, ns/ray, ratio, the same without tables, linear ns/ray, linear/BVH.
     let lines: Vec<&str> = stdout.lines().collect();
     let starts: Vec<usize> = (0..lines.len())
         .filter(|&i| lines[i].starts_with("BVH scaling"))
@@ -153,8 +153,17 @@ fn tracer_quick_reports_rates_and_the_bvh_scaling() {
             .collect();
         assert_eq!(rows.len(), 3, "{stdout}");
         for r in &rows {
-            let ns: f64 = r[2].parse().expect("ns/ray");
+            let build: f64 = r[1].parse().expect("build ms");
+            let ns: f64 = r[5].parse().expect("ns/ray");
+            assert!(build.is_finite() && build >= 0.0, "{stdout}");
             assert!(ns.is_finite() && ns > 0.0, "{stdout}");
+            // Bytes per sphere, where the process says its memory.
+            assert!(
+                r[2..4]
+                    .iter()
+                    .all(|b| *b == "-" || b.parse::<u64>().is_ok()),
+                "{stdout}"
+            );
         }
     }
     assert_eq!(stdout.matches("that at N=16 in the").count(), 2, "{stdout}");
