@@ -29,7 +29,8 @@ use tessera_tracer::{
     TextureLimits, parse,
 };
 
-use crate::stats::Spread;
+use crate::povray::image_difference;
+use crate::stats::{Spread, median};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -610,28 +611,6 @@ impl Shader<'_> {
         }
         rgb
     }
-}
-
-/// Mean absolute difference (8-bit steps) and the share of pixels off by more than 2 steps.
-fn image_difference(a: &[u8], b: &[u8]) -> (f64, f64) {
-    let (mut sum, mut off) = (0u64, 0usize);
-    for (p, q) in a.chunks_exact(3).zip(b.chunks_exact(3)) {
-        let d = p
-            .iter()
-            .zip(q)
-            .map(|(x, y)| x.abs_diff(*y))
-            .max()
-            .unwrap_or(0);
-        sum += u64::from(d);
-        off += usize::from(d > 2);
-    }
-    let n = (a.len() / 3).max(1) as f64;
-    (sum as f64 / n, off as f64 / n)
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 pub fn run(args: &Args) -> Result<()> {

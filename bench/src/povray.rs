@@ -212,7 +212,7 @@ fn trace_seconds(output: &str) -> Option<f64> {
 }
 
 /// Mean absolute difference (8-bit steps) and share of pixels differing by more than 2 steps.
-fn image_difference(a: &[u8], b: &[u8]) -> (f64, f64) {
+pub(crate) fn image_difference(a: &[u8], b: &[u8]) -> (f64, f64) {
     let mut sum = 0u64;
     let mut off = 0usize;
     for (p, q) in a.chunks_exact(3).zip(b.chunks_exact(3)) {
