@@ -247,13 +247,7 @@ pub async fn retry_job(
             }
         }
     }
-    state.changes.job(&id);
-    let row = state
-        .store
-        .job(&id)
-        .await?
-        .ok_or_else(|| ApiError::no_job(&id))?;
-    Ok(ok_json(JobView::of(&state, row)))
+    changed(&state, &id).await
 }
 
 /// `PATCH /jobs/{id}` body: what to change.
@@ -325,13 +319,18 @@ pub async fn patch_job(
         }
         Reprioritized::Changed => {}
     }
-    state.changes.job(&id);
+    changed(&state, &id).await
+}
+
+/// The answer to a change of job `id`: its events are told, and the job as it is now.
+async fn changed(state: &AppState, id: &str) -> Result<Json<Value>, ApiError> {
+    state.changes.job(id);
     let row = state
         .store
-        .job(&id)
+        .job(id)
         .await?
-        .ok_or_else(|| ApiError::no_job(&id))?;
-    Ok(ok_json(JobView::of(&state, row)))
+        .ok_or_else(|| ApiError::no_job(id))?;
+    Ok(ok_json(JobView::of(state, row)))
 }
 
 /// A `PATCH` body that is not `{"priority": N}`, said in the project's words.
