@@ -17,7 +17,9 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use rayon::prelude::*;
 use tessera_tracer::internals::exact::error;
-use tessera_tracer::{Color, DirAssets, Limits, Rect, Sampler, Scene, TextureLimits, parse, tiles};
+use tessera_tracer::{
+    Color, DirAssets, Limits, Rect, Sampler, Scene, SceneDesc, TextureLimits, parse, tiles,
+};
 
 use crate::stats::median;
 use crate::svg::{Panel, Series};
@@ -131,12 +133,23 @@ pub fn scene_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// Loads a scene, optionally at reduced resolution (the camera keeps its field of view).
-pub fn load(path: &Path, shrink: u32) -> Result<Scene> {
+/// A scene file's name in the tables: its file name without `.ray`.
+pub fn scene_name(path: &Path) -> String {
+    path.file_stem()
+        .map_or("scene".into(), |s| s.to_string_lossy().to_string())
+}
+
+/// Reads and parses a scene file; a mistake is reported as `file:line:col: message`.
+pub fn read_desc(path: &Path) -> Result<SceneDesc> {
     let src =
         std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let mut desc = parse(&src, &Limits::default())
-        .map_err(|e| anyhow::anyhow!("{}", e.with_file(&path.display().to_string())))?;
+    parse(&src, &Limits::default())
+        .map_err(|e| anyhow::anyhow!("{}", e.with_file(&path.display().to_string())))
+}
+
+/// Loads a scene, optionally at reduced resolution (the camera keeps its field of view).
+pub fn load(path: &Path, shrink: u32) -> Result<Scene> {
+    let mut desc = read_desc(path)?;
     desc.width = (desc.width / shrink).max(1);
     desc.height = (desc.height / shrink).max(1);
     let dir = path.parent().unwrap_or(Path::new("."));
@@ -194,9 +207,7 @@ pub fn run(args: &Args) -> Result<()> {
     let mut panels = Vec::new();
     let mut summary = String::new();
     for path in &files {
-        let name = path
-            .file_stem()
-            .map_or("scene".into(), |s| s.to_string_lossy().to_string());
+        let name = scene_name(path);
         let scene = load(path, shrink)?;
         let started = Instant::now();
         let exact = reference(&scene, n_ref);

@@ -25,8 +25,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use glam::DVec3;
 use tessera_tracer::internals::{Camera, encode_rgb8};
 use tessera_tracer::{
-    Color, Limits, MemoryAssets, Node, ObjectDesc, Rect, Sampler, Scene, SceneDesc, Shape,
-    TextureLimits, parse,
+    Color, MemoryAssets, Node, ObjectDesc, Rect, Sampler, Scene, SceneDesc, Shape, TextureLimits,
 };
 
 use crate::povray::image_difference;
@@ -638,12 +637,8 @@ pub fn run(args: &Args) -> Result<()> {
         "Δ>2 px"
     );
     for path in files {
-        let name = path
-            .file_stem()
-            .map_or("scene".into(), |s| s.to_string_lossy().to_string());
-        let src = std::fs::read_to_string(&path)?;
-        let mut desc = parse(&src, &Limits::default())
-            .map_err(|e| anyhow!("{}", e.with_file(&path.display().to_string())))?;
+        let name = crate::chart::scene_name(&path);
+        let mut desc = crate::chart::read_desc(&path)?;
         desc.width = desc.width.saturating_mul(scale);
         desc.height = desc.height.saturating_mul(scale);
         desc.sampler = Sampler::Center;
@@ -706,6 +701,7 @@ pub fn run(args: &Args) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tessera_tracer::{Limits, parse};
 
     /// Spheres on a checkered plane, one of them a mirror, two lights casting shadows: every
     /// part of the shading this reference does.

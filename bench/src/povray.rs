@@ -28,8 +28,8 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use glam::{DAffine3, DVec3};
 use tessera_tracer::{
-    CsgOp, Light, Limits, MaterialDesc, MemoryAssets, Node, ObjectDesc, Rect, Sampler, Scene,
-    SceneDesc, Shape, TextureLimits, Transform, parse,
+    CsgOp, Light, MaterialDesc, MemoryAssets, Node, ObjectDesc, Rect, Sampler, Scene, SceneDesc,
+    Shape, TextureLimits, Transform,
 };
 
 use crate::stats::{Spread, median};
@@ -246,12 +246,8 @@ pub fn run(args: &Args) -> Result<()> {
         "scene", "size", "tessera ms", "povray ms", "ratio", "ratio range", "mean |Δ|", "Δ>2 px"
     );
     for path in files {
-        let name = path
-            .file_stem()
-            .map_or("scene".into(), |s| s.to_string_lossy().to_string());
-        let src = std::fs::read_to_string(&path)?;
-        let mut desc = parse(&src, &Limits::default())
-            .map_err(|e| anyhow::anyhow!("{}", e.with_file(&path.display().to_string())))?;
+        let name = crate::chart::scene_name(&path);
+        let mut desc = crate::chart::read_desc(&path)?;
         if args.quick {
             desc.width = (desc.width / 2).max(1);
             desc.height = (desc.height / 2).max(1);
@@ -342,6 +338,7 @@ fn time_povray(povray: &str, input: &Path, output: &Path, desc: &SceneDesc) -> R
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tessera_tracer::{Limits, parse};
 
     #[test]
     fn reads_povray_trace_time() {
