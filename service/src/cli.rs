@@ -62,7 +62,8 @@ where
             return ExitCode::FAILURE;
         }
     };
-    match runtime.block_on(run(cfg, shutdown_signal())) {
+    // The handlers are installed inside the runtime, before `run` announces itself.
+    match runtime.block_on(async { run(cfg, shutdown_signal()).await }) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("tessera-service: {e}");

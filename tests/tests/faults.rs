@@ -1204,6 +1204,19 @@ fn a_cancelled_jobs_tile_stops_rendering(backend: Backend) {
 }
 on_both!(a_cancelled_jobs_tile_stops_rendering);
 
+/// A stop signal sent the moment the service says it is listening is a graceful stop: the
+/// handlers are in place before that line, so the signal never meets the default action
+/// (death by signal, an unclean exit status for a supervisor).
+#[test]
+fn a_stop_signal_right_after_start_is_a_graceful_stop() {
+    let dir = TempDir::new("stop-at-start");
+    for _ in 0..8 {
+        let mut svc = Service::start(&dir, &["--local-workers", "0"]);
+        let status = svc.terminate();
+        assert!(status.success(), "{status:?}\n{}", svc.log());
+    }
+}
+
 /// A stop does not wait for clients that never finish their requests: one that sent half
 /// its headers and one part of an upload held a graceful stop for the idle timeout (two
 /// minutes here), a trickling one for ever. Once the local workers are done, open requests

@@ -339,7 +339,8 @@ fn bad_databases_are_refused_at_start_by_name() {
 
     let dir = TempDir::on(Backend::Postgres, "newer");
     let mut svc = Service::start(&dir, &["--local-workers", "0"]);
-    assert!(svc.terminate().success());
+    let status = svc.terminate();
+    assert!(status.success(), "{status}:\n{}", svc.log());
     let name = dir.pg_name().expect("a PostgreSQL database");
     server.sql(
         name,

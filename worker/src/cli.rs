@@ -100,7 +100,8 @@ pub fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    match runtime.block_on(run(cfg, shutdown_signal())) {
+    // The handlers are installed inside the runtime, before `run` announces itself.
+    match runtime.block_on(async { run(cfg, shutdown_signal()).await }) {
         Ok(summary) => {
             tracing::info!("rendered {} tiles", summary.tiles);
             ExitCode::SUCCESS
@@ -112,39 +113,69 @@ pub fn main() -> ExitCode {
     }
 }
 
-/// SIGINT or SIGTERM. A second one, while the graceful stop is under way, ends the process
-/// at once (exit status 130), as a second Ctrl-C does in most programs: what it held comes
-/// back to the queue when its leases run out.
-pub async fn shutdown_signal() {
-    one_signal().await;
-    tokio::spawn(async {
-        one_signal().await;
-        tracing::warn!("a second signal: stopping now, without finishing or giving back tiles");
-        std::process::exit(130);
-    });
+/// SIGINT or SIGTERM, caught from the moment this is called: a signal that arrives while
+/// the program starts is a graceful stop, never the default exit by signal. Call it inside
+/// the Tokio runtime, before announcing that the program is ready. A second signal, while
+/// the graceful stop is under way, ends the process at once (exit status 130), as a second
+/// Ctrl-C does in most programs: what it held comes back to the queue when its leases run
+/// out.
+pub fn shutdown_signal() -> impl Future<Output = ()> + Send + 'static {
+    let mut signals = Signals::install();
+    async move {
+        signals.next().await;
+        tokio::spawn(async move {
+            signals.next().await;
+            tracing::warn!("a second signal: stopping now, without finishing or giving back tiles");
+            std::process::exit(130);
+        });
+    }
 }
 
-async fn one_signal() {
-    let ctrl_c = async {
-        // A handler that could not be installed is no signal (the second listener would
-        // otherwise end the process right after the first).
+/// The stop signals' handlers, installed when this is made (Tokio's signal streams register
+/// at creation; `tokio::signal::ctrl_c` only at its first poll, too late for a signal sent
+/// right after start-up).
+struct Signals {
+    #[cfg(unix)]
+    interrupt: Option<tokio::signal::unix::Signal>,
+    #[cfg(unix)]
+    terminate: Option<tokio::signal::unix::Signal>,
+}
+
+impl Signals {
+    fn install() -> Signals {
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{SignalKind, signal};
+            Signals {
+                interrupt: signal(SignalKind::interrupt()).ok(),
+                terminate: signal(SignalKind::terminate()).ok(),
+            }
+        }
+        #[cfg(not(unix))]
+        Signals {}
+    }
+
+    /// The next stop signal. A handler that could not be installed never fires (rather than
+    /// firing at once and ending the program right after it starts).
+    async fn next(&mut self) {
+        #[cfg(unix)]
+        {
+            async fn on(s: &mut Option<tokio::signal::unix::Signal>) {
+                match s {
+                    Some(s) => {
+                        s.recv().await;
+                    }
+                    None => std::future::pending().await,
+                }
+            }
+            tokio::select! {
+                _ = on(&mut self.interrupt) => {}
+                _ = on(&mut self.terminate) => {}
+            }
+        }
+        #[cfg(not(unix))]
         if tokio::signal::ctrl_c().await.is_err() {
             std::future::pending::<()>().await;
         }
-    };
-    #[cfg(unix)]
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
-                s.recv().await;
-            }
-            Err(_) => std::future::pending().await,
-        }
-    };
-    #[cfg(not(unix))]
-    let term = std::future::pending::<()>();
-    tokio::select! {
-        _ = ctrl_c => {}
-        _ = term => {}
     }
 }
