@@ -88,11 +88,22 @@ impl Camera {
         ))
     }
 
+    /// The direction, not normalised, of the ray through image position `(x, y)`: affine in
+    /// `(x, y)`, with [`Camera::steps`] its steps per pixel.
+    #[inline]
+    pub(crate) fn direction(&self, x: f64, y: f64) -> DVec3 {
+        self.corner + self.right_per_px * x + self.down_per_px * y
+    }
+
+    /// How [`Camera::direction`] changes per pixel to the right and per pixel down.
+    pub(crate) fn steps(&self) -> (DVec3, DVec3) {
+        (self.right_per_px, self.down_per_px)
+    }
+
     /// The ray through image-plane position `(x, y)` in pixels, direction normalised.
     #[inline]
     pub fn ray(&self, x: f64, y: f64) -> Ray {
-        let d = self.corner + self.right_per_px * x + self.down_per_px * y;
-        Ray::new(self.eye, d.normalize())
+        Ray::new(self.eye, self.direction(x, y).normalize())
     }
 }
 

@@ -489,8 +489,9 @@ fn a_checker_fainter_than_the_threshold_costs_nothing() {
              [OBJECT]\ntype = plane\ncolor1 = 0.5\n{color2}scale = 0.3\nrotate = <0, 30, 0>\n[/OBJECT]\n"
         )
     };
+    // The ray rules alone: with the cells' areas, the visible checker takes no more rays.
     let rays = |src: &str| {
-        let s = common::scene(src);
+        let s = common::scene(src).without_cell_areas();
         s.render_rect_stats(Rect::full(s.width, s.height)).1.primary
     };
     let (faint, visible) = (
@@ -515,6 +516,7 @@ fn a_checker_fainter_than_the_threshold_costs_nothing() {
 /// would cost many times the rays per pixel of the bound).
 #[test]
 fn a_checker_just_above_the_threshold_is_searched_only_as_far_as_its_bound() {
+    // The ray rules alone (with the cells' areas no pixel here searches by rays).
     let rays_per_pixel = |color2: f64| {
         let s = common::scene(&format!(
             "[GLOBALS]\nwidth = 48\nheight = 36\nambient = 0.1\nsampler = adaptive\n\
@@ -523,7 +525,8 @@ fn a_checker_just_above_the_threshold_is_searched_only_as_far_as_its_bound() {
              [LIGHT]\nposition = <3, 10, 5>\n[/LIGHT]\n\
              [OBJECT]\ntype = plane\ncolor1 = 0.5\ncolor2 = {color2}\nscale = 0.4\n\
              rotate = <0, 30, 0>\n[/OBJECT]\n"
-        ));
+        ))
+        .without_cell_areas();
         let rays = s.render_rect_stats(Rect::full(s.width, s.height)).1.primary;
         rays as f64 / f64::from(s.width * s.height)
     };

@@ -52,6 +52,11 @@ impl Scene {
     /// outside any CSG tree, plain (no texture or mirror, a checker only on a plane), with
     /// no shadow ray to trace.
     pub(super) fn plain(&self, o: u32) -> bool {
+        self.plain_but_shadows(o) && self.casts_no_shadow_on(o)
+    }
+
+    /// [`Scene::plain`] but for shadows: they may fall on the object.
+    pub(super) fn plain_but_shadows(&self, o: u32) -> bool {
         let obj = &self.objects[o as usize];
         let m = &obj.material;
         let shape_ok = match obj.shape {
@@ -61,9 +66,13 @@ impl Scene {
         };
         // A checker only on a plane, where `one_cell` can tell whether a pixel crosses it.
         let checker_ok = m.color2.is_none() || matches!(obj.shape, Shape::Plane);
-        if !shape_ok || !checker_ok || obj.in_csg || m.texture.is_some() || m.mirror > 0.0 {
-            return false;
-        }
+        shape_ok && checker_ok && !obj.in_csg && m.texture.is_none() && m.mirror <= 0.0
+    }
+
+    /// Whether no shadow ray from object `o` needs tracing: no light, no shadow, nothing
+    /// else in the scene, or every light known clear of it.
+    pub(super) fn casts_no_shadow_on(&self, o: u32) -> bool {
+        let m = &self.objects[o as usize].material;
         // A sphere seen from outside (`covers` requires it) and a plane are left without
         // re-hitting themselves, so their shadow rays skip them, as `crate::shadow` assumes.
         let n = self.lights.len();

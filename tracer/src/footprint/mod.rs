@@ -58,12 +58,13 @@ use glam::DVec3;
 
 use crate::bvh;
 use crate::csg::Prim;
-use crate::math::Aabb;
+use crate::math::{Aabb, Color};
 use crate::sampler::{Sample, UnseenPattern};
 use crate::shape::Shape;
 use crate::world::Scene;
 use cells::{cell_edges, cell_parity, covers, one_cell, plane_of};
 
+mod average;
 mod cells;
 mod cone;
 
@@ -101,6 +102,18 @@ pub struct Footprints<'s> {
     fitted: Vec<u32>,
     /// The planes (world point, normal, object), tested per pixel.
     planes: Vec<(DVec3, DVec3, u32)>,
+}
+
+/// What [`Footprints::shows_alone`] allows in a pixel besides its one object's smooth
+/// shading.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Alone {
+    /// Nothing: the square lies in one checker cell.
+    OneCell,
+    /// A checker's cell edges.
+    Cells,
+    /// A checker's cell edges, and shadow rays to trace (the caller rules shadows out).
+    ShadowsToo,
 }
 
 /// A pixel no solid may show in.
@@ -434,6 +447,33 @@ impl<'s> Footprints<'s> {
         Some(UnseenPattern { step, edges })
     }
 
+    /// Pixel `(px, py)`'s value without more rays, where the primary ray through `(x, y)`
+    /// saw `seen` and the geometry knows the rest: a checkered plane alone in the square
+    /// ([`Footprints::pattern_alone`]), its cells' areas exact and its shading smooth to
+    /// within `threshold` (see `average`). At most `max_cells` cells are summed. `None`
+    /// elsewhere.
+    pub fn exact(
+        &self,
+        px: i64,
+        py: i64,
+        (x, y): (f64, f64),
+        seen: &Sample,
+        threshold: f64,
+        max_cells: u32,
+    ) -> Option<Color> {
+        let o = seen.object;
+        let obj = self.scene.objects.get(o as usize)?;
+        if !self.scene.cell_areas
+            || obj.material.color2.is_none()
+            || !matches!(obj.shape, Shape::Plane)
+            || !self.shows_alone(px, py, x, y, o, Alone::ShadowsToo)
+        {
+            return None;
+        }
+        let shadows = !self.scene.casts_no_shadow_on(o);
+        average::checker_average(self.scene, o, px, py, threshold, max_cells, shadows)
+    }
+
     /// Pixel `(px, py)`'s place in the per-pixel records; `None` outside the region.
     fn index(&self, px: i64, py: i64) -> Option<usize> {
         let reg = self.region;
@@ -447,7 +487,7 @@ impl<'s> Footprints<'s> {
     /// shadow edge: its exact value then differs from that ray's only by smooth shading.
     /// Pixels outside the region are never known smooth.
     pub fn is_smooth(&self, px: i64, py: i64, x: f64, y: f64, seen: &Sample) -> bool {
-        self.shows_alone(px, py, x, y, seen.object, true)
+        self.shows_alone(px, py, x, y, seen.object, Alone::OneCell)
     }
 
     /// [`Footprints::is_smooth`] but for a checker's cells: whether pixel `(px, py)`, where
@@ -456,29 +496,26 @@ impl<'s> Footprints<'s> {
     /// [`Footprints::unseen_pattern`] bounds. A step between it and a neighbour that neither
     /// saw is then a cell edge, in the neighbour unless the pattern puts one here.
     pub fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool {
-        self.shows_alone(px, py, x, y, object, false)
+        self.shows_alone(px, py, x, y, object, Alone::Cells)
     }
 
-    /// [`Footprints::is_smooth`], with a checker's cell edges allowed unless `one_cell`.
-    fn shows_alone(
-        &self,
-        px: i64,
-        py: i64,
-        x: f64,
-        y: f64,
-        object: u32,
-        one_cell_too: bool,
-    ) -> bool {
+    /// [`Footprints::is_smooth`], with what `alone` allows besides.
+    fn shows_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32, alone: Alone) -> bool {
+        let one_cell_too = alone == Alone::OneCell;
         let Some(i) = self.index(px, py) else {
             return false;
         };
         let hit = (object != Sample::BACKGROUND).then_some(object);
-        let alone = match self.shown[i] {
+        let shown_alone = match self.shown[i] {
             NOTHING => true,
             SEVERAL => false,
             one => Some(one) == hit,
         };
-        if !alone || hit.is_some_and(|o| !self.scene.plain(o)) {
+        let plain = |o: u32| match alone {
+            Alone::ShadowsToo => self.scene.plain_but_shadows(o),
+            _ => self.scene.plain(o),
+        };
+        if !shown_alone || hit.is_some_and(|o| !plain(o)) {
             return false;
         }
         let ray = self.scene.camera.ray(x, y);
@@ -510,6 +547,18 @@ impl crate::sampler::PixelGeometry for Footprints<'_> {
 
     fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool {
         Footprints::pattern_alone(self, px, py, x, y, object)
+    }
+
+    fn exact(
+        &self,
+        px: i64,
+        py: i64,
+        at: (f64, f64),
+        seen: &Sample,
+        threshold: f64,
+        max_cells: u32,
+    ) -> Option<Color> {
+        Footprints::exact(self, px, py, at, seen, threshold, max_cells)
     }
 
     fn unseen_pattern(

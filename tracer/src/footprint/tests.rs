@@ -196,3 +196,72 @@ fn a_plane_s_horizon_is_seen_only_when_the_cone_straddles_it() {
     assert_eq!(view(0.5e-3), PlaneView::Horizon);
     assert_eq!(view(2e-3), PlaneView::Misses);
 }
+
+/// The geometry answers for a pixel only where a checkered plane alone fills it: not where
+/// a sphere may show, not on a mirror, not on a plane without a checker, not past the cap
+/// on cells; where it answers, a square inside one cell is that cell's colour times the
+/// shading, which (no light reaching this plane from below) is the ambient alone.
+#[test]
+fn exact_values_only_where_a_checker_plane_is_alone() {
+    let plane = Sample {
+        color: DVec3::ZERO,
+        object: 0,
+    };
+    let region = PixelRegion {
+        x: 0,
+        y: 0,
+        width: 32,
+        height: 24,
+    };
+    let answers = |s: &Scene, x: i64, y: i64, cells: u32| {
+        let fp = Footprints::new(s, region);
+        fp.exact(x, y, (x as f64 + 0.5, y as f64 + 0.5), &plane, 0.05, cells)
+    };
+    let alone = lit_checker("<0, 3, 6>", 0.25, "");
+    assert!(answers(&alone, 16, 20, 64).is_some());
+    assert!(
+        answers(&alone, 16, 20, 0).is_none(),
+        "past the cap on cells"
+    );
+    let mirror = lit_checker("<0, 3, 6>", 0.25, "mirror = 0.5\n");
+    assert!(answers(&mirror, 16, 20, 64).is_none(), "a mirror");
+    let plain = scene(
+        "[GLOBALS]\nwidth = 32\nheight = 24\n[/GLOBALS]\n[CAMERA]\neye = <0, 3, 6>\n\
+         look_at = <0, 0, 0>\n[/CAMERA]\n[OBJECT]\ntype = plane\n[/OBJECT]\n",
+    );
+    assert!(answers(&plain, 16, 20, 64).is_none(), "no checker");
+    let with_sphere = scene(
+        "[GLOBALS]\nwidth = 32\nheight = 24\nambient = 0.2\n[/GLOBALS]\n\
+         [CAMERA]\neye = <0, 3, 6>\nlook_at = <0, 0, 0>\n[/CAMERA]\n\
+         [OBJECT]\ntype = plane\ncolor1 = 1\ncolor2 = 0.25\n[/OBJECT]\n\
+         [OBJECT]\ntype = sphere\nradius = 0.5\ntranslate = <0, 0.5, 0>\n[/OBJECT]\n",
+    );
+    let fp = Footprints::new(&with_sphere, region);
+    let centre = with_sphere.camera.project(DVec3::new(0.0, 0.5, 0.0));
+    let (cx, cy) = centre.expect("the sphere is in view");
+    let (x, y) = (cx.floor() as i64, cy.floor() as i64);
+    assert!(
+        fp.exact(x, y, (cx, cy), &plane, 0.05, 64).is_none(),
+        "a sphere in the square"
+    );
+
+    // Seen from below, no light reaches the plane's seen side: every piece is its colour
+    // times the ambient, so a square in one cell is exactly 0.2 or 0.05.
+    let below = lit_checker("<0.3, -3, 6.2>", 0.25, "");
+    let fp = Footprints::new(&below, region);
+    let mut one_colour = 0;
+    for y in 0..24 {
+        for x in 0..32 {
+            let at = (x as f64 + 0.5, y as f64 + 0.5);
+            if let Some(c) = fp.exact(x, y, at, &plane, 0.05, 64) {
+                assert!(c.max_element() <= 0.2 + 1e-12 && c.min_element() >= 0.05 - 1e-12);
+                if one_cell(&below, &below.objects[0], x, y) {
+                    let v = c.x;
+                    assert!((v - 0.2).abs() < 1e-12 || (v - 0.05).abs() < 1e-12, "{v}");
+                    one_colour += 1;
+                }
+            }
+        }
+    }
+    assert!(one_colour > 0);
+}

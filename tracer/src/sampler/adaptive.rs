@@ -406,6 +406,13 @@ pub(super) fn se_bound(threshold: f64, rays: u32) -> f64 {
     threshold * (f64::from(rays) / 16.0).sqrt()
 }
 
+/// The most checker cells [`PixelGeometry::exact`] sums for a pixel of cap `max`: one per
+/// ray the pixel could take at most (a cell's clipping costs less than a ray), and 16 at
+/// least.
+fn exact_cells(max: u32) -> u32 {
+    (max * max).max(16)
+}
+
 /// The adaptive sampler over `rect`.
 ///
 /// With a smoothness test, every pixel of the rect first traces its first ray alone (its
@@ -452,7 +459,8 @@ pub(super) fn adaptive<F, G>(
     // with). A pixel's probe is traced when first needed, and its neighbours' only once its
     // own is smooth, so a region nothing can end in (a mirror) traces no probes beyond the
     // first passes' first rays.
-    let mut ends = vec![false; pw * ph];
+    // `Some(value)`: the pixel ends with that value (its probe's, or the geometry's).
+    let mut ends: Vec<Option<Color>> = vec![None; pw * ph];
     let mut probes: Vec<Option<((f64, f64), Sample)>> = vec![None; pw * ph];
     if let Some(geometry) = geometry {
         let probe = |probes: &mut Vec<Option<((f64, f64), Sample)>>, bx: usize, by: usize| {
@@ -475,13 +483,19 @@ pub(super) fn adaptive<F, G>(
             };
             // The neighbours already traced first, then the test, then the rest: each step
             // is only taken if the ones before allow the pixel to end.
-            neighbours(bx, by)
+            let smooth = neighbours(bx, by)
                 .into_iter()
                 .all(|(nx, ny)| probes[at(nx, ny)].is_none_or(|(_, q)| gentle(&q)))
                 && geometry.is_smooth(x, y, sx, sy, &p)
                 && neighbours(bx, by)
                     .into_iter()
-                    .all(|(nx, ny)| gentle(&probe(probes, nx, ny).1))
+                    .all(|(nx, ny)| gentle(&probe(probes, nx, ny).1));
+            if smooth {
+                return Some(p.color);
+            }
+            // A checkered plane alone in the square: its cells' exact areas, where they are
+            // few enough to cost less than the rays they replace.
+            geometry.exact(x, y, (sx, sy), &p, threshold, exact_cells(max))
         };
         let mut decided = vec![false; pw * ph];
         for by in 2..h + 2 {
@@ -492,7 +506,7 @@ pub(super) fn adaptive<F, G>(
         }
         for by in 2..h + 2 {
             for bx in 2..w + 2 {
-                if ends[at(bx, by)] {
+                if ends[at(bx, by)].is_some() {
                     continue;
                 }
                 for (nx, ny) in neighbours(bx, by) {
@@ -512,12 +526,12 @@ pub(super) fn adaptive<F, G>(
     let mut passes: Vec<FirstPass> = Vec::new();
     for by in 2..h + 2 {
         for bx in 2..w + 2 {
-            if ends[at(bx, by)] {
+            if ends[at(bx, by)].is_some() {
                 continue;
             }
             for (qx, qy) in std::iter::once((bx, by)).chain(neighbours(bx, by)) {
                 let i = at(qx, qy);
-                if slot[i] == NONE && !ends[i] {
+                if slot[i] == NONE && ends[i].is_none() {
                     let (x, y) = pixel(qx, qy);
                     let probed = probes[i].map(|(_, p)| p);
                     // At most one pass per pixel of the grown rect, whose size is bounded
@@ -548,7 +562,7 @@ pub(super) fn adaptive<F, G>(
             let here = at(bx, by);
             let (x, y) = (rect.x + (bx - 2) as u32, rect.y + (by - 2) as u32);
             out[i] = match (ends[here], probes[here], slot[here]) {
-                (true, Some((_, p)), _) => p.color,
+                (Some(value), _, _) => value,
                 // Unreachable: a pixel that does not end has its first pass.
                 (_, _, NONE) => Color::ZERO,
                 (_, _, k) => {

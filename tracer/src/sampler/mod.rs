@@ -283,6 +283,22 @@ pub trait PixelGeometry {
     /// [`PixelGeometry::unseen_pattern`] bounds what this pixel can hide. May say no where
     /// yes is true, never the reverse.
     fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool;
+
+    /// Pixel `(px, py)`'s value without more rays, where the primary ray through `at` saw
+    /// `seen` and the geometry alone gives the rest (a checkered plane's cells, their areas
+    /// exact), within `threshold` of smooth shading; summing at most `max_cells` cells.
+    /// `None` where it does not know.
+    fn exact(
+        &self,
+        _px: i64,
+        _py: i64,
+        _at: (f64, f64),
+        _seen: &Sample,
+        _threshold: f64,
+        _max_cells: u32,
+    ) -> Option<Color> {
+        None
+    }
 }
 
 /// A pattern's edges in a pixel's square that its first rays may have missed (see

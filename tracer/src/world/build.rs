@@ -72,6 +72,7 @@ impl Scene {
             clear_lights,
             lights_on,
             mirrors: objects.iter().filter(|o| o.material.mirror > 0.0).count(),
+            cell_areas: true,
             objects,
             prims,
         })
@@ -211,6 +212,15 @@ impl Scene {
             self.points.eye.is_some(),
             self.points.lights.iter().filter(|l| l.is_some()).count(),
         )
+    }
+
+    /// The same scene without the adaptive sampler's sums of checker cell areas: its
+    /// checkered planes are refined by rays alone, as on any other surface. What tests of
+    /// the ray rules, and the chart's comparison, render.
+    #[cfg(feature = "bench")]
+    pub fn without_cell_areas(mut self) -> Scene {
+        self.cell_areas = false;
+        self
     }
 
     /// The same scene tracing every shadow ray, even those `crate::shadow` knows cannot be

@@ -79,6 +79,9 @@ pub struct Scene {
     /// How many objects mirror (`mirror > 0`): whether a mirrored ray can come back to a
     /// checkered plane (see [`Scene::checker_step`]).
     pub(crate) mirrors: usize,
+    /// Whether the adaptive sampler may sum a checkered plane's cell areas in a pixel
+    /// instead of tracing rays there (see `crate::footprint`).
+    pub(crate) cell_areas: bool,
 }
 
 /// Which way `Scene::intersect` and `Scene::occluded` find candidate prims. Every choice

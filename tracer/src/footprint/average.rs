@@ -1,0 +1,348 @@
+//! A checkered plane's exact average over a pixel's square, without tracing: the cells'
+//! areas in the image, exactly, and the smooth shading at each piece's centroid.
+//!
+//! **What it is for.** Where nothing but a checkered plane shows in a pixel's square, with
+//! no shadow, mirror or texture ([`super::Footprints::pattern_alone`]), the radiance there is
+//! `c(p) · S(p)`: the cell's colour `c` times a shading `S` that varies smoothly. The cells'
+//! edges are what rays estimate badly (a ray on the wrong side of one errs by the whole step
+//! between the colours); the shading is what one point estimates well. So the value is
+//! computed as `Σ_pieces area · min(c_piece · S(centroid), 1)` over the pieces into which
+//! the cells' edges cut the square.
+//!
+//! **Why the areas are exact.** A pinhole camera's ray through image position `(x, y)`
+//! meets the plane (its own `y = 0`, in checker units) at `u = U/W`, `v = V/W`, where `U`,
+//! `V` and `W` are affine in `(x, y)` (the ray's direction is, and the hit is a ratio of
+//! linear functions of it). A cell `i ≤ u < i + 1`, `j ≤ v < j + 1` is therefore, with
+//! `W > 0` across the square, the intersection of four half-planes of the image: the square
+//! clipped by them is a convex polygon whose area and centroid the shoelace formula gives.
+//! The areas are exact to rounding, however the cells are foreshortened.
+//!
+//! **What it is not.** It estimates the shading by one point per piece: exact where the
+//! shading is linear across the piece, off by its curvature elsewhere. It is used only where
+//! the shading's curvature is small (the square's corners' mean within the sampler's
+//! threshold of its centre: three times the centre's own error for a quadratic shading),
+//! and only up to a number of cells (beyond it, rays are cheaper).
+
+use glam::DVec3;
+
+use crate::math::Color;
+use crate::world::Scene;
+
+/// An affine function `a + b·x + c·y` of a position in a pixel's square (`x`, `y` in
+/// `[0, 1]`).
+#[derive(Clone, Copy)]
+struct Affine {
+    a: f64,
+    b: f64,
+    c: f64,
+}
+
+impl Affine {
+    #[inline]
+    fn at(self, (x, y): (f64, f64)) -> f64 {
+        self.a + self.b * x + self.c * y
+    }
+
+    /// `self − k · other`.
+    #[inline]
+    fn minus(self, k: f64, other: Affine) -> Affine {
+        Affine {
+            a: self.a - k * other.a,
+            b: self.b - k * other.b,
+            c: self.c - k * other.c,
+        }
+    }
+
+    /// `k · self`.
+    #[inline]
+    fn scaled(self, k: f64) -> Affine {
+        Affine {
+            a: k * self.a,
+            b: k * self.b,
+            c: k * self.c,
+        }
+    }
+}
+
+/// A convex polygon of the square, at most 4 + 4 vertices (each half-plane adds at most one).
+#[derive(Clone, Copy)]
+struct Polygon {
+    v: [(f64, f64); 10],
+    n: usize,
+}
+
+impl Polygon {
+    const SQUARE: Polygon = Polygon {
+        v: [
+            (0.0, 0.0),
+            (1.0, 0.0),
+            (1.0, 1.0),
+            (0.0, 1.0),
+            (0.0, 0.0),
+            (0.0, 0.0),
+            (0.0, 0.0),
+            (0.0, 0.0),
+            (0.0, 0.0),
+            (0.0, 0.0),
+        ],
+        n: 4,
+    };
+
+    /// The part where `f ≥ 0` (Sutherland–Hodgman against one line).
+    fn clip(&self, f: Affine) -> Polygon {
+        let mut out = Polygon {
+            v: [(0.0, 0.0); 10],
+            n: 0,
+        };
+        if self.n == 0 {
+            return out;
+        }
+        let mut push = |p: (f64, f64)| {
+            // A convex polygon clipped by a line gains at most one vertex; the bound only
+            // guards against rounding placing a vertex on both sides.
+            if out.n < out.v.len() {
+                out.v[out.n] = p;
+                out.n += 1;
+            }
+        };
+        for k in 0..self.n {
+            let p = self.v[k];
+            let q = self.v[(k + 1) % self.n];
+            let (fp, fq) = (f.at(p), f.at(q));
+            if fp >= 0.0 {
+                push(p);
+            }
+            if (fp >= 0.0) != (fq >= 0.0) {
+                let t = fp / (fp - fq);
+                push((p.0 + t * (q.0 - p.0), p.1 + t * (q.1 - p.1)));
+            }
+        }
+        out
+    }
+
+    /// Area and centroid (shoelace), the centroid `None` for an empty or degenerate piece.
+    fn area_centroid(&self) -> (f64, Option<(f64, f64)>) {
+        if self.n < 3 {
+            return (0.0, None);
+        }
+        let (mut a, mut cx, mut cy) = (0.0, 0.0, 0.0);
+        let o = self.v[0];
+        for k in 1..self.n - 1 {
+            let (p, q) = (self.v[k], self.v[k + 1]);
+            // Triangles fanned from the first vertex: convexity makes every one positive.
+            let cross = (p.0 - o.0) * (q.1 - o.1) - (q.0 - o.0) * (p.1 - o.1);
+            a += cross;
+            cx += cross * (o.0 + p.0 + q.0);
+            cy += cross * (o.1 + p.1 + q.1);
+        }
+        if a.abs() <= 1e-300 {
+            return (0.0, None);
+        }
+        (a.abs() * 0.5, Some((cx / (3.0 * a), cy / (3.0 * a))))
+    }
+}
+
+/// Pixel `(px, py)`'s exact value on checkered plane `object`, when every ray of its square
+/// meets it with nothing else in view, no mirror or texture (the caller has checked), and,
+/// where `shadows` says shadow rays would be traced, no shadow can fall on the square's
+/// image on the plane ([`unshadowed`]): see the module comment. `None` where the
+/// cells meeting the square are more than `max_cells`, or the shading's curvature across the
+/// square (its corners' mean less its centre, times the brighter colour) exceeds `threshold`
+/// in a channel.
+pub(super) fn checker_average(
+    scene: &Scene,
+    object: u32,
+    px: i64,
+    py: i64,
+    threshold: f64,
+    max_cells: u32,
+    shadows: bool,
+) -> Option<Color> {
+    let obj = &scene.objects[object as usize];
+    let m = &obj.material;
+    let c2 = m.color2?;
+    let cam = &scene.camera;
+    let (right, down) = cam.steps();
+    let eye = cam.eye();
+    // The world direction through the square's corner, unnormalised (affine in the image).
+    let d0 = cam.direction(px as f64, py as f64);
+
+    // Step 1: u = U/W, v = V/W in the plane's checker units, with U, V, W affine.
+    let o = obj.transform.ray_to_object(&crate::math::Ray::new(eye, d0));
+    let to_object = |d: DVec3| {
+        obj.transform
+            .ray_to_object(&crate::math::Ray::new(eye, d))
+            .dir
+    };
+    let (a0, ax, ay) = (o.dir, to_object(right), to_object(down));
+    let s = obj.own_scale;
+    let o = o.origin;
+    let coefficient = |d: DVec3| {
+        (
+            s.x * (o.x * d.y - o.y * d.x),
+            s.z * (o.z * d.y - o.y * d.z),
+            d.y,
+        )
+    };
+    let (k0, kx, ky) = (coefficient(a0), coefficient(ax), coefficient(ay));
+    let mut u = Affine {
+        a: k0.0,
+        b: kx.0,
+        c: ky.0,
+    };
+    let mut v = Affine {
+        a: k0.1,
+        b: kx.1,
+        c: ky.1,
+    };
+    let mut w = Affine {
+        a: k0.2,
+        b: kx.2,
+        c: ky.2,
+    };
+    // Every ray of the square meets the plane ahead (`covers`): W keeps one sign there.
+    if w.at((0.5, 0.5)) < 0.0 {
+        (u, v, w) = (u.scaled(-1.0), v.scaled(-1.0), w.scaled(-1.0));
+    }
+    let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)];
+    let (mut ulo, mut uhi, mut vlo, mut vhi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for c in corners {
+        let wc = w.at(c);
+        if !(wc > 0.0) {
+            return None;
+        }
+        let (uc, vc) = (u.at(c) / wc, v.at(c) / wc);
+        (ulo, uhi, vlo, vhi) = (ulo.min(uc), uhi.max(uc), vlo.min(vc), vhi.max(vc));
+    }
+    if ![ulo, uhi, vlo, vhi].iter().all(|c| c.is_finite()) {
+        return None;
+    }
+    let (i0, i1) = (ulo.floor(), uhi.floor());
+    let (j0, j1) = (vlo.floor(), vhi.floor());
+    if (i1 - i0 + 1.0) * (j1 - j0 + 1.0) > f64::from(max_cells) {
+        return None;
+    }
+
+    // Step 2: the shading, with the normal facing the eye; no light is shadowed here.
+    let n = obj.transform.normal_to_world(DVec3::Y).normalize();
+    let n = if n.dot(d0) > 0.0 { -n } else { n };
+    if shadows {
+        let at = |(x, y): (f64, f64)| {
+            let t = -o.y / (a0.y + ax.y * x + ay.y * y);
+            eye + (d0 + right * x + down * y) * t
+        };
+        if !unshadowed(scene, object, corners.map(at), n) {
+            return None;
+        }
+    }
+    let shading = |(x, y): (f64, f64)| -> Color {
+        let d = d0 + right * x + down * y;
+        let t = -(o.y) / (a0.y + ax.y * x + ay.y * y);
+        let p = eye + d * t;
+        let mut sum = Color::ZERO;
+        for l in &scene.lights {
+            let to_light = l.position - p;
+            let cos = n.dot(to_light);
+            if cos > 0.0 {
+                sum += l.color * (cos / to_light.length());
+            }
+        }
+        scene.ambient + sum * m.diffuse
+    };
+    // The shading's curvature: for a quadratic across the square, the corners' mean exceeds
+    // the centre by three times the error of taking the centre for the whole square (a
+    // piece's centroid errs less, and a linear shading not at all). And the clamp's kink,
+    // which no point rule follows, must not cross the square: at these five points the
+    // brighter colour is clamped in all or in none, channel by channel.
+    let brighter = m.color1.max(c2);
+    let points = [(0.5, 0.5), (0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)];
+    let values = points.map(|p| shading(p) * brighter);
+    let corners_mean = (values[1] + values[2] + values[3] + values[4]) * 0.25;
+    let kink = (0..3).any(|k| {
+        let over = values.iter().filter(|v| v[k] > 1.0).count();
+        over != 0 && over != values.len()
+    });
+    if kink || (corners_mean - values[0]).abs().max_element() > threshold {
+        return None;
+    }
+
+    // Step 3: the pieces, strip by strip.
+    let (mut total, mut sum) = (0.0, Color::ZERO);
+    let mut i = i0;
+    while i <= i1 {
+        let strip = Polygon::SQUARE
+            .clip(u.minus(i, w))
+            .clip(w.scaled(i + 1.0).minus(1.0, u));
+        let mut j = j0;
+        while j <= j1 {
+            let piece = strip
+                .clip(v.minus(j, w))
+                .clip(w.scaled(j + 1.0).minus(1.0, v));
+            if let (area, Some(centroid)) = piece.area_centroid() {
+                // As the shader picks: `as i64` saturates, the sum wraps.
+                let odd = (i as i64).wrapping_add(j as i64) & 1 != 0;
+                let c = if odd { c2 } else { m.color1 };
+                sum += (c * shading(centroid)).min(Color::ONE) * area;
+                total += area;
+            }
+            j += 1.0;
+        }
+        i += 1.0;
+    }
+    (total > 0.5).then(|| sum / total)
+}
+
+/// Whether no solid but plane `o` can shadow any point of the convex quadrilateral with
+/// corners `quad` (on the plane, whose normal facing the eye is `n`) from any light on that
+/// side: every segment from the quadrilateral to such a light lies in the circular cone
+/// from the light around the corners' directions (a convex set holding the corners and its
+/// apex holds their hull), and each other solid's bounding ball lies outside that cone by
+/// more than a margin. Unbounded solids (another plane), a light inside a ball, or a cone
+/// of half-angle 60° or more: no.
+fn unshadowed(scene: &Scene, o: u32, quad: [DVec3; 4], n: DVec3) -> bool {
+    let balls: Option<Vec<(DVec3, f64)>> = scene
+        .prims
+        .iter()
+        .filter(|p| !matches!(p, crate::csg::Prim::Object(i) if *i == o))
+        .map(|p| {
+            let b = p.bounds(&scene.objects)?;
+            Some(((b.min + b.max) * 0.5, (b.max - b.min).length() * 0.5))
+        })
+        .collect();
+    let Some(balls) = balls else {
+        return false;
+    };
+    // Checking every solid per pixel is only cheaper than the rays it replaces for few.
+    if balls.len() > MAX_SHADOW_SOLIDS {
+        return false;
+    }
+    for l in &scene.lights {
+        // A light behind the plane lights none of it: no shadow ray.
+        if quad.iter().all(|p| n.dot(l.position - p) <= 0.0) {
+            continue;
+        }
+        let dirs = quad.map(|p| (p - l.position).normalize());
+        let axis = (dirs[0] + dirs[1] + dirs[2] + dirs[3]).normalize();
+        let cos_half = dirs.iter().map(|d| d.dot(axis)).fold(1.0f64, f64::min);
+        if !(cos_half > 0.5) {
+            return false;
+        }
+        let half = cos_half.clamp(-1.0, 1.0).acos();
+        for &(c, r) in &balls {
+            let v = c - l.position;
+            let d = v.length();
+            if !(d > r * (1.0 + 1e-9)) {
+                return false;
+            }
+            let angle = (v.dot(axis) / d).clamp(-1.0, 1.0).acos();
+            // The margin dwarfs the rounding of these angles and of the shadow rays.
+            if angle <= half + (r / d).asin() + 1e-7 {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// The most other solids [`unshadowed`] tests one by one for a pixel.
+const MAX_SHADOW_SOLIDS: usize = 32;
