@@ -357,13 +357,13 @@ fn adaptive_misses_thin_features_no_more_than_its_bound() {
 }
 
 /// More rays never make the adaptive sampler worse at a checker edge. On the analytic
-/// checker seen straight down (where the sampler sums the cells' areas in each pixel, and
-/// the test's exact values come from the square wave's integral, a second method), with cells about ten pixels wide (edges a pixel can hold a
-/// sliver of), adaptive at caps of 8, 16 and 32 with a strict threshold errs less than
-/// `jitter` 4×4 in every pixel's worst case and in RMS, and less again at each higher cap.
-/// (Stopping at eight agreeing rays beside a neighbour that differed left slivers of a
-/// sixth of a pixel unseen at every cap: here a worst error of 0.155 at a cap of 8 against
-/// jitter 4×4's 0.107.)
+/// checker seen straight down (exact values from the square wave's integral, a second
+/// method), with cells about ten pixels wide (edges a pixel can hold a sliver of), adaptive
+/// at caps of 8, 16 and 32 with a strict threshold errs less than `jitter` 4×4 in every
+/// pixel's worst case and in RMS, and less again at each higher cap: by rays alone, and
+/// with the cells' areas summed. By rays alone it fails without the unseen-step rule: a
+/// pixel stopping at eight agreeing rays beside a neighbour that differed leaves slivers of
+/// a sixth of a pixel unseen at every cap.
 #[test]
 fn adaptive_at_higher_caps_does_better_than_jitter_at_checker_edges() {
     let size = 48;
@@ -371,38 +371,43 @@ fn adaptive_at_higher_caps_does_better_than_jitter_at_checker_edges() {
     better_than_jitter_at_each_cap("straight", &src, &as_grey(&exact), |_| f64::INFINITY);
 }
 
-/// Adaptive at caps of 8, 16 and 32, threshold 0.001, over the whole image against `exact`:
-/// each cap's RMS error below the last's (jitter 4×4's first), or both exact to rounding,
-/// and its worst pixel no worse, and within `bound(cap)`.
+/// Adaptive at caps of 8, 16 and 32, threshold 0.001, over the whole image against `exact`,
+/// once by rays alone and once with checker cells summed by area: each cap's RMS error below
+/// the last's (jitter 4×4's first), or both exact to rounding, and its worst pixel no
+/// worse, and within `bound(cap)`.
 fn better_than_jitter_at_each_cap(
     label: &str,
     src: &str,
     exact: &[DVec3],
     bound: impl Fn(u32) -> f64,
 ) {
-    let s = scene(src);
-    let rect = Rect::full(s.width, s.height);
-    let (v, _) = s.render_rect_linear_with(rect, &Sampler::Jitter { n: 4 });
-    let (jitter_rms, jitter_worst) = error(&v, exact);
-    let (mut last_rms, mut last_worst) = (jitter_rms, jitter_worst);
-    for max in [8, 16, 32] {
-        let sampler = Sampler::Adaptive {
-            max,
-            threshold: 0.001,
-        };
-        let (v, _) = s.render_rect_linear_with(rect, &sampler);
-        let (rms, worst) = error(&v, exact);
-        let bound = bound(max);
-        // On a checkered plane alone the sampler sums the cells' exact areas: a cap can
-        // only be as good as the last once both are exact to rounding.
-        let exact_already = rms < 1e-9 && last_rms < 1e-9;
-        assert!(
-            (rms < last_rms || exact_already) && worst <= last_worst + 1e-12 && worst <= bound,
-            "{label}, cap {max}: RMS {rms:.2e}, worst {worst:.3} (bound {bound:.3}) after RMS \
-             {last_rms:.2e}, worst {last_worst:.3} (jitter 4×4: {jitter_rms:.2e}, \
-             {jitter_worst:.3})"
-        );
-        (last_rms, last_worst) = (rms, worst);
+    for (way, s) in [
+        ("rays alone", scene(src).without_cell_areas()),
+        ("cells by area", scene(src)),
+    ] {
+        let rect = Rect::full(s.width, s.height);
+        let (v, _) = s.render_rect_linear_with(rect, &Sampler::Jitter { n: 4 });
+        let (jitter_rms, jitter_worst) = error(&v, exact);
+        let (mut last_rms, mut last_worst) = (jitter_rms, jitter_worst);
+        for max in [8, 16, 32] {
+            let sampler = Sampler::Adaptive {
+                max,
+                threshold: 0.001,
+            };
+            let (v, _) = s.render_rect_linear_with(rect, &sampler);
+            let (rms, worst) = error(&v, exact);
+            let bound = bound(max);
+            // Summing the cells' exact areas, a cap can only be as good as the last once
+            // both are exact to rounding.
+            let exact_already = rms < 1e-9 && last_rms < 1e-9;
+            assert!(
+                (rms < last_rms || exact_already) && worst <= last_worst + 1e-12 && worst <= bound,
+                "{label}, {way}, cap {max}: RMS {rms:.2e}, worst {worst:.3} (bound \
+                 {bound:.3}) after RMS {last_rms:.2e}, worst {last_worst:.3} (jitter 4×4: \
+                 {jitter_rms:.2e}, {jitter_worst:.3})"
+            );
+            (last_rms, last_worst) = (rms, worst);
+        }
     }
 }
 
@@ -517,9 +522,9 @@ fn the_turned_checker_s_exact_values_are_right() {
 /// every pixel's worst case and in RMS, and less again at each higher cap; and no pixel errs
 /// by more than a full `N × N` stratified set can: with cells five pixels wide a pixel's
 /// square meets at most two edges, each through at most `2N − 1` of the `N²` cells, so
-/// `2 (2N − 1) (c1 − c2) / N²`. (Before the checker plane told the sampler which pixels
-/// cross its cells, stopping at eight or sixteen agreeing rays there left the worst pixel
-/// 0.12 to 0.14 off at every cap up to 32, whose bound is 0.1.)
+/// `2 (2N − 1) (c1 − c2) / N²`. By rays alone it fails without the checker's edge rule
+/// (stopping at eight or sixteen agreeing rays leaves corners of the other colour unseen),
+/// and with cells by area each pixel is exact to rounding.
 #[test]
 fn adaptive_at_higher_caps_does_better_than_jitter_on_a_turned_checker() {
     for degrees in [23.0, 31.0] {
