@@ -215,8 +215,8 @@ impl Scene {
     }
 
     /// The same scene without the adaptive sampler's sums of checker cell areas: its
-    /// checkered planes are refined by rays alone, as on any other surface. What tests of
-    /// the ray rules, and the chart's comparison, render.
+    /// checkered planes are refined by rays alone, as on any other surface. What the tests of
+    /// the ray rules render.
     #[cfg(feature = "bench")]
     pub fn without_cell_areas(mut self) -> Scene {
         self.cell_areas = false;
