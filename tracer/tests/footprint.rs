@@ -602,24 +602,47 @@ fn adaptive_images_of_every_solid_stay_tile_independent() {
             "sampler = adaptive\nsamples = 4\nthreshold = 0.05\n[/GLOBALS]",
             1,
         );
-        let s = common::scene(&src);
-        let (w, h) = (s.width, s.height);
-        let whole = s.render_rect(Rect::full(w, h));
-        for tile in [7u32, 16] {
-            let mut assembled = vec![0u8; whole.len()];
-            for r in tessera_tracer::tiles(w, h, tile) {
-                let bytes = s.render_rect(r);
-                for row in 0..r.height {
-                    let from = (row * r.width * 3) as usize;
-                    let start = (((r.y + row) * w + r.x) * 3) as usize;
-                    assembled[start..start + (r.width * 3) as usize]
-                        .copy_from_slice(&bytes[from..from + (r.width * 3) as usize]);
-                }
+        assert_tiles_make_the_whole(&src, &format!("case {case}"));
+    }
+}
+
+/// Renders `src` whole and in tiles of 7 and 16, and asserts the images equal byte for byte.
+fn assert_tiles_make_the_whole(src: &str, label: &str) {
+    let s = common::scene(src);
+    let (w, h) = (s.width, s.height);
+    let whole = s.render_rect(Rect::full(w, h));
+    for tile in [7u32, 16] {
+        let mut assembled = vec![0u8; whole.len()];
+        for r in tessera_tracer::tiles(w, h, tile) {
+            let bytes = s.render_rect(r);
+            for row in 0..r.height {
+                let from = (row * r.width * 3) as usize;
+                let start = (((r.y + row) * w + r.x) * 3) as usize;
+                assembled[start..start + (r.width * 3) as usize]
+                    .copy_from_slice(&bytes[from..from + (r.width * 3) as usize]);
             }
-            assert!(
-                assembled == whole,
-                "case {case}: tiles of {tile} differ\n{src}"
-            );
         }
+        assert!(assembled == whole, "{label}: tiles of {tile} differ\n{src}");
+    }
+}
+
+/// Rays corrected by a checkered plane's cells (a mirrored floor, shadows on it) compare
+/// with their neighbours' across tile borders: the image must still not depend on the
+/// tiling, at every cap whose stages differ.
+#[test]
+fn corrected_checker_floors_stay_tile_independent() {
+    let floor = "[GLOBALS]\nwidth = 45\nheight = 34\nambient = 0.1\nbackground = <0.3, 0.4, 0.6>\n\
+         sampler = adaptive\nthreshold = 0.02\nsamples = SAMPLES\n[/GLOBALS]\n\
+         [CAMERA]\neye = <0, 3, 9>\nlook_at = <0, 0.5, 0>\nfov = 50\n[/CAMERA]\n\
+         [LIGHT]\nposition = <6, 8, 2>\n[/LIGHT]\n\
+         [OBJECT]\ntype = plane\ncolor1 = 0.9\ncolor2 = 0.15\nscale = 0.6\nmirror = 0.35\n\
+         rotate = <0, 20, 0>\n[/OBJECT]\n\
+         [OBJECT]\ntype = sphere\nradius = 1.1\nmirror = 0.8\ntranslate = <-0.8, 1.1, 0>\n[/OBJECT]\n\
+         [OBJECT]\ntype = cube\nscale = 0.5\nrotate = <0, 30, 0>\ntranslate = <1.5, 0.5, 1>\n[/OBJECT]\n";
+    for samples in ["3", "4", "8"] {
+        assert_tiles_make_the_whole(
+            &floor.replace("SAMPLES", samples),
+            &format!("samples {samples}"),
+        );
     }
 }

@@ -1,13 +1,19 @@
 //! A checkered plane's exact average over a pixel's square, without tracing: the cells'
 //! areas in the image, exactly, and the smooth shading at each piece's centroid.
 //!
-//! **What it is for.** Where nothing but a checkered plane shows in a pixel's square, with
-//! no shadow, mirror or texture ([`super::Footprints::pattern_alone`]), the radiance there is
-//! `c(p) · S(p)`: the cell's colour `c` times a shading `S` that varies smoothly. The cells'
-//! edges are what rays estimate badly (a ray on the wrong side of one errs by the whole step
-//! between the colours); the shading is what one point estimates well. So the value is
-//! computed as `Σ_pieces area · min(c_piece · S(centroid), 1)` over the pieces into which
-//! the cells' edges cut the square.
+//! **What it is for.** Where a checkered plane alone shows in a pixel's square, with no
+//! texture, the plane's own light there is `(1 − mirror) · c(p) · S(p)`: the cell's colour
+//! `c` times a shading `S` that varies smoothly (with no light shadowed). The cells' edges
+//! are what rays estimate badly (a ray on the wrong side of one errs by the whole step
+//! between the colours); the shading is what one point estimates well. So the square's
+//! mean of that light is computed as `Σ_pieces area · c_piece · S(centroid)` over the
+//! pieces into which the cells' edges cut the square ([`cell_sums`]). Two uses:
+//!
+//! - where nothing else changes in the square (no mirror, no shadow, no clamp's kink), the
+//!   same sum with each piece clamped is the pixel's value;
+//! - elsewhere (a mirrored floor, a shadow on it) it is a control variate: a ray's colour
+//!   `f` less the plane's own light at its point ([`PlaneImage::direct`]) plus the exact
+//!   mean has the mean of `f`, and only the shadows and reflections left in its spread.
 //!
 //! **Why the areas are exact.** A pinhole camera's ray through image position `(x, y)`
 //! meets the plane (its own `y = 0`, in checker units) at `u = U/W`, `v = V/W`, where `U`,
@@ -30,7 +36,7 @@ use crate::world::Scene;
 
 /// An affine function `a + b·x + c·y` of a position in a pixel's square (`x`, `y` in
 /// `[0, 1]`).
-#[derive(Clone, Copy)]
+#[derive(Debug, Clone, Copy)]
 struct Affine {
     a: f64,
     b: f64,
@@ -142,75 +148,177 @@ impl Polygon {
     }
 }
 
-/// Pixel `(px, py)`'s exact value on checkered plane `object`, when every ray of its square
-/// meets it with nothing else in view, no mirror or texture (the caller has checked), and,
-/// where `shadows` says shadow rays would be traced, no shadow can fall on the square's
-/// image on the plane ([`unshadowed`]): see the module comment. `None` where the
-/// cells meeting the square are more than `max_cells`, or the shading's curvature across the
-/// square (its corners' mean less its centre, times the brighter colour) exceeds `threshold`
-/// in a channel.
-pub(super) fn checker_average(
+/// What summing a checkered plane's cells over a pixel's square gives (see
+/// [`cell_sums`]).
+pub(super) struct Sums {
+    /// `Σ area · min(c · S(centroid), 1)`: the pixel's value where nothing but the cells
+    /// and smooth shading change in it.
+    pub(super) clamped: Color,
+    /// `(1 − mirror) · Σ area · c · S(centroid)`: the mean over the square of [`direct`],
+    /// the plane's own unshadowed light, unclamped.
+    pub(super) direct: Color,
+    /// Whether the colour clamp switches on or off inside the square, channel by channel,
+    /// at its centre or corners: no point rule follows that kink, so `clamped` is not
+    /// exact there (`direct`, unclamped, is unaffected).
+    pub(super) kink: bool,
+}
+
+/// How the rays of pixel `(px, py)`'s square meet plane `object`: `u = U/W`, `v = V/W` in
+/// its checker units, with `U`, `V`, `W` affine in the position `(x, y)` relative to the
+/// pixel's corner (`[0, 1]²` for its square), and the world point and shading there.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct PlaneImage<'s> {
+    scene: &'s Scene,
+    m: &'s crate::object::Material,
+    u: Affine,
+    v: Affine,
+    w: Affine,
+    eye: DVec3,
+    d0: DVec3,
+    right: DVec3,
+    down: DVec3,
+    /// The ray parameter at `(x, y)` is `−oy / ty(x, y)`.
+    oy: f64,
+    ty: Affine,
+    /// The plane's normal, facing the eye.
+    n: DVec3,
+}
+
+impl<'s> PlaneImage<'s> {
+    /// The map relative to pixel `(px, py)`'s corner, for any image position: `(0, 0)`
+    /// gives it in image coordinates.
+    pub(super) fn frame(scene: &'s Scene, object: u32, px: i64, py: i64) -> PlaneImage<'s> {
+        let obj = &scene.objects[object as usize];
+        let cam = &scene.camera;
+        let (right, down) = cam.steps();
+        let eye = cam.eye();
+        // The world direction through the pixel's corner, unnormalised (affine in the
+        // image).
+        let d0 = cam.direction(px as f64, py as f64);
+        let o = obj.transform.ray_to_object(&crate::math::Ray::new(eye, d0));
+        let to_object = |d: DVec3| {
+            obj.transform
+                .ray_to_object(&crate::math::Ray::new(eye, d))
+                .dir
+        };
+        let (a0, ax, ay) = (o.dir, to_object(right), to_object(down));
+        let s = obj.own_scale;
+        let o = o.origin;
+        let coefficient = |d: DVec3| {
+            (
+                s.x * (o.x * d.y - o.y * d.x),
+                s.z * (o.z * d.y - o.y * d.z),
+                d.y,
+            )
+        };
+        let (k0, kx, ky) = (coefficient(a0), coefficient(ax), coefficient(ay));
+        let affine = |a: f64, b: f64, c: f64| Affine { a, b, c };
+        let (p0, n) = super::cells::plane_of(obj);
+        let n = n.normalize();
+        // Every ray that meets the plane ahead comes from the eye's side.
+        let n = if n.dot(eye - p0) < 0.0 { -n } else { n };
+        PlaneImage {
+            scene,
+            m: &obj.material,
+            u: affine(k0.0, kx.0, ky.0),
+            v: affine(k0.1, kx.1, ky.1),
+            w: affine(k0.2, kx.2, ky.2),
+            eye,
+            d0,
+            right,
+            down,
+            oy: o.y,
+            ty: affine(a0.y, ax.y, ay.y),
+            n,
+        }
+    }
+
+    /// [`PlaneImage::frame`] for pixel `(px, py)`, with `W > 0` over its square; `None`
+    /// where some ray of the square misses the plane (`W` keeps one sign over the square
+    /// if it does at the corners).
+    fn new(scene: &'s Scene, object: u32, px: i64, py: i64) -> Option<PlaneImage<'s>> {
+        let mut image = PlaneImage::frame(scene, object, px, py);
+        if image.w.at((0.5, 0.5)) < 0.0 {
+            (image.u, image.v, image.w) = (
+                image.u.scaled(-1.0),
+                image.v.scaled(-1.0),
+                image.w.scaled(-1.0),
+            );
+        }
+        CORNERS
+            .iter()
+            .all(|&c| image.w.at(c) > 0.0)
+            .then_some(image)
+    }
+
+    /// The world point the ray through `(x, y)` meets.
+    fn point(&self, (x, y): (f64, f64)) -> DVec3 {
+        let t = -self.oy / self.ty.at((x, y));
+        self.eye + (self.d0 + self.right * x + self.down * y) * t
+    }
+
+    /// The Lambertian shading at `(x, y)` with no light shadowed: `ambient + diffuse ·
+    /// Σ colour · cos / distance` over the lights the plane's eye side faces, as the
+    /// renderer shades.
+    fn shading(&self, at: (f64, f64)) -> Color {
+        let p = self.point(at);
+        let mut sum = Color::ZERO;
+        for l in &self.scene.lights {
+            let to_light = l.position - p;
+            let cos = self.n.dot(to_light);
+            if cos > 0.0 {
+                sum += l.color * (cos / to_light.length());
+            }
+        }
+        self.scene.ambient + sum * self.m.diffuse
+    }
+
+    /// The cell colour at `(x, y)`, from the same `U/W`, `V/W` the pieces are cut by.
+    fn colour(&self, at: (f64, f64), c2: Color) -> Color {
+        let w = self.w.at(at);
+        let (i, j) = ((self.u.at(at) / w).floor(), (self.v.at(at) / w).floor());
+        cell_colour(i, j, self.m.color1, c2)
+    }
+}
+
+/// The square's corners, in its own coordinates.
+const CORNERS: [(f64, f64); 4] = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)];
+
+/// Cell `(i, j)`'s colour, as the shader picks it: `as i64` saturates, the sum wraps.
+fn cell_colour(i: f64, j: f64, c1: Color, c2: Color) -> Color {
+    if (i as i64).wrapping_add(j as i64) & 1 != 0 {
+        c2
+    } else {
+        c1
+    }
+}
+
+/// Pixel `(px, py)`'s sums over checkered plane `object`'s cells (see [`Sums`]), each piece
+/// into which the cells' edges cut the square weighted by its exact area and shaded at its
+/// centroid, with no light shadowed. The caller checks what the sums assume: that every ray
+/// of the square meets the plane first, no texture, and (for `clamped`) no mirror, no
+/// shadow and no kink. `None` where some ray of the square misses the plane, where more
+/// than `max_cells` cells meet the square, or where the shading's curvature across the
+/// square (its corners' mean less its centre, times the brighter colour and `1 − mirror`)
+/// exceeds `threshold` in a channel.
+pub(super) fn cell_sums(
     scene: &Scene,
     object: u32,
     px: i64,
     py: i64,
     threshold: f64,
     max_cells: u32,
-    shadows: bool,
-) -> Option<Color> {
-    let obj = &scene.objects[object as usize];
-    let m = &obj.material;
+) -> Option<Sums> {
+    let m = &scene.objects[object as usize].material;
     let c2 = m.color2?;
-    let cam = &scene.camera;
-    let (right, down) = cam.steps();
-    let eye = cam.eye();
-    // The world direction through the square's corner, unnormalised (affine in the image).
-    let d0 = cam.direction(px as f64, py as f64);
+    let image = PlaneImage::new(scene, object, px, py)?;
+    let (u, v, w) = (image.u, image.v, image.w);
 
-    // Step 1: u = U/W, v = V/W in the plane's checker units, with U, V, W affine.
-    let o = obj.transform.ray_to_object(&crate::math::Ray::new(eye, d0));
-    let to_object = |d: DVec3| {
-        obj.transform
-            .ray_to_object(&crate::math::Ray::new(eye, d))
-            .dir
-    };
-    let (a0, ax, ay) = (o.dir, to_object(right), to_object(down));
-    let s = obj.own_scale;
-    let o = o.origin;
-    let coefficient = |d: DVec3| {
-        (
-            s.x * (o.x * d.y - o.y * d.x),
-            s.z * (o.z * d.y - o.y * d.z),
-            d.y,
-        )
-    };
-    let (k0, kx, ky) = (coefficient(a0), coefficient(ax), coefficient(ay));
-    let mut u = Affine {
-        a: k0.0,
-        b: kx.0,
-        c: ky.0,
-    };
-    let mut v = Affine {
-        a: k0.1,
-        b: kx.1,
-        c: ky.1,
-    };
-    let mut w = Affine {
-        a: k0.2,
-        b: kx.2,
-        c: ky.2,
-    };
-    // Every ray of the square meets the plane ahead (`covers`): W keeps one sign there.
-    if w.at((0.5, 0.5)) < 0.0 {
-        (u, v, w) = (u.scaled(-1.0), v.scaled(-1.0), w.scaled(-1.0));
-    }
-    let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)];
+    // Step 1: the cells the square meets, from its corners' images (a convex quadrilateral
+    // holding the square's whole image).
     let (mut ulo, mut uhi, mut vlo, mut vhi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-    for c in corners {
+    for c in CORNERS {
         let wc = w.at(c);
-        if !(wc > 0.0) {
-            return None;
-        }
         let (uc, vc) = (u.at(c) / wc, v.at(c) / wc);
         (ulo, uhi, vlo, vhi) = (ulo.min(uc), uhi.max(uc), vlo.min(vc), vhi.max(vc));
     }
@@ -223,51 +331,26 @@ pub(super) fn checker_average(
         return None;
     }
 
-    // Step 2: the shading, with the normal facing the eye; no light is shadowed here.
-    let n = obj.transform.normal_to_world(DVec3::Y).normalize();
-    let n = if n.dot(d0) > 0.0 { -n } else { n };
-    if shadows {
-        let at = |(x, y): (f64, f64)| {
-            let t = -o.y / (a0.y + ax.y * x + ay.y * y);
-            eye + (d0 + right * x + down * y) * t
-        };
-        if !unshadowed(scene, object, corners.map(at), n) {
-            return None;
-        }
-    }
-    let shading = |(x, y): (f64, f64)| -> Color {
-        let d = d0 + right * x + down * y;
-        let t = -(o.y) / (a0.y + ax.y * x + ay.y * y);
-        let p = eye + d * t;
-        let mut sum = Color::ZERO;
-        for l in &scene.lights {
-            let to_light = l.position - p;
-            let cos = n.dot(to_light);
-            if cos > 0.0 {
-                sum += l.color * (cos / to_light.length());
-            }
-        }
-        scene.ambient + sum * m.diffuse
-    };
-    // The shading's curvature: for a quadratic across the square, the corners' mean exceeds
-    // the centre by three times the error of taking the centre for the whole square (a
-    // piece's centroid errs less, and a linear shading not at all). And the clamp's kink,
-    // which no point rule follows, must not cross the square: at these five points the
-    // brighter colour is clamped in all or in none, channel by channel.
+    // Step 2: the shading's curvature. For a quadratic across the square, the corners'
+    // mean exceeds the centre by three times the error of taking the centre for the whole
+    // square (a piece's centroid errs less, and a linear shading not at all). And the
+    // clamp's kink: at these five points the brighter colour is clamped in all or in none,
+    // channel by channel.
+    let kept = 1.0 - m.mirror;
     let brighter = m.color1.max(c2);
     let points = [(0.5, 0.5), (0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)];
-    let values = points.map(|p| shading(p) * brighter);
+    let values = points.map(|p| image.shading(p) * brighter);
     let corners_mean = (values[1] + values[2] + values[3] + values[4]) * 0.25;
+    if ((corners_mean - values[0]).abs() * kept).max_element() > threshold {
+        return None;
+    }
     let kink = (0..3).any(|k| {
         let over = values.iter().filter(|v| v[k] > 1.0).count();
         over != 0 && over != values.len()
     });
-    if kink || (corners_mean - values[0]).abs().max_element() > threshold {
-        return None;
-    }
 
     // Step 3: the pieces, strip by strip.
-    let (mut total, mut sum) = (0.0, Color::ZERO);
+    let (mut total, mut clamped, mut direct) = (0.0, Color::ZERO, Color::ZERO);
     let mut i = i0;
     while i <= i1 {
         let strip = Polygon::SQUARE
@@ -279,17 +362,45 @@ pub(super) fn checker_average(
                 .clip(v.minus(j, w))
                 .clip(w.scaled(j + 1.0).minus(1.0, v));
             if let (area, Some(centroid)) = piece.area_centroid() {
-                // As the shader picks: `as i64` saturates, the sum wraps.
-                let odd = (i as i64).wrapping_add(j as i64) & 1 != 0;
-                let c = if odd { c2 } else { m.color1 };
-                sum += (c * shading(centroid)).min(Color::ONE) * area;
+                let lit = cell_colour(i, j, m.color1, c2) * image.shading(centroid);
+                clamped += lit.min(Color::ONE) * area;
+                direct += lit * area;
                 total += area;
             }
             j += 1.0;
         }
         i += 1.0;
     }
-    (total > 0.5).then(|| sum / total)
+    (total > 0.5).then(|| Sums {
+        clamped: clamped / total,
+        direct: direct * kept / total,
+        kink,
+    })
+}
+
+impl PlaneImage<'_> {
+    /// The value at `at` (relative to the frame's pixel) of the function whose mean
+    /// [`Sums::direct`] is: the checkered plane's own light there, `(1 − mirror) · c · S`,
+    /// unshadowed and unclamped. Zero where that ray misses the plane, or for a plane
+    /// without a checker.
+    pub(super) fn direct(&self, at: (f64, f64)) -> Color {
+        let Some(c2) = self.m.color2 else {
+            return Color::ZERO;
+        };
+        if !(-self.oy / self.ty.at(at) > 0.0) {
+            return Color::ZERO;
+        }
+        self.colour(at, c2) * self.shading(at) * (1.0 - self.m.mirror)
+    }
+}
+
+/// Whether the square of pixel `(px, py)` on plane `object` may be shadowed (see
+/// [`unshadowed`]).
+pub(super) fn may_be_shadowed(scene: &Scene, object: u32, px: i64, py: i64) -> bool {
+    let Some(image) = PlaneImage::new(scene, object, px, py) else {
+        return true;
+    };
+    !unshadowed(scene, object, CORNERS.map(|c| image.point(c)), image.n)
 }
 
 /// Whether no solid but plane `o` can shadow any point of the convex quadrilateral with

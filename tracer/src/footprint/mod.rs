@@ -59,7 +59,7 @@ use glam::DVec3;
 use crate::bvh;
 use crate::csg::Prim;
 use crate::math::{Aabb, Color};
-use crate::sampler::{Sample, UnseenPattern};
+use crate::sampler::{CellSums, Sample, UnseenPattern};
 use crate::shape::Shape;
 use crate::world::Scene;
 use cells::{cell_edges, cell_parity, covers, one_cell, plane_of};
@@ -102,6 +102,9 @@ pub struct Footprints<'s> {
     fitted: Vec<u32>,
     /// The planes (world point, normal, object), tested per pixel.
     planes: Vec<(DVec3, DVec3, u32)>,
+    /// The checkered planes without a texture, with their rays' map in image coordinates,
+    /// for [`Footprints::direct`].
+    checker_planes: Vec<(u32, average::PlaneImage<'s>)>,
 }
 
 /// What [`Footprints::shows_alone`] allows in a pixel besides its one object's smooth
@@ -112,8 +115,9 @@ enum Alone {
     OneCell,
     /// A checker's cell edges.
     Cells,
-    /// A checker's cell edges, and shadow rays to trace (the caller rules shadows out).
-    ShadowsToo,
+    /// A checkered plane's cell edges, shadows and a mirror (the caller accounts for
+    /// them).
+    Mirrored,
 }
 
 /// A pixel no solid may show in.
@@ -158,6 +162,7 @@ impl<'s> Footprints<'s> {
             shown: vec![NOTHING; n],
             fitted: vec![NOTHING; n],
             planes: Vec::new(),
+            checker_planes: Vec::new(),
         };
         // The prims that may show in the region: every prim, or those the BVH finds whose
         // boxes' projections meet it, with the ones it leaves out.
@@ -196,6 +201,10 @@ impl<'s> Footprints<'s> {
                 if matches!(obj.shape, Shape::Plane) {
                     let (p0, n) = plane_of(obj);
                     self.planes.push((p0, n, *o));
+                    if obj.material.color2.is_some() && obj.material.texture.is_none() {
+                        let image = average::PlaneImage::frame(scene, *o, 0, 0);
+                        self.checker_planes.push((*o, image));
+                    }
                     return;
                 }
                 if self.add_fitted(*o, None) {
@@ -447,12 +456,14 @@ impl<'s> Footprints<'s> {
         Some(UnseenPattern { step, edges })
     }
 
-    /// Pixel `(px, py)`'s value without more rays, where the primary ray through `(x, y)`
-    /// saw `seen` and the geometry knows the rest: a checkered plane alone in the square
-    /// ([`Footprints::pattern_alone`]), its cells' areas exact and its shading smooth to
-    /// within `threshold` (see `average`). At most `max_cells` cells are summed. `None`
-    /// elsewhere.
-    pub fn exact(
+    /// What a checkered plane's cells give pixel `(px, py)`, where the primary ray through
+    /// `(x, y)` saw `seen`: where that plane alone shows in the square (mirrored or not,
+    /// shadowed or not, no texture, outside any CSG tree), the mean over the square of its
+    /// own unshadowed light ([`Footprints::direct`]), the cells' areas exact and the
+    /// shading smooth to within `threshold` (see `average`); and, where nothing else can
+    /// change in the square (no mirror, no shadow, no clamp's kink), the pixel's value. At
+    /// most `max_cells` cells are summed. `None` elsewhere.
+    pub fn cells(
         &self,
         px: i64,
         py: i64,
@@ -460,18 +471,52 @@ impl<'s> Footprints<'s> {
         seen: &Sample,
         threshold: f64,
         max_cells: u32,
-    ) -> Option<Color> {
+    ) -> Option<CellSums> {
         let o = seen.object;
         let obj = self.scene.objects.get(o as usize)?;
         if !self.scene.cell_areas
             || obj.material.color2.is_none()
+            || obj.material.mirror >= 1.0
             || !matches!(obj.shape, Shape::Plane)
-            || !self.shows_alone(px, py, x, y, o, Alone::ShadowsToo)
+            || !self.shows_alone(px, py, x, y, o, Alone::Mirrored)
         {
             return None;
         }
-        let shadows = !self.scene.casts_no_shadow_on(o);
-        average::checker_average(self.scene, o, px, py, threshold, max_cells, shadows)
+        let sums = average::cell_sums(self.scene, o, px, py, threshold, max_cells)?;
+        let alone = obj.material.mirror <= 0.0
+            && !sums.kink
+            && (self.scene.casts_no_shadow_on(o)
+                || !average::may_be_shadowed(self.scene, o, px, py));
+        Some(CellSums {
+            object: o,
+            direct: sums.direct,
+            exact: alone.then_some(sums.clamped),
+        })
+    }
+
+    /// [`Footprints::cells`]' value of the pixel, where it has one: for the tests.
+    #[cfg(any(test, feature = "bench"))]
+    pub fn exact(
+        &self,
+        px: i64,
+        py: i64,
+        at: (f64, f64),
+        seen: &Sample,
+        threshold: f64,
+        max_cells: u32,
+    ) -> Option<Color> {
+        self.cells(px, py, at, seen, threshold, max_cells)?.exact
+    }
+
+    /// Checkered plane `object`'s own light at image position `at`: `(1 − mirror) · c · S`,
+    /// its cell's colour times the Lambertian shading with no light shadowed, unclamped;
+    /// the function whose mean over a pixel's square [`CellSums::direct`] is. Zero for any
+    /// other object, and where the ray misses the plane.
+    pub fn direct(&self, object: u32, at: (f64, f64)) -> Color {
+        self.checker_planes
+            .iter()
+            .find(|(o, _)| *o == object)
+            .map_or(Color::ZERO, |(_, image)| image.direct(at))
     }
 
     /// Pixel `(px, py)`'s place in the per-pixel records; `None` outside the region.
@@ -512,7 +557,10 @@ impl<'s> Footprints<'s> {
             one => Some(one) == hit,
         };
         let plain = |o: u32| match alone {
-            Alone::ShadowsToo => self.scene.plain_but_shadows(o),
+            Alone::Mirrored => {
+                let obj = &self.scene.objects[o as usize];
+                matches!(obj.shape, Shape::Plane) && !obj.in_csg && obj.material.texture.is_none()
+            }
             _ => self.scene.plain(o),
         };
         if !shown_alone || hit.is_some_and(|o| !plain(o)) {
@@ -549,7 +597,7 @@ impl crate::sampler::PixelGeometry for Footprints<'_> {
         Footprints::pattern_alone(self, px, py, x, y, object)
     }
 
-    fn exact(
+    fn cells(
         &self,
         px: i64,
         py: i64,
@@ -557,8 +605,12 @@ impl crate::sampler::PixelGeometry for Footprints<'_> {
         seen: &Sample,
         threshold: f64,
         max_cells: u32,
-    ) -> Option<Color> {
-        Footprints::exact(self, px, py, at, seen, threshold, max_cells)
+    ) -> Option<CellSums> {
+        Footprints::cells(self, px, py, at, seen, threshold, max_cells)
+    }
+
+    fn direct(&self, object: u32, at: (f64, f64)) -> Color {
+        Footprints::direct(self, object, at)
     }
 
     fn unseen_pattern(

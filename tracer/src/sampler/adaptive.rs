@@ -6,7 +6,7 @@ use crate::math::Color;
 use crate::tile::Rect;
 
 use super::jitter::{PixelHash, SEED_FIRST, SEED_JITTER, mix, stratified};
-use super::{PixelGeometry, Sample, UnseenPattern};
+use super::{CellSums, PixelGeometry, Sample, UnseenPattern};
 
 /// The samples an adaptive pixel has taken so far: their sum, sum of squares, range and
 /// whether they met more than one object.
@@ -71,6 +71,18 @@ impl Tally {
             let gap = (self.min[i] - other.max[i]).max(other.min[i] - self.max[i]);
             difference > threshold && gap > threshold && gap > UNSEEN_GAP * difference
         })
+    }
+
+    /// The same samples, each `by` more.
+    pub(super) fn shifted(&self, by: Color) -> Tally {
+        let n = f64::from(self.count);
+        Tally {
+            sum: self.sum + by * n,
+            sum_sq: self.sum_sq + self.sum * by * 2.0 + by * by * n,
+            min: self.min + by,
+            max: self.max + by,
+            ..*self
+        }
     }
 
     /// Whether the samples disagree: more than `threshold` apart in a channel, or on
@@ -406,7 +418,7 @@ pub(super) fn se_bound(threshold: f64, rays: u32) -> f64 {
     threshold * (f64::from(rays) / 16.0).sqrt()
 }
 
-/// The most checker cells [`PixelGeometry::exact`] sums for a pixel of cap `max`: one per
+/// The most checker cells [`PixelGeometry::cells`] sums for a pixel of cap `max`: one per
 /// ray the pixel could take at most (a cell's clipping costs less than a ray), and 16 at
 /// least.
 fn exact_cells(max: u32) -> u32 {
@@ -425,6 +437,11 @@ fn exact_cells(max: u32) -> u32 {
 /// border pixels next to a pixel that goes on, with probes up to two pixels beyond the
 /// rect ([`PROBE_BORDER`]). Every pixel's rays are thus what they would be in any other
 /// tile.
+///
+/// Where a checkered plane alone shows in a pixel ([`PixelGeometry::cells`]), the pixel ends
+/// after its probe with the cells' exact sum when nothing else changes in it. Otherwise
+/// each of its rays is corrected by the cells' control variate, so that its spread, and its
+/// difference from a neighbour's on the same plane, is what shadows and reflections make.
 pub(super) fn adaptive<F, G>(
     rect: Rect,
     max: u32,
@@ -462,6 +479,8 @@ pub(super) fn adaptive<F, G>(
     // `Some(value)`: the pixel ends with that value (its probe's, or the geometry's).
     let mut ends: Vec<Option<Color>> = vec![None; pw * ph];
     let mut probes: Vec<Option<((f64, f64), Sample)>> = vec![None; pw * ph];
+    // What a checkered plane's cells give each decided pixel (see `PixelGeometry::cells`).
+    let mut sums: Vec<Option<CellSums>> = vec![None; pw * ph];
     if let Some(geometry) = geometry {
         let probe = |probes: &mut Vec<Option<((f64, f64), Sample)>>, bx: usize, by: usize| {
             let i = at(bx, by);
@@ -475,7 +494,10 @@ pub(super) fn adaptive<F, G>(
             probes[i] = Some(p);
             p
         };
-        let decide = |probes: &mut Vec<Option<((f64, f64), Sample)>>, bx: usize, by: usize| {
+        let decide = |probes: &mut Vec<Option<((f64, f64), Sample)>>,
+                      sums: &mut Vec<Option<CellSums>>,
+                      bx: usize,
+                      by: usize| {
             let ((sx, sy), p) = probe(probes, bx, by);
             let (x, y) = pixel(bx, by);
             let gentle = |q: &Sample| {
@@ -494,13 +516,17 @@ pub(super) fn adaptive<F, G>(
                 return Some(p.color);
             }
             // A checkered plane alone in the square: its cells' exact areas, where they are
-            // few enough to cost less than the rays they replace.
-            geometry.exact(x, y, (sx, sy), &p, threshold, exact_cells(max))
+            // few enough to cost less than the rays they replace; the pixel's value where
+            // nothing else changes in it, and otherwise the control variate its rays are
+            // corrected by (see `corrected`).
+            let cells = geometry.cells(x, y, (sx, sy), &p, threshold, exact_cells(max));
+            sums[at(bx, by)] = cells;
+            cells.and_then(|c| c.exact)
         };
         let mut decided = vec![false; pw * ph];
         for by in 2..h + 2 {
             for bx in 2..w + 2 {
-                ends[at(bx, by)] = decide(&mut probes, bx, by);
+                ends[at(bx, by)] = decide(&mut probes, &mut sums, bx, by);
                 decided[at(bx, by)] = true;
             }
         }
@@ -511,13 +537,26 @@ pub(super) fn adaptive<F, G>(
                 }
                 for (nx, ny) in neighbours(bx, by) {
                     if !decided[at(nx, ny)] {
-                        ends[at(nx, ny)] = decide(&mut probes, nx, ny);
+                        ends[at(nx, ny)] = decide(&mut probes, &mut sums, nx, ny);
                         decided[at(nx, ny)] = true;
                     }
                 }
             }
         }
     }
+
+    // A pixel's rays, each corrected by the control variate of its checkered plane's cells
+    // where it has one: `f − direct + mean(direct)` has the same mean over the square as
+    // `f` (to within the cells' sums' bound), and none of the cells' edges in its spread.
+    let correct = |cells: Option<CellSums>, s: Sample, at: (f64, f64)| match (cells, geometry) {
+        (Some(c), Some(g)) => Sample {
+            color: s.color - g.direct(c.object, at) + c.direct,
+            object: s.object,
+        },
+        _ => s,
+    };
+    let corrected =
+        |cells: Option<CellSums>| move |sx: f64, sy: f64| correct(cells, trace(sx, sy), (sx, sy));
 
     // First passes where the rect's decisions need them: its pixels that go on, and their
     // neighbours that go on (`slot` indexes `passes`, NONE where a pixel has none).
@@ -533,21 +572,21 @@ pub(super) fn adaptive<F, G>(
                 let i = at(qx, qy);
                 if slot[i] == NONE && ends[i].is_none() {
                     let (x, y) = pixel(qx, qy);
-                    let probed = probes[i].map(|(_, p)| p);
+                    let probed = probes[i].map(|(at, p)| correct(sums[i], p, at));
                     // At most one pass per pixel of the grown rect, whose size is bounded
                     // by the image's (`Limits`) and far below u32::MAX.
                     slot[i] = passes.len() as u32;
-                    passes.push(first_pass(x, y, max, order, trace, probed));
+                    passes.push(first_pass(x, y, max, order, &corrected(sums[i]), probed));
                 }
             }
         }
     }
     // What a pixel's neighbours compare with: its first pass's tally (whether it met two
     // objects, its first object, its mean and the range of its samples); for a pixel that
-    // ended, its probe's.
+    // ended, its probe's (corrected, where the pixel has cells' sums).
     let seen = |i: usize| -> Tally {
         match (slot[i], probes[i]) {
-            (NONE, Some((_, p))) => Tally::of(p),
+            (NONE, Some((at, p))) => Tally::of(correct(sums[i], p, at)),
             (NONE, None) => Tally::of(Sample {
                 color: Color::ZERO,
                 object: Sample::BACKGROUND,
@@ -590,12 +629,21 @@ pub(super) fn adaptive<F, G>(
                     let own = c.contrast(threshold)
                         || geometry
                             .is_some_and(|g| g.may_hide(i64::from(x), i64::from(y), c.object));
+                    // Two pixels on one checkered plane whose rays are corrected by its cells
+                    // (`corrected`) compare what is left: shadows and reflections. Their
+                    // cells differ, and the cells are summed exactly in both.
+                    let mine = sums[here];
                     let (mut near, mut unseen) = (false, false);
                     for (nx, ny) in neighbours(bx, by) {
-                        let nb = seen(at(nx, ny));
-                        let nb_mean = nb.mean();
+                        let there = at(nx, ny);
+                        let (mut c, mut nb) = (*c, seen(there));
+                        if let (Some(a), Some(b)) = (mine, sums[there])
+                            && a.object == b.object
+                        {
+                            (c, nb) = (c.shifted(-a.direct), nb.shifted(-b.direct));
+                        }
                         let other_object = nb.object != c.object;
-                        let other_mean = (nb_mean - mean).abs().max_element() > threshold;
+                        let other_mean = (nb.mean() - c.mean()).abs().max_element() > threshold;
                         near |= nb.mixed || other_object || other_mean;
                         unseen |= c.unseen_step(&nb, threshold);
                     }
@@ -618,7 +666,9 @@ pub(super) fn adaptive<F, G>(
                     //
                     // The first pass is itself a stratified set over the 2 × 2 quadrants:
                     // where that already bounds the edges' error, nothing changes.
-                    let pattern = (!unseen && !c.mixed)
+                    //
+                    // Rays corrected by the cells' control variate have no such edges left.
+                    let pattern = (!unseen && !c.mixed && mine.is_none())
                         .then(|| geometry?.unseen_pattern(px, py, c.object, &fp.positions))
                         .flatten()
                         .filter(|p| p.error_bound(2) > threshold);
@@ -632,7 +682,7 @@ pub(super) fn adaptive<F, G>(
                         Ask::Neighbour
                     };
                     if own || near || pattern.is_some() {
-                        refine(x, y, max, threshold, ask, fp, order, trace)
+                        refine(x, y, max, threshold, ask, fp, order, &corrected(mine))
                     } else {
                         mean
                     }

@@ -284,11 +284,12 @@ pub trait PixelGeometry {
     /// yes is true, never the reverse.
     fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool;
 
-    /// Pixel `(px, py)`'s value without more rays, where the primary ray through `at` saw
-    /// `seen` and the geometry alone gives the rest (a checkered plane's cells, their areas
-    /// exact), within `threshold` of smooth shading; summing at most `max_cells` cells.
-    /// `None` where it does not know.
-    fn exact(
+    /// What a checkered plane's cells give pixel `(px, py)`, where the primary ray through
+    /// `at` saw `seen` and that plane alone shows in the square: the mean over the square of
+    /// [`PixelGeometry::direct`], within `threshold`, and, where nothing but the cells and
+    /// smooth shading changes in the square, the pixel's value; summing at most `max_cells`
+    /// cells. `None` where it does not know.
+    fn cells(
         &self,
         _px: i64,
         _py: i64,
@@ -296,9 +297,29 @@ pub trait PixelGeometry {
         _seen: &Sample,
         _threshold: f64,
         _max_cells: u32,
-    ) -> Option<Color> {
+    ) -> Option<CellSums> {
         None
     }
+
+    /// The plane's own light at image position `at`, for the [`CellSums`] of `object`: the
+    /// function whose mean `CellSums::direct` is.
+    fn direct(&self, _object: u32, _at: (f64, f64)) -> Color {
+        Color::ZERO
+    }
+}
+
+/// What a checkered plane's cells give a pixel (see [`PixelGeometry::cells`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CellSums {
+    /// The plane.
+    pub object: u32,
+    /// The mean over the pixel's square of the plane's own unshadowed light,
+    /// [`PixelGeometry::direct`]: a control variate. A ray's colour less its `direct`, plus
+    /// this mean, estimates the pixel as the ray does, with the cells' edges taken out of
+    /// its spread; only shadows and reflections remain.
+    pub direct: Color,
+    /// The pixel's value, where nothing but the cells and smooth shading change in it.
+    pub exact: Option<Color>,
 }
 
 /// A pattern's edges in a pixel's square that its first rays may have missed (see
