@@ -17,10 +17,9 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use rayon::prelude::*;
 use tessera_tracer::internals::exact::error;
-use tessera_tracer::{
-    Color, DirAssets, Limits, Rect, Sampler, Scene, SceneDesc, TextureLimits, parse, tiles,
-};
+use tessera_tracer::{Color, DirAssets, Rect, Sampler, Scene, SceneDesc, TextureLimits, tiles};
 
+use crate::scenes::{read_desc, scene_files, scene_name};
 use crate::stats::median;
 use crate::svg::{Panel, Series};
 
@@ -39,6 +38,10 @@ pub struct Args {
     /// Timed runs per configuration; the median is reported.
     #[arg(long)]
     repeats: Option<usize>,
+    /// The POV-Ray executable whose anti-aliasing the full run compares (skipped, with a
+    /// note, where it is missing).
+    #[arg(long, default_value = "povray")]
+    povray: String,
 }
 
 /// One sampler setting, and the family (line on the chart) it belongs to.
@@ -123,46 +126,6 @@ struct Point {
     pareto: bool,
 }
 
-/// `.ray` files named directly or found in the given directories, sorted.
-pub fn scene_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
-    let mut files = Vec::new();
-    for p in paths {
-        anyhow::ensure!(
-            p.exists(),
-            "{}: no such file or folder (the default scenes are named from the repository's \
-             root: run the benchmark there, or pass --scenes)",
-            p.display()
-        );
-        if p.is_dir() {
-            for e in std::fs::read_dir(p).with_context(|| format!("cannot list {}", p.display()))? {
-                let path = e?.path();
-                if path.extension().is_some_and(|x| x == "ray") {
-                    files.push(path);
-                }
-            }
-        } else {
-            files.push(p.clone());
-        }
-    }
-    files.sort();
-    anyhow::ensure!(!files.is_empty(), "no .ray scenes found in {paths:?}");
-    Ok(files)
-}
-
-/// A scene file's name in the tables: its file name without `.ray`.
-pub fn scene_name(path: &Path) -> String {
-    path.file_stem()
-        .map_or("scene".into(), |s| s.to_string_lossy().to_string())
-}
-
-/// Reads and parses a scene file; a mistake is reported as `file:line:col: message`.
-pub fn read_desc(path: &Path) -> Result<SceneDesc> {
-    let src =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    parse(&src, &Limits::default())
-        .map_err(|e| anyhow::anyhow!("{}", e.with_file(&path.display().to_string())))
-}
-
 /// Loads a scene, optionally at reduced resolution (the camera keeps its field of view).
 pub fn load(path: &Path, shrink: u32) -> Result<Scene> {
     let mut desc = read_desc(path)?;
@@ -222,6 +185,21 @@ pub fn run(args: &Args) -> Result<()> {
     let mut all: Vec<Point> = Vec::new();
     let mut panels = Vec::new();
     let mut summary = String::new();
+    // POV-Ray's anti-aliasing beside ours, in full runs only (its renders take minutes).
+    let povray = if quick {
+        None
+    } else if crate::povray::available(&args.povray) {
+        let dir = std::env::temp_dir().join(format!("tessera-chart-{}", std::process::id()));
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("cannot create {}", dir.display()))?;
+        Some((args.povray.as_str(), dir))
+    } else {
+        println!(
+            "povray not found ({}): its anti-aliasing is not compared",
+            args.povray
+        );
+        None
+    };
     for path in &files {
         let name = scene_name(path);
         let scene = load(path, shrink)?;
@@ -286,7 +264,22 @@ pub fn run(args: &Args) -> Result<()> {
             );
         }
         panels.push(panel(&name, &points, ref_err));
-        all.extend(points);
+        if let Some((exe, dir)) = &povray {
+            let desc = read_desc(path)?;
+            match antialiased(exe, &desc, &exact, repeats, &name, dir)? {
+                Some(pov) => {
+                    for line in povray_vs_adaptive(&points, &pov) {
+                        println!("  {line}");
+                        let _ = writeln!(summary, "{name}: {line}");
+                    }
+                    all.extend(points);
+                    all.extend(pov);
+                }
+                None => all.extend(points),
+            }
+        } else {
+            all.extend(points);
+        }
     }
 
     let csv = args.out.join("chart.csv");
@@ -301,6 +294,94 @@ pub fn run(args: &Args) -> Result<()> {
         svg_path.display()
     );
     Ok(())
+}
+
+/// POV-Ray's renders of the scene `desc` (named `name`) with each of its anti-aliasing
+/// settings ([`crate::povray::Antialias::all`]), one thread, `repeats` times each: the
+/// median trace time, its own sample and ray counts, and the error against `exact`. `None`
+/// where the scene cannot be translated (a texture).
+fn antialiased(
+    povray: &str,
+    desc: &SceneDesc,
+    exact: &[Color],
+    repeats: usize,
+    name: &str,
+    dir: &Path,
+) -> Result<Option<Vec<Point>>> {
+    if let Err(e) = crate::povray::to_pov(desc) {
+        println!("  POV-Ray skipped: {e}");
+        return Ok(None);
+    }
+    let mut out = Vec::new();
+    for aa in crate::povray::Antialias::all() {
+        let mut times = Vec::with_capacity(repeats);
+        let mut last = None;
+        for _ in 0..repeats {
+            let r = crate::povray::render_antialiased(povray, desc, aa, dir)
+                .with_context(|| format!("POV-Ray on {name}, {}", aa.label()))?;
+            times.push(r.time_ms);
+            last = Some(r);
+        }
+        // `repeats` is at least 1, so the loop ran.
+        let Some(r) = last else { continue };
+        let (rmse, worst) = error(&r.image, exact);
+        let p = Point {
+            scene: name.to_string(),
+            family: aa.family(),
+            label: aa.label(),
+            primary_per_px: r.samples_per_px,
+            rays_per_px: r.rays_per_px,
+            time_ms: median(times),
+            rmse,
+            worst,
+            pareto: false,
+        };
+        println!(
+            "  {:<26} {:>7.2} spp {:>8.2} rays/px {:>9.2} ms  RMSE {:.2e}  worst {:.3}",
+            p.label, p.primary_per_px, p.rays_per_px, p.time_ms, p.rmse, p.worst
+        );
+        out.push(p);
+    }
+    Ok(Some(out))
+}
+
+/// The errors below which POV-Ray's settings are compared: where anti-aliasing is asked to
+/// do its work, rather than leave edges visibly stepped.
+const POVRAY_ERRORS_BELOW: f64 = 0.03;
+
+/// For each POV-Ray setting whose error is below [`POVRAY_ERRORS_BELOW`]: how long POV-Ray
+/// takes against the cheapest adaptive setting that reaches its error, one line each, then
+/// the smallest such ratio.
+fn povray_vs_adaptive(points: &[Point], pov: &[Point]) -> Vec<String> {
+    let mut lines = Vec::new();
+    let mut least: Option<f64> = None;
+    for p in pov.iter().filter(|p| p.rmse < POVRAY_ERRORS_BELOW) {
+        let best = points
+            .iter()
+            .filter(|a| a.family.starts_with("adaptive") && a.rmse <= p.rmse)
+            .min_by(|a, b| a.time_ms.total_cmp(&b.time_ms));
+        lines.push(match best {
+            Some(a) => {
+                let ratio = p.time_ms / a.time_ms;
+                least = Some(least.map_or(ratio, |l| l.min(ratio)));
+                format!(
+                    "{} RMSE {:.2e} in {:.1} ms; {} reaches {:.2e} in {:.1} ms: POV-Ray takes \
+                     {ratio:.2}×",
+                    p.label, p.rmse, p.time_ms, a.label, a.rmse, a.time_ms
+                )
+            }
+            None => format!(
+                "{} RMSE {:.2e} in {:.1} ms; no adaptive setting reaches it",
+                p.label, p.rmse, p.time_ms
+            ),
+        });
+    }
+    if let Some(l) = least {
+        lines.push(format!(
+            "POV-Ray below {POVRAY_ERRORS_BELOW} RMSE: it takes at least {l:.2}× adaptive's time"
+        ));
+    }
+    lines
 }
 
 /// For jitter 4×4, 6×6 and 8×8 (those the run measured): how much faster the cheapest

@@ -620,7 +620,7 @@ pub fn run(args: &Args) -> Result<()> {
             return Ok(());
         }
     };
-    let files = crate::chart::scene_files(&args.scenes)?;
+    let files = crate::scenes::scene_files(&args.scenes)?;
     let scale = args.scale.unwrap_or(if args.quick { 1 } else { 4 });
     let repeats = if args.quick { 1 } else { args.repeats.max(1) };
     println!(
@@ -637,8 +637,8 @@ pub fn run(args: &Args) -> Result<()> {
         "Δ>2 px"
     );
     for path in files {
-        let name = crate::chart::scene_name(&path);
-        let mut desc = crate::chart::read_desc(&path)?;
+        let name = crate::scenes::scene_name(&path);
+        let mut desc = crate::scenes::read_desc(&path)?;
         desc.width = desc.width.saturating_mul(scale);
         desc.height = desc.height.saturating_mul(scale);
         desc.sampler = Sampler::Center;

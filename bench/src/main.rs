@@ -21,6 +21,7 @@ mod embree;
 mod farm;
 mod features;
 mod povray;
+mod scenes;
 mod stats;
 mod svg;
 mod tracer;

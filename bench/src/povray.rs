@@ -230,9 +230,8 @@ pub(crate) fn image_difference(a: &[u8], b: &[u8]) -> (f64, f64) {
 }
 
 pub fn run(args: &Args) -> Result<()> {
-    let files = crate::chart::scene_files(&args.scenes)?;
-    let probe = Command::new(&args.povray).arg("--version").output();
-    if probe.is_err() {
+    let files = crate::scenes::scene_files(&args.scenes)?;
+    if !available(&args.povray) {
         println!(
             "povray not found ({}): the comparison is skipped",
             args.povray
@@ -246,8 +245,8 @@ pub fn run(args: &Args) -> Result<()> {
         "scene", "size", "tessera ms", "povray ms", "ratio", "ratio range", "mean |Δ|", "Δ>2 px"
     );
     for path in files {
-        let name = crate::chart::scene_name(&path);
-        let mut desc = crate::chart::read_desc(&path)?;
+        let name = crate::scenes::scene_name(&path);
+        let mut desc = crate::scenes::read_desc(&path)?;
         if args.quick {
             desc.width = (desc.width / 2).max(1);
             desc.height = (desc.height / 2).max(1);
@@ -315,12 +314,33 @@ fn time_tessera(scene: &Scene) -> (f64, Vec<u8>) {
 
 /// One POV-Ray run of `input` into `output`: the trace time it reports, in milliseconds.
 fn time_povray(povray: &str, input: &Path, output: &Path, desc: &SceneDesc) -> Result<f64> {
+    let text = run_povray(
+        povray,
+        input,
+        output,
+        desc,
+        &["-A", "+FN8", "File_Gamma=sRGB"],
+    )?;
+    let secs = trace_seconds(&text).context("no \"Trace Time\" in POV-Ray's output")?;
+    Ok(secs * 1e3)
+}
+
+/// Runs POV-Ray on `input` at the scene's size, one thread, no display, with `options`;
+/// returns its statistics output.
+fn run_povray(
+    povray: &str,
+    input: &Path,
+    output: &Path,
+    desc: &SceneDesc,
+    options: &[&str],
+) -> Result<String> {
     let out = Command::new(povray)
         .arg(format!("+I{}", input.display()))
         .arg(format!("+O{}", output.display()))
         .arg(format!("+W{}", desc.width))
         .arg(format!("+H{}", desc.height))
-        .args(["-A", "+WT1", "-D", "-P", "+FN8", "File_Gamma=sRGB"])
+        .args(["+WT1", "-D", "-P"])
+        .args(options)
         .output()
         .context("cannot run povray")?;
     let text =
@@ -331,8 +351,119 @@ fn time_povray(povray: &str, input: &Path, output: &Path, desc: &SceneDesc) -> R
             text.lines().rev().take(5).collect::<Vec<_>>().join(" | ")
         );
     }
+    Ok(text)
+}
+
+/// Whether `povray` runs.
+pub(crate) fn available(povray: &str) -> bool {
+    Command::new(povray).arg("--version").output().is_ok()
+}
+
+/// One of POV-Ray's anti-aliasing settings: its method (`+AM1`, a fixed grid where a
+/// pixel differs from its neighbours; `+AM2`, recursive subdivision of the pixel's
+/// corners), its depth (`+R`) and its threshold (`+A`).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Antialias {
+    pub(crate) method: u8,
+    pub(crate) depth: u32,
+    pub(crate) threshold: f64,
+}
+
+impl Antialias {
+    /// The settings the chart compares: each method over the depths it is used at, each
+    /// at a loose, a middling and a strict threshold.
+    pub(crate) fn all() -> Vec<Antialias> {
+        let mut out = Vec::new();
+        for (method, depths) in [(1u8, &[2u32, 3, 4, 5][..]), (2, &[2, 3, 4][..])] {
+            for &depth in depths {
+                for threshold in [0.3, 0.1, 0.03] {
+                    out.push(Antialias {
+                        method,
+                        depth,
+                        threshold,
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    pub(crate) fn family(&self) -> String {
+        format!("POV-Ray AM{}", self.method)
+    }
+
+    pub(crate) fn label(&self) -> String {
+        format!(
+            "POV-Ray AM{} R{} A{}",
+            self.method, self.depth, self.threshold
+        )
+    }
+}
+
+/// What one anti-aliased POV-Ray render gave: its trace time, samples and rays per pixel
+/// (its own counts), and the image in linear RGB.
+pub(crate) struct Antialiased {
+    pub(crate) time_ms: f64,
+    pub(crate) samples_per_px: f64,
+    pub(crate) rays_per_px: f64,
+    pub(crate) image: Vec<tessera_tracer::Color>,
+}
+
+/// Renders `desc` (translated by [`to_pov`]) with POV-Ray's anti-aliasing `aa`, one thread,
+/// into a 16-bit PNG with no gamma (so the image is linear RGB, within 2⁻¹⁶), in `dir`.
+pub(crate) fn render_antialiased(
+    povray: &str,
+    desc: &SceneDesc,
+    aa: Antialias,
+    dir: &Path,
+) -> Result<Antialiased> {
+    let input = dir.join("scene.pov");
+    let output = dir.join("scene.png");
+    std::fs::write(&input, to_pov(desc)?)?;
+    let options = [
+        format!("+A{}", aa.threshold),
+        format!("+AM{}", aa.method),
+        format!("+R{}", aa.depth),
+        "+FN16".to_string(),
+        "File_Gamma=1.0".to_string(),
+    ];
+    let options: Vec<&str> = options.iter().map(String::as_str).collect();
+    let text = run_povray(povray, &input, &output, desc, &options)?;
     let secs = trace_seconds(&text).context("no \"Trace Time\" in POV-Ray's output")?;
-    Ok(secs * 1e3)
+    let pixels = f64::from(desc.width) * f64::from(desc.height);
+    let samples = statistic(&text, "Samples:").context("no sample count in POV-Ray's output")?;
+    let rays = statistic(&text, "Rays:").context("no ray count in POV-Ray's output")?;
+    let image = image::open(&output)
+        .with_context(|| format!("cannot read {}", output.display()))?
+        .into_rgb16()
+        .into_raw()
+        .chunks_exact(3)
+        .map(|c| DVec3::new(c[0].into(), c[1].into(), c[2].into()) / 65535.0)
+        .collect();
+    Ok(Antialiased {
+        time_ms: secs * 1e3,
+        samples_per_px: samples / pixels,
+        rays_per_px: rays / pixels,
+        image,
+    })
+}
+
+/// The number after `name` in POV-Ray's statistics (`Samples:  73602`, `Rays:  226359`): a
+/// name that starts its line, or follows other figures after a run of spaces, so that
+/// `Rays:` is not read from `Reflected Rays:`.
+fn statistic(output: &str, name: &str) -> Option<f64> {
+    output.lines().find_map(|line| {
+        let at = line.find(name)?;
+        let before = &line[..at];
+        if !(before.trim().is_empty() || before.ends_with("  ")) {
+            return None;
+        }
+        line[at + name.len()..]
+            .split_whitespace()
+            .next()?
+            .parse()
+            .ok()
+    })
 }
 
 #[cfg(test)]
@@ -345,6 +476,16 @@ mod tests {
         let text = "Render Time:\n  Photon Time:      No photons\n  Trace Time:       0 hours  0 minutes  1 seconds (1.234 seconds)\n";
         assert_eq!(trace_seconds(text), Some(1.234));
         assert_eq!(trace_seconds("nothing here"), None);
+    }
+
+    #[test]
+    fn reads_povray_sample_and_ray_counts() {
+        let text = "Pixels:            20440   Samples:           73602   Smpls/Pxl: 3.60\n\
+                    Reflected Rays:              132317\n\
+                    Rays:             226359   Saved:                 0   Max Level: 7/7\n";
+        assert_eq!(statistic(text, "Samples:"), Some(73602.0));
+        assert_eq!(statistic(text, "Rays:"), Some(226359.0));
+        assert_eq!(statistic(text, "Photons:"), None);
     }
 
     #[test]

@@ -341,7 +341,7 @@ fn scenes(args: &Args, repeats: usize) -> Result<()> {
         "{:<18} {:>9} {:>5} {:>10} {:>12}",
         "scene", "size", "bvh", "rays", "Mrays/s"
     );
-    for path in crate::chart::scene_files(&args.scenes)? {
+    for path in crate::scenes::scene_files(&args.scenes)? {
         let scene = load(&path)?.with_acceleration(args.acceleration.into());
         // Quick: the middle of the image, a quarter each way (a few milliseconds).
         let rect = if args.quick {
