@@ -510,7 +510,7 @@ impl<'s> Footprints<'s> {
 
     /// Checkered plane `object`'s own light at image position `at`: `(1 − mirror) · c · S`,
     /// its cell's colour times the Lambertian shading with no light shadowed, unclamped;
-    /// the function whose mean over a pixel's square [`CellSums::direct`] is. Zero for any
+    /// the function whose mean over a pixel's square `CellSums::direct` is. Zero for any
     /// other object, and where the ray misses the plane.
     pub fn direct(&self, object: u32, at: (f64, f64)) -> Color {
         self.checker_planes
