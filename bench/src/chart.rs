@@ -71,6 +71,14 @@ fn configs(quick: bool) -> Vec<Config> {
             sampler: Sampler::Thesis,
         },
     ];
+    let adaptive = |n: u32, t: f64| Config {
+        family: format!("adaptive t={t}"),
+        label: format!("adaptive {n}x{n} t={t}"),
+        sampler: Sampler::Adaptive {
+            max: n,
+            threshold: t,
+        },
+    };
     for &n in ns {
         out.push(Config {
             family: "grid".into(),
@@ -82,32 +90,14 @@ fn configs(quick: bool) -> Vec<Config> {
             label: format!("jitter {n}x{n}"),
             sampler: Sampler::Jitter { n },
         });
-        for &t in thresholds {
-            out.push(Config {
-                family: format!("adaptive t={t}"),
-                label: format!("adaptive {n}x{n} t={t}"),
-                sampler: Sampler::Adaptive {
-                    max: n,
-                    threshold: t,
-                },
-            });
-        }
+        out.extend(thresholds.iter().map(|&t| adaptive(n, t)));
     }
     // Higher caps for adaptive alone: jitter at 12 × 12 or 16 × 16 costs 144 or 256 rays in
     // every pixel, but adaptive spends them only where a pixel needs them, and these caps
     // reach errors below jitter 8 × 8's that cap 8 cannot.
     let higher: &[u32] = if quick { &[] } else { &[12, 16] };
     for &n in higher {
-        for &t in thresholds {
-            out.push(Config {
-                family: format!("adaptive t={t}"),
-                label: format!("adaptive {n}x{n} t={t}"),
-                sampler: Sampler::Adaptive {
-                    max: n,
-                    threshold: t,
-                },
-            });
-        }
+        out.extend(thresholds.iter().map(|&t| adaptive(n, t)));
     }
     out
 }

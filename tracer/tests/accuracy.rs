@@ -583,7 +583,6 @@ fn a_stricter_threshold_is_never_worse_on_a_lit_checker() {
 /// less than half as much as `jitter` 8 × 8 in RMS.
 #[test]
 fn checker_cells_by_area_agree_with_a_dense_reference() {
-    use tessera_tracer::internals::{Footprints, PixelRegion, Sample};
     let (width, height) = (40u32, 30u32);
     let src = format!(
         "[GLOBALS]\nwidth = {width}\nheight = {height}\nambient = 0.1\n[/GLOBALS]\n\
@@ -597,13 +596,7 @@ fn checker_cells_by_area_agree_with_a_dense_reference() {
     let (reference, _) = s.reference_rect(rect, 128);
     let threshold = 0.01;
 
-    let region = PixelRegion {
-        x: 0,
-        y: 0,
-        width: width as usize,
-        height: height as usize,
-    };
-    let fp = Footprints::new(&s, region);
+    let fp = whole_image_footprints(&s);
     let plane = Sample {
         color: DVec3::ZERO,
         object: 0,
@@ -649,7 +642,6 @@ fn checker_cells_by_area_agree_with_a_dense_reference() {
 /// off by the shadow's depth (0.5 or more).
 #[test]
 fn checker_cells_by_area_never_cover_a_shadow() {
-    use tessera_tracer::internals::{Footprints, PixelRegion, Sample};
     let (width, height) = (40u32, 30u32);
     let src = format!(
         "[GLOBALS]\nwidth = {width}\nheight = {height}\nambient = 0.2\nshadow = 0.8\n[/GLOBALS]\n\
@@ -662,15 +654,7 @@ fn checker_cells_by_area_never_cover_a_shadow() {
     let s = scene(&src);
     let rect = Rect::full(width, height);
     let (reference, _) = s.reference_rect(rect, 96);
-    let fp = Footprints::new(
-        &s,
-        PixelRegion {
-            x: 0,
-            y: 0,
-            width: width as usize,
-            height: height as usize,
-        },
-    );
+    let fp = whole_image_footprints(&s);
     let plane = Sample {
         color: DVec3::ZERO,
         object: 0,
@@ -708,7 +692,6 @@ fn checker_cells_by_area_never_cover_a_shadow() {
 ///   would match if the correction did nothing.
 #[test]
 fn a_mirrored_shadowed_checker_is_corrected_by_its_cells() {
-    use tessera_tracer::internals::{Footprints, PixelRegion};
     let (width, height) = (40u32, 30u32);
     let (centre, radius) = (DVec3::new(-0.8, 1.1, 0.0), 1.1);
     let light = DVec3::new(6.0, 8.0, 2.0);
@@ -750,15 +733,7 @@ fn a_mirrored_shadowed_checker_is_corrected_by_its_cells() {
             && clear(p, mirrored, f64::INFINITY)
             && clear(p, light - p, 1.0 * (light - p).length())
     };
-    let fp = Footprints::new(
-        &s,
-        PixelRegion {
-            x: 0,
-            y: 0,
-            width: width as usize,
-            height: height as usize,
-        },
-    );
+    let fp = whole_image_footprints(&s);
     let floor = Sample {
         color: DVec3::ZERO,
         object: 0,
@@ -817,4 +792,17 @@ fn a_mirrored_shadowed_checker_is_corrected_by_its_cells() {
         rms * 1.5 < rays_alone_rms,
         "RMS {rms:.2e}, rays alone {rays_alone_rms:.2e}"
     );
+}
+
+/// The footprints of `s`'s whole image, as one region.
+fn whole_image_footprints(s: &tessera_tracer::Scene) -> tessera_tracer::internals::Footprints<'_> {
+    tessera_tracer::internals::Footprints::new(
+        s,
+        tessera_tracer::internals::PixelRegion {
+            x: 0,
+            y: 0,
+            width: s.width as usize,
+            height: s.height as usize,
+        },
+    )
 }
