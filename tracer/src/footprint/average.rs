@@ -351,16 +351,26 @@ pub(super) fn cell_sums(
 
     // Step 3: the pieces, strip by strip.
     let (mut total, mut clamped, mut direct) = (0.0, Color::ZERO, Color::ZERO);
+    // A square within one column or row of cells (its corners' bounds say so, and the
+    // square's image is their convex hull) needs no cut along that axis.
     let mut i = i0;
     while i <= i1 {
-        let strip = Polygon::SQUARE
-            .clip(u.minus(i, w))
-            .clip(w.scaled(i + 1.0).minus(1.0, u));
+        let strip = if i0 == i1 {
+            Polygon::SQUARE
+        } else {
+            Polygon::SQUARE
+                .clip(u.minus(i, w))
+                .clip(w.scaled(i + 1.0).minus(1.0, u))
+        };
         let mut j = j0;
         while j <= j1 {
-            let piece = strip
-                .clip(v.minus(j, w))
-                .clip(w.scaled(j + 1.0).minus(1.0, v));
+            let piece = if j0 == j1 {
+                strip
+            } else {
+                strip
+                    .clip(v.minus(j, w))
+                    .clip(w.scaled(j + 1.0).minus(1.0, v))
+            };
             if let (area, Some(centroid)) = piece.area_centroid() {
                 let lit = cell_colour(i, j, m.color1, c2) * image.shading(centroid);
                 clamped += lit.min(Color::ONE) * area;
@@ -395,12 +405,52 @@ impl PlaneImage<'_> {
 }
 
 /// Whether the square of pixel `(px, py)` on plane `object` may be shadowed (see
-/// [`unshadowed`]).
-pub(super) fn may_be_shadowed(scene: &Scene, object: u32, px: i64, py: i64) -> bool {
+/// [`unshadowed`]); `solids` are the scene's [`Solids`].
+pub(super) fn may_be_shadowed(
+    scene: &Scene,
+    object: u32,
+    px: i64,
+    py: i64,
+    solids: &Solids,
+) -> bool {
     let Some(image) = PlaneImage::new(scene, object, px, py) else {
         return true;
     };
-    !unshadowed(scene, object, CORNERS.map(|c| image.point(c)), image.n)
+    !unshadowed(
+        scene,
+        object,
+        CORNERS.map(|c| image.point(c)),
+        image.n,
+        solids,
+    )
+}
+
+/// The scene's solids as [`unshadowed`] tests them: each prim's object (`None` for a CSG
+/// tree) and bounding ball (`None` where unbounded). `None` for more than
+/// [`MAX_SHADOW_SOLIDS`] besides one plane: testing every solid per pixel is only cheaper
+/// than the shadow rays it replaces for few.
+pub(super) type Solids = Option<Vec<(Option<u32>, Option<(DVec3, f64)>)>>;
+
+/// The scene's [`Solids`], once per tile.
+pub(super) fn solids(scene: &Scene) -> Solids {
+    if scene.prims.len() > MAX_SHADOW_SOLIDS + 1 {
+        return None;
+    }
+    let solids = scene
+        .prims
+        .iter()
+        .map(|p| {
+            let object = match p {
+                crate::csg::Prim::Object(i) => Some(*i),
+                crate::csg::Prim::Csg(_) => None,
+            };
+            let ball = p
+                .bounds(&scene.objects)
+                .map(|b| ((b.min + b.max) * 0.5, (b.max - b.min).length() * 0.5));
+            (object, ball)
+        })
+        .collect();
+    Some(solids)
 }
 
 /// Whether no solid but plane `o` can shadow any point of the convex quadrilateral with
@@ -408,25 +458,17 @@ pub(super) fn may_be_shadowed(scene: &Scene, object: u32, px: i64, py: i64) -> b
 /// side: every segment from the quadrilateral to such a light lies in the circular cone
 /// from the light around the corners' directions (a convex set holding the corners and its
 /// apex holds their hull), and each other solid's bounding ball lies outside that cone by
-/// more than a margin. Unbounded solids (another plane), a light inside a ball, or a cone
-/// of half-angle 60° or more: no.
-fn unshadowed(scene: &Scene, o: u32, quad: [DVec3; 4], n: DVec3) -> bool {
-    let balls: Option<Vec<(DVec3, f64)>> = scene
-        .prims
-        .iter()
-        .filter(|p| !matches!(p, crate::csg::Prim::Object(i) if *i == o))
-        .map(|p| {
-            let b = p.bounds(&scene.objects)?;
-            Some(((b.min + b.max) * 0.5, (b.max - b.min).length() * 0.5))
-        })
-        .collect();
-    let Some(balls) = balls else {
+/// more than a margin. Unbounded solids (another plane), more than [`MAX_SHADOW_SOLIDS`]
+/// others, a light inside a ball, or a cone of half-angle 60° or more: no.
+fn unshadowed(scene: &Scene, o: u32, quad: [DVec3; 4], n: DVec3, solids: &Solids) -> bool {
+    let Some(solids) = solids else {
         return false;
     };
-    // Checking every solid per pixel is only cheaper than the rays it replaces for few.
-    if balls.len() > MAX_SHADOW_SOLIDS {
+    let others = || solids.iter().filter(|(object, _)| *object != Some(o));
+    if others().count() > MAX_SHADOW_SOLIDS || others().any(|(_, ball)| ball.is_none()) {
         return false;
     }
+    let balls = || others().filter_map(|(_, ball)| *ball);
     for l in &scene.lights {
         // A light behind the plane lights none of it: no shadow ray.
         if quad.iter().all(|p| n.dot(l.position - p) <= 0.0) {
@@ -439,7 +481,7 @@ fn unshadowed(scene: &Scene, o: u32, quad: [DVec3; 4], n: DVec3) -> bool {
             return false;
         }
         let half = cos_half.clamp(-1.0, 1.0).acos();
-        for &(c, r) in &balls {
+        for (c, r) in balls() {
             let v = c - l.position;
             let d = v.length();
             if !(d > r * (1.0 + 1e-9)) {

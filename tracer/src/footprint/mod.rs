@@ -105,6 +105,8 @@ pub struct Footprints<'s> {
     /// The checkered planes without a texture, with their rays' map in image coordinates,
     /// for [`Footprints::direct`].
     checker_planes: Vec<(u32, average::PlaneImage<'s>)>,
+    /// The solids that may shadow a checkered plane, found when first asked.
+    solids: std::cell::OnceCell<average::Solids>,
 }
 
 /// What [`Footprints::shows_alone`] allows in a pixel besides its one object's smooth
@@ -163,6 +165,7 @@ impl<'s> Footprints<'s> {
             fitted: vec![NOTHING; n],
             planes: Vec::new(),
             checker_planes: Vec::new(),
+            solids: std::cell::OnceCell::new(),
         };
         // The prims that may show in the region: every prim, or those the BVH finds whose
         // boxes' projections meet it, with the ones it leaves out.
@@ -486,12 +489,17 @@ impl<'s> Footprints<'s> {
         let alone = obj.material.mirror <= 0.0
             && !sums.kink
             && (self.scene.casts_no_shadow_on(o)
-                || !average::may_be_shadowed(self.scene, o, px, py));
+                || !average::may_be_shadowed(self.scene, o, px, py, self.solids()));
         Some(CellSums {
             object: o,
             direct: sums.direct,
             exact: alone.then_some(sums.clamped),
         })
+    }
+
+    /// The scene's solids as the shadow test of [`Footprints::cells`] takes them.
+    fn solids(&self) -> &average::Solids {
+        self.solids.get_or_init(|| average::solids(self.scene))
     }
 
     /// [`Footprints::cells`]' value of the pixel, where it has one: for the tests.
