@@ -326,15 +326,50 @@ impl Scene {
         stopped: impl Fn() -> bool,
         out: &mut Vec<Color>,
     ) -> RayStats {
+        self.rect_linear_watched(rect, sampler, stopped, |_, _| {}, out)
+    }
+
+    /// [`Self::rect_linear_into`], calling `on_ray` with the image position of every primary
+    /// ray traced (a constant no-op for every render but the benchmark's count of rays per
+    /// pixel, and then compiled away).
+    fn rect_linear_watched(
+        &self,
+        rect: Rect,
+        sampler: &Sampler,
+        stopped: impl Fn() -> bool,
+        on_ray: impl Fn(f64, f64),
+        out: &mut Vec<Color>,
+    ) -> RayStats {
         out.clear();
         out.resize(rect.pixel_count(), Color::ZERO);
         // Chosen once per rectangle: the tracing compiled without any look at the eye's and
         // the lights' tables, for scenes that have none, is the plain one (see `radiance`).
         if self.has_point_tables() {
-            self.rect_linear_in::<true>(rect, sampler, stopped, out)
+            self.rect_linear_in::<true>(rect, sampler, stopped, on_ray, out)
         } else {
-            self.rect_linear_in::<false>(rect, sampler, stopped, out)
+            self.rect_linear_in::<false>(rect, sampler, stopped, on_ray, out)
         }
+    }
+
+    /// How many primary rays `sampler` traces in each pixel of `rect`, row-major (the rays
+    /// an adaptive render traces around the rect for its decisions are not counted).
+    #[cfg(feature = "bench")]
+    pub fn primary_rays_per_pixel(&self, rect: Rect, sampler: &Sampler) -> Vec<u32> {
+        let counts = vec![std::cell::Cell::new(0u32); rect.pixel_count()];
+        let count = |x: f64, y: f64| {
+            let (cx, cy) = (x.floor() - f64::from(rect.x), y.floor() - f64::from(rect.y));
+            let inside =
+                cx >= 0.0 && cy >= 0.0 && cx < f64::from(rect.width) && cy < f64::from(rect.height);
+            if inside {
+                let c = &counts[cy as usize * rect.width as usize + cx as usize];
+                c.set(c.get() + 1);
+            }
+        };
+        self.rect_linear_watched(rect, sampler, || false, count, &mut Vec::new());
+        counts
+            .into_iter()
+            .map(std::cell::Cell::into_inner)
+            .collect()
     }
 
     /// The sRGB bytes of `rect` with the rays they took, unless `stopped()` turns true
@@ -377,6 +412,7 @@ impl Scene {
         rect: Rect,
         sampler: &Sampler,
         stopped: impl Fn() -> bool,
+        on_ray: impl Fn(f64, f64),
         out: &mut [Color],
     ) -> RayStats {
         let counters = Counters::default();
@@ -387,6 +423,7 @@ impl Scene {
                     object: Sample::BACKGROUND,
                 };
             }
+            on_ray(x, y);
             self.primary::<TABLES>(x, y, &counters)
         };
         if matches!(sampler, Sampler::Adaptive { .. }) {

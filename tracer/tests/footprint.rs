@@ -14,7 +14,7 @@ use common::Rng;
 
 use glam::DVec3;
 use tessera_tracer::internals::{Footprints, PixelRegion, Sample, SceneInternals};
-use tessera_tracer::{Rect, Scene, Shape};
+use tessera_tracer::{Rect, Sampler, Scene, Shape};
 
 fn v(p: DVec3) -> String {
     format!("<{}, {}, {}>", p.x, p.y, p.z)
@@ -645,4 +645,38 @@ fn corrected_checker_floors_stay_tile_independent() {
             &format!("samples {samples}"),
         );
     }
+}
+
+/// The count of rays per pixel that the chart draws: jitter's is `n²` in every pixel; an
+/// adaptive render's counts lie between one and its cap's `n²`, sum to no more than the
+/// render's own count of primary rays (which also holds the rays traced around the rect for
+/// its decisions), and show both extremes where a sphere's edge crosses a flat background:
+/// one ray in the background's pixels far from it, every ray on its edge.
+#[test]
+fn rays_per_pixel_are_counted_where_they_fall() {
+    let s = common::scene(
+        "[GLOBALS]\nwidth = 40\nheight = 30\n[/GLOBALS]\n[CAMERA]\neye = <0, 0, 10>\n\
+         look_at = <0, 0, 0>\n[/CAMERA]\n[LIGHT]\nposition = <5, 5, 10>\n[/LIGHT]\n\
+         [OBJECT]\ntype = sphere\nradius = 1.5\n[/OBJECT]\n",
+    );
+    let rect = Rect::new(3, 2, 30, 25);
+    let counts = s.primary_rays_per_pixel(rect, &Sampler::Jitter { n: 3 });
+    assert_eq!(counts.len(), rect.pixel_count());
+    assert!(counts.iter().all(|&c| c == 9));
+
+    let adaptive = Sampler::Adaptive {
+        max: 4,
+        threshold: 0.001,
+    };
+    let counts = s.primary_rays_per_pixel(rect, &adaptive);
+    let (_, stats) = s.render_rect_linear_with(rect, &adaptive);
+    let sum: u64 = counts.iter().map(|&c| u64::from(c)).sum();
+    assert!(
+        sum <= stats.primary,
+        "{sum} counted, {} traced",
+        stats.primary
+    );
+    assert!(counts.iter().all(|&c| (1..=16).contains(&c)));
+    assert_eq!(counts[0], 1, "a background pixel far from the sphere");
+    assert!(counts.contains(&16), "the sphere's edge");
 }
