@@ -241,6 +241,13 @@ pub fn run(args: &Args) -> Result<()> {
             println!("  {line}");
             let _ = writeln!(summary, "{name}: {line}");
         }
+        let rays = ray_map(
+            &scene,
+            &points,
+            quick,
+            &args.out.join(format!("rays-{name}.png")),
+        )?;
+        println!("  {rays}");
         for p in &points {
             println!(
                 "  {:<26} {:>7.2} spp {:>8.2} rays/px {:>9.2} ms  RMSE {:.2e}  worst {:.3}{}",
@@ -284,6 +291,45 @@ pub fn run(args: &Args) -> Result<()> {
         svg_path.display()
     );
     Ok(())
+}
+
+/// Draws where adaptive spends its rays on `scene`, for the cheapest adaptive setting that
+/// reaches jitter 8×8's error (or the strictest setting of the highest cap, where none
+/// does, or jitter 8×8 was not run): each pixel's count of primary rays, grey on a log
+/// scale from black (one ray) to white (the cap's `n²`), at twice the scene's size, into
+/// `path`. Returns a line saying what it drew.
+fn ray_map(scene: &Scene, points: &[Point], quick: bool, path: &Path) -> Result<String> {
+    let target = points.iter().find(|p| p.label == "jitter 8x8");
+    let best = target.and_then(|j| {
+        points
+            .iter()
+            .filter(|p| p.family.starts_with("adaptive") && p.rmse <= j.rmse)
+            .min_by(|a, b| a.time_ms.total_cmp(&b.time_ms))
+    });
+    let all = configs(quick);
+    let config = best
+        .and_then(|b| all.iter().find(|c| c.label == b.label))
+        .or_else(|| all.iter().rev().find(|c| c.family.starts_with("adaptive")))
+        .context("no adaptive setting to draw")?;
+    let Sampler::Adaptive { max, .. } = config.sampler else {
+        anyhow::bail!("{} is not adaptive", config.label);
+    };
+    let (w, h) = (scene.width, scene.height);
+    let counts = scene.primary_rays_per_pixel(Rect::full(w, h), &config.sampler);
+    let most = f64::from(max * max).ln().max(f64::MIN_POSITIVE);
+    let grey = |c: u32| (255.0 * (f64::from(c.max(1)).ln() / most).min(1.0)).round() as u8;
+    let image = image::GrayImage::from_fn(w * 2, h * 2, |x, y| {
+        image::Luma([grey(counts[((y / 2) * w + x / 2) as usize])])
+    });
+    image
+        .save(path)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    let mean = counts.iter().map(|&c| f64::from(c)).sum::<f64>() / counts.len().max(1) as f64;
+    Ok(format!(
+        "rays per pixel, {}: {mean:.1} on average, drawn in {}",
+        config.label,
+        path.display()
+    ))
 }
 
 /// POV-Ray's renders of the scene `desc` (named `name`) with each of its anti-aliasing
