@@ -161,6 +161,10 @@ pub(super) struct Sums {
     /// at its centre or corners: no point rule follows that kink, so `clamped` is not
     /// exact there (`direct`, unclamped, is unaffected).
     pub(super) kink: bool,
+    /// Where the square's corners' rays meet the plane, and its normal facing the eye: what
+    /// [`may_be_shadowed`] tests.
+    quad: [DVec3; 4],
+    n: DVec3,
 }
 
 /// How the rays of pixel `(px, py)`'s square meet plane `object`: `u = U/W`, `v = V/W` in
@@ -385,6 +389,8 @@ pub(super) fn cell_sums(
         clamped: clamped / total,
         direct: direct * kept / total,
         kink,
+        quad: CORNERS.map(|c| image.point(c)),
+        n: image.n,
     })
 }
 
@@ -404,25 +410,10 @@ impl PlaneImage<'_> {
     }
 }
 
-/// Whether the square of pixel `(px, py)` on plane `object` may be shadowed (see
+/// Whether the square whose [`Sums`] are `sums`, on plane `object`, may be shadowed (see
 /// [`unshadowed`]); `solids` are the scene's [`Solids`].
-pub(super) fn may_be_shadowed(
-    scene: &Scene,
-    object: u32,
-    px: i64,
-    py: i64,
-    solids: &Solids,
-) -> bool {
-    let Some(image) = PlaneImage::new(scene, object, px, py) else {
-        return true;
-    };
-    !unshadowed(
-        scene,
-        object,
-        CORNERS.map(|c| image.point(c)),
-        image.n,
-        solids,
-    )
+pub(super) fn may_be_shadowed(scene: &Scene, object: u32, sums: &Sums, solids: &Solids) -> bool {
+    !unshadowed(scene, object, sums.quad, sums.n, solids)
 }
 
 /// The scene's solids as [`unshadowed`] tests them: each prim's object (`None` for a CSG

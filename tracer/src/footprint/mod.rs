@@ -489,7 +489,7 @@ impl<'s> Footprints<'s> {
         let alone = obj.material.mirror <= 0.0
             && !sums.kink
             && (self.scene.casts_no_shadow_on(o)
-                || !average::may_be_shadowed(self.scene, o, px, py, self.solids()));
+                || !average::may_be_shadowed(self.scene, o, &sums, self.solids()));
         Some(CellSums {
             object: o,
             direct: sums.direct,
