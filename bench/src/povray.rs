@@ -229,6 +229,41 @@ pub(crate) fn image_difference(a: &[u8], b: &[u8]) -> (f64, f64) {
     (sum as f64 / n, off as f64 / n)
 }
 
+/// How many primary rays a pixel takes in one of the comparisons.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Rays {
+    /// One ray through the pixel's centre, in both renderers.
+    One,
+    /// The thesis's five (Tessera's `sampler = thesis`: the centre and four points at ±1/4
+    /// pixel) against POV-Ray's nearest: `+AM1 +A0.0 +R2 -J`, which takes every pixel's
+    /// own ray and then a 2×2 grid in it, about five primary rays a pixel (its own count is
+    /// printed beside the ratio).
+    Five,
+}
+
+impl Rays {
+    fn sampler(self) -> Sampler {
+        match self {
+            Rays::One => Sampler::Center,
+            Rays::Five => Sampler::Thesis,
+        }
+    }
+
+    fn povray_options(self) -> &'static [&'static str] {
+        match self {
+            Rays::One => &["-A", "+FN8", "File_Gamma=sRGB"],
+            Rays::Five => &["+A0.0", "+AM1", "+R2", "-J", "+FN8", "File_Gamma=sRGB"],
+        }
+    }
+
+    fn title(self) -> &'static str {
+        match self {
+            Rays::One => "one ray per pixel",
+            Rays::Five => "the thesis's five rays per pixel (POV-Ray: +AM1 +A0.0 +R2 -J)",
+        }
+    }
+}
+
 pub fn run(args: &Args) -> Result<()> {
     let files = crate::scenes::scene_files(&args.scenes)?;
     if !available(&args.povray) {
@@ -240,13 +275,35 @@ pub fn run(args: &Args) -> Result<()> {
     }
     let dir = std::env::temp_dir().join(format!("tessera-povray-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
+    let result = [Rays::One, Rays::Five]
+        .into_iter()
+        .try_for_each(|rays| table(args, &files, &dir, rays));
+    // The translated scenes and POV-Ray's images are of no use once compared.
+    let _ = std::fs::remove_dir_all(&dir);
+    result
+}
+
+/// One table: every scene at `rays` rays per pixel, Tessera against POV-Ray, then the
+/// geometric mean of the ratios.
+fn table(args: &Args, files: &[PathBuf], dir: &Path, rays: Rays) -> Result<()> {
+    println!("\n{}", rays.title());
     println!(
-        "{:<22} {:>9} {:>12} {:>12} {:>8} {:>15} {:>10} {:>9}",
-        "scene", "size", "tessera ms", "povray ms", "ratio", "ratio range", "mean |Δ|", "Δ>2 px"
+        "{:<22} {:>9} {:>12} {:>12} {:>8} {:>15} {:>11} {:>10} {:>9}",
+        "scene",
+        "size",
+        "tessera ms",
+        "povray ms",
+        "ratio",
+        "ratio range",
+        "pov ray/px",
+        "mean |Δ|",
+        "Δ>2 px"
     );
+    let mut log_sum = 0.0;
+    let mut count = 0usize;
     for path in files {
-        let name = crate::scenes::scene_name(&path);
-        let mut desc = crate::scenes::read_desc(&path)?;
+        let name = crate::scenes::scene_name(path);
+        let mut desc = crate::scenes::read_desc(path)?;
         if args.quick {
             desc.width = (desc.width / 2).max(1);
             desc.height = (desc.height / 2).max(1);
@@ -254,7 +311,7 @@ pub fn run(args: &Args) -> Result<()> {
         let scale = args.scale.unwrap_or(if args.quick { 1 } else { 8 });
         desc.width = desc.width.saturating_mul(scale);
         desc.height = desc.height.saturating_mul(scale);
-        desc.sampler = Sampler::Center;
+        desc.sampler = rays.sampler();
         let pov = match to_pov(&desc) {
             Ok(p) => p,
             Err(e) => {
@@ -272,13 +329,15 @@ pub fn run(args: &Args) -> Result<()> {
         std::fs::write(&input, &pov)?;
         let (mut ours_ms, mut pov_ms, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
         let mut ours = Vec::new();
+        let mut pov_rays = 0.0;
         for _ in 0..args.repeats.max(1) {
             let (o_ms, o) = time_tessera(&scene);
-            let p_ms = time_povray(&args.povray, &input, &output, &desc)
+            let p = time_povray(&args.povray, &input, &output, &desc, rays)
                 .with_context(|| format!("POV-Ray on {name}"))?;
-            ratios.push(p_ms / o_ms);
+            ratios.push(p.ms / o_ms);
             ours_ms.push(o_ms);
-            pov_ms.push(p_ms);
+            pov_ms.push(p.ms);
+            pov_rays = p.primary_per_px;
             ours = o;
         }
         let theirs = image::open(&output)
@@ -286,9 +345,11 @@ pub fn run(args: &Args) -> Result<()> {
             .into_rgb8()
             .into_raw();
         let ratio = Spread::of(ratios);
+        log_sum += ratio.median.ln();
+        count += 1;
         let (mean, off) = image_difference(&ours, &theirs);
         println!(
-            "{name:<22} {:>9} {:>12.1} {:>12.1} {:>7.2}× {:>15} {mean:>10.2} {:>8.2}%",
+            "{name:<22} {:>9} {:>12.1} {:>12.1} {:>7.2}× {:>15} {pov_rays:>11.2} {mean:>10.2} {:>8.2}%",
             format!("{}×{}", desc.width, desc.height),
             median(ours_ms),
             median(pov_ms),
@@ -297,9 +358,15 @@ pub fn run(args: &Args) -> Result<()> {
             off * 100.0
         );
     }
+    if count > 0 {
+        println!(
+            "geometric mean of the {count} ratios: {:.2}",
+            (log_sum / count as f64).exp()
+        );
+    }
     println!(
-        "(one thread, one ray per pixel; ratio = POV-Ray trace time / Tessera trace time, the \
-         median of {} back-to-back pairs)",
+        "(one thread; ratio = POV-Ray trace time / Tessera trace time, the median of {} \
+         back-to-back pairs; pov ray/px = POV-Ray's primary rays per pixel, its own count)",
         args.repeats.max(1)
     );
     Ok(())
@@ -312,17 +379,31 @@ fn time_tessera(scene: &Scene) -> (f64, Vec<u8>) {
     (start.elapsed().as_secs_f64() * 1e3, rgb)
 }
 
-/// One POV-Ray run of `input` into `output`: the trace time it reports, in milliseconds.
-fn time_povray(povray: &str, input: &Path, output: &Path, desc: &SceneDesc) -> Result<f64> {
-    let text = run_povray(
-        povray,
-        input,
-        output,
-        desc,
-        &["-A", "+FN8", "File_Gamma=sRGB"],
-    )?;
+/// What one POV-Ray run reported: its trace time and its primary rays per pixel.
+struct PovRun {
+    ms: f64,
+    primary_per_px: f64,
+}
+
+/// One POV-Ray run of `input` into `output` at `rays` rays per pixel: the trace time it
+/// reports, and its primary rays per pixel (its `Pixels` and `Samples` counts: one ray per
+/// pixel and the supersamples, over the image's pixels).
+fn time_povray(
+    povray: &str,
+    input: &Path,
+    output: &Path,
+    desc: &SceneDesc,
+    rays: Rays,
+) -> Result<PovRun> {
+    let text = run_povray(povray, input, output, desc, rays.povray_options())?;
     let secs = trace_seconds(&text).context("no \"Trace Time\" in POV-Ray's output")?;
-    Ok(secs * 1e3)
+    let traced = statistic(&text, "Pixels:").context("no pixel count in POV-Ray's output")?
+        + statistic(&text, "Samples:").unwrap_or(0.0);
+    let pixels = f64::from(desc.width) * f64::from(desc.height);
+    Ok(PovRun {
+        ms: secs * 1e3,
+        primary_per_px: traced / pixels.max(1.0),
+    })
 }
 
 /// Runs POV-Ray on `input` at the scene's size, one thread, no display, with `options`;
