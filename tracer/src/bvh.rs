@@ -7,11 +7,15 @@
 //! ([`crate::bvh::BVH_MIN_PRIMS`]). The tree is built once, top-down with the surface area
 //! heuristic over [`BINS`] centroid bins on each of the three axes (Wald 2007; pbrt §4.3.2),
 //! each item weighted by what testing it costs, and stored as a flat array of interior
-//! nodes in depth-first order. A node holds the boxes of *both* its children (in `f32`,
-//! rounded outwards: 64 bytes, one cache line), so a visit is one two-lane slab test in
-//! `f64`. Traversal is iterative with a fixed stack, goes to the nearer child first, and
-//! skips a subtree whose box starts beyond the caller's current limit, so a nearest-hit
-//! query stops opening boxes once it has a hit closer than everything left on the stack.
+//! nodes in depth-first order. Each node has up to four children, the two levels of binary
+//! SAH splits below it (Wald, Benthin, Boulos 2008: a wide node per two binary levels), and
+//! holds all four children's boxes (in `f32`, rounded outwards: 128 bytes, two cache lines),
+//! so a visit is one four-lane slab test in `f64`: with AVX2, where the CPU has it (checked at
+//! run time), one 256-bit register per quantity; otherwise the same arithmetic lane by lane,
+//! with the same bits. Traversal is iterative with a fixed stack, goes to the nearest child
+//! first, and skips a subtree whose box starts beyond the caller's current limit, so a
+//! nearest-hit query stops opening boxes once it has a hit closer than everything left on
+//! the stack.
 //!
 //! **What it is not.** It knows nothing of shapes, hits or ties: items are caller indices,
 //! and the caller's callback tests them and says how far the search still has to go. Every
@@ -38,15 +42,20 @@ pub const BINS: usize = 16;
 /// stack can never overflow.
 pub const MAX_DEPTH: usize = 60;
 
-/// Traversal stack: at most one pending far child per interior level of the current path.
-const STACK: usize = MAX_DEPTH + 1;
+/// Children of an interior node: the lanes of its slab test.
+const WIDTH: usize = 4;
+
+/// Traversal stack: at most `WIDTH − 1` pending siblings per interior level of the current
+/// path, and no path has more than `MAX_DEPTH` interior levels (each wide level is at least
+/// one binary split, and the builder caps those).
+const STACK: usize = (WIDTH - 1) * MAX_DEPTH + 1;
 
 /// Leaves at most this large are made whenever the SAH says a split does not pay; larger
 /// sets are split whenever their centroids can be told apart, since every ray that enters a
 /// leaf pays for all its items.
 pub const LEAF_MAX: usize = 8;
 
-/// Cost of visiting an interior node (the two-lane test of both children's boxes) in the
+/// Cost of visiting a binary interior node (a two-way split) in the
 /// SAH, the unit in which item costs ([`Item::cost`]) are given.
 pub const NODE_COST: f64 = 1.0;
 
@@ -87,18 +96,31 @@ struct Child {
     count: u32,
 }
 
-/// An interior node: the boxes of its two children, side by side so that one cache line
-/// (64 bytes) answers for both, and both are tested in one pass of two-lane arithmetic.
+impl Child {
+    /// The child of a lane that has none (its box is empty, so traversal never reaches it).
+    const NONE: Child = Child {
+        index: u32::MAX,
+        count: 0,
+    };
+
+    fn is_none(self) -> bool {
+        self == Child::NONE
+    }
+}
+
+/// An interior node: the boxes of its children (two to four), side by side so that one
+/// four-lane pass of the slab test answers for all of them.
 ///
 /// `b[0]` holds the minima and `b[1]` the maxima, each as `[axis][child]`. The corners are
 /// stored as `f32`, rounded *outwards* from the `f64` boxes (see [`round_out`]), so a stored
 /// box always contains the `f64` one and culling stays conservative; the slab test widens
-/// them back to `f64`, exactly, and does its arithmetic there.
+/// them back to `f64`, exactly, and does its arithmetic there. A lane without a child holds
+/// the empty box (`+∞` minima, `−∞` maxima), which no ray enters.
 #[derive(Debug, Clone, Copy)]
 #[repr(C, align(64))]
 struct Node {
-    b: [[[f32; 2]; 3]; 2],
-    child: [Child; 2],
+    b: [[[f32; WIDTH]; 3]; 2],
+    child: [Child; WIDTH],
 }
 
 /// A bounding volume hierarchy over caller items (indices with boxes).
@@ -110,6 +132,8 @@ pub struct Bvh {
     root: Child,
     /// Box of the whole tree (padded, `f64`), tested once per ray.
     root_bounds: Aabb,
+    /// Whether traversal runs the AVX2 build of the slab test: set where the CPU has AVX2.
+    avx2: bool,
 }
 
 impl Default for Bvh {
@@ -120,7 +144,20 @@ impl Default for Bvh {
             items: Vec::new(),
             root: Child::default(),
             root_bounds: Aabb::EMPTY,
+            avx2: has_avx2(),
         }
+    }
+}
+
+/// Whether this CPU runs AVX2 (always `false` off x86-64).
+fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
     }
 }
 
@@ -164,7 +201,7 @@ pub fn round_out(x: f64, up: bool) -> f32 {
     }
 }
 
-/// A ray prepared for the two-lane slab test: origin, `1/d`, and per axis which of a box's
+/// A ray prepared for the four-lane slab test: origin, `1/d`, and per axis which of a box's
 /// two planes it meets first (`0`: the minimum, for `1/d ≥ +0`; `1`: the maximum).
 ///
 /// [`crate::math::Ray::inv_dir`] has turned `−0` components into `+0`, so a zero direction
@@ -192,8 +229,11 @@ impl SlabRay {
 }
 
 impl Node {
-    fn new(bounds: [Aabb; 2], child: [Child; 2]) -> Node {
-        let mut b = [[[0.0f32; 2]; 3]; 2];
+    /// The node over `children` (two to four) with their boxes; lanes past them hold the
+    /// empty box.
+    fn new(bounds: &[Aabb], child: &[Child]) -> Node {
+        debug_assert!(bounds.len() == child.len() && child.len() <= WIDTH);
+        let mut b = [[[f32::INFINITY; WIDTH]; 3], [[f32::NEG_INFINITY; WIDTH]; 3]];
         for (c, bb) in bounds.iter().enumerate() {
             for (a, (lo, hi)) in bb
                 .min
@@ -206,11 +246,13 @@ impl Node {
                 b[1][a][c] = round_out(hi, true);
             }
         }
-        Node { b, child }
+        let mut children = [Child::NONE; WIDTH];
+        children[..child.len()].copy_from_slice(child);
+        Node { b, child: children }
     }
 
-    /// The slab test of both children's boxes against `[0, limit]`: for each, whether the
-    /// ray enters it there, and its entry distance.
+    /// The slab test of every lane's box against `[0, limit]`: for each, whether the ray
+    /// enters it there, and its entry distance.
     ///
     /// Per lane this is [`Aabb::hit_interval`] with the near plane chosen by the ray's sign
     /// (see [`SlabRay`]): the same products, so the same treatment of the special values.
@@ -219,25 +261,26 @@ impl Node {
     /// a zero component gives `0·∞ = NaN`, which fails both comparisons and leaves the
     /// interval alone (the ray lies in the closed slab for every `t`); an empty box (a
     /// minimum above its maximum) gives `near > far` along that axis and so no hit.
+    ///
+    /// The lanes are independent and every step is one IEEE operation (a widening, a
+    /// subtraction, products, and selects that keep the old value unless the comparison
+    /// holds, which is exactly `maxpd`/`minpd` with the new value first), so the compiler's
+    /// four-wide AVX2 version gives the same bits as this code run lane by lane.
     #[inline(always)]
-    fn hit(&self, r: &SlabRay, limit: f64) -> ([bool; 2], [f64; 2]) {
-        let mut t0 = [0.0f64; 2];
-        let mut t1 = [limit; 2];
+    fn hit(&self, r: &SlabRay, limit: f64) -> ([bool; WIDTH], [f64; WIDTH]) {
+        let mut t0 = [0.0f64; WIDTH];
+        let mut t1 = [limit; WIDTH];
         for a in 0..3 {
             let near = &self.b[r.near[a]][a];
             let far = &self.b[1 - r.near[a]][a];
-            for c in 0..2 {
+            for c in 0..WIDTH {
                 let tn = (f64::from(near[c]) - r.origin[a]) * r.inv[a];
                 let tf = (f64::from(far[c]) - r.origin[a]) * r.inv[a] * FAR_WIDEN;
-                if tn > t0[c] {
-                    t0[c] = tn;
-                }
-                if tf < t1[c] {
-                    t1[c] = tf;
-                }
+                t0[c] = if tn > t0[c] { tn } else { t0[c] };
+                t1[c] = if tf < t1[c] { tf } else { t1[c] };
             }
         }
-        ([t0[0] <= t1[0], t0[1] <= t1[1]], t0)
+        (std::array::from_fn(|c| t0[c] <= t1[c]), t0)
     }
 }
 
@@ -306,6 +349,14 @@ impl Bvh {
         self.items.len()
     }
 
+    /// The same tree traversed by the AVX2 build of the slab test or by the plain one
+    /// (`avx2` is ignored where the CPU has no AVX2).
+    #[cfg(test)]
+    fn with_avx2(mut self, avx2: bool) -> Bvh {
+        self.avx2 = avx2 && has_avx2();
+        self
+    }
+
     /// Depth of the deepest leaf (a root leaf is depth 0).
     #[cfg(test)]
     pub fn depth(&self) -> usize {
@@ -314,7 +365,8 @@ impl Bvh {
                 0
             } else {
                 let n = &nodes[c.index as usize];
-                1 + go(nodes, n.child[0]).max(go(nodes, n.child[1]))
+                let below = n.child.iter().filter(|c| !c.is_none());
+                1 + below.map(|&c| go(nodes, c)).max().unwrap_or(0)
             }
         }
         if self.items.is_empty() {
@@ -325,34 +377,57 @@ impl Bvh {
     }
 
     /// The subtree for `items` (whose union box is `bounds`): a leaf, or an interior node
-    /// appended before its children.
+    /// appended before its children. The node's children are the two binary SAH splits
+    /// below it: each half of the first split is split again where the SAH says it pays,
+    /// so the leaves are exactly those of the binary tree, in the same order.
     fn build_node(&mut self, items: &mut [BuildItem], bounds: &Aabb, depth: usize) -> Child {
-        let split = if items.len() <= 1 || depth >= MAX_DEPTH {
-            None
-        } else {
-            sah_split(items, bounds)
+        let Some(mid) = split(items, bounds, depth) else {
+            return self.leaf(items);
         };
-        let Some(mid) = split else {
-            // `as u32`: item counts fit, the scene refuses more than u32::MAX objects and
-            // splits each into a bounded number of pieces (see `world::Accel`).
-            let leaf = Child {
-                index: self.items.len() as u32,
-                count: items.len() as u32,
-            };
-            self.items.extend(items.iter().map(|it| it.id));
-            return leaf;
-        };
-        let here = self.nodes.len();
+        // Up to four groups, each with its box and whether it is split further.
+        let mut groups: ArrayVec<(&mut [BuildItem], Aabb, bool), WIDTH> = ArrayVec::new();
         let (left, right) = items.split_at_mut(mid);
-        let boxes = [bounds_of(left), bounds_of(right)];
-        self.nodes.push(Node::new(boxes, [Child::default(); 2]));
-        let a = self.build_node(left, &boxes[0], depth + 1);
-        let b = self.build_node(right, &boxes[1], depth + 1);
-        self.nodes[here].child = [a, b];
+        for half in [left, right] {
+            let half_bounds = bounds_of(half);
+            match split(half, &half_bounds, depth + 1) {
+                Some(m) => {
+                    let (a, b) = half.split_at_mut(m);
+                    let (ba, bb) = (bounds_of(a), bounds_of(b));
+                    groups.push((a, ba, true));
+                    groups.push((b, bb, true));
+                }
+                None => groups.push((half, half_bounds, false)),
+            }
+        }
+        let here = self.nodes.len();
+        let boxes: ArrayVec<Aabb, WIDTH> = groups.iter().map(|g| g.1).collect();
+        self.nodes
+            .push(Node::new(&boxes, &[Child::NONE; WIDTH][..boxes.len()]));
+        let mut children: ArrayVec<Child, WIDTH> = ArrayVec::new();
+        for (group, group_bounds, deeper) in groups {
+            children.push(if deeper {
+                self.build_node(group, &group_bounds, depth + 2)
+            } else {
+                self.leaf(group)
+            });
+        }
+        self.nodes[here].child[..children.len()].copy_from_slice(&children);
         Child {
             index: here as u32,
             count: 0,
         }
+    }
+
+    /// A leaf of `items`, appended to [`Self::items`].
+    fn leaf(&mut self, items: &[BuildItem]) -> Child {
+        // `as u32`: item counts fit, the scene refuses more than u32::MAX objects and
+        // splits each into a bounded number of pieces (see `world::Accel`).
+        let leaf = Child {
+            index: self.items.len() as u32,
+            count: items.len() as u32,
+        };
+        self.items.extend(items.iter().map(|it| it.id));
+        leaf
     }
 
     /// Calls `test` with the slot (index into [`Self::items`]) of every item whose box the
@@ -366,6 +441,37 @@ impl Bvh {
     /// rule.
     #[inline]
     pub fn traverse(
+        &self,
+        origin: DVec3,
+        inv_dir: DVec3,
+        limit: f64,
+        test: impl FnMut(usize) -> ControlFlow<(), f64>,
+    ) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is only ever true where the CPU reported AVX2 (`has_avx2`).
+            return unsafe { self.traverse_avx2(origin, inv_dir, limit, test) };
+        }
+        self.traverse_in(origin, inv_dir, limit, test)
+    }
+
+    /// [`Self::traverse`] compiled for AVX2, with the slab test and the caller's `test`
+    /// inlined into it. The same operations as [`Self::traverse_in`], so the same answers.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn traverse_avx2(
+        &self,
+        origin: DVec3,
+        inv_dir: DVec3,
+        limit: f64,
+        test: impl FnMut(usize) -> ControlFlow<(), f64>,
+    ) -> bool {
+        self.traverse_in(origin, inv_dir, limit, test)
+    }
+
+    /// The traversal itself, for [`Self::traverse`].
+    #[inline(always)]
+    fn traverse_in(
         &self,
         origin: DVec3,
         inv_dir: DVec3,
@@ -404,27 +510,22 @@ impl Bvh {
                 }
             } else {
                 let node = &self.nodes[at.index as usize];
-                match node.hit(&ray, loose(limit)) {
-                    ([true, true], [ta, tb]) => {
-                        // Nearer entry first; on a tie, the first child.
-                        let (near, far, t_far) = if ta <= tb {
-                            (node.child[0], node.child[1], tb)
-                        } else {
-                            (node.child[1], node.child[0], ta)
-                        };
-                        stack.push((far, t_far));
-                        at = near;
-                        continue 'visit;
+                let (hit, t) = node.hit(&ray, loose(limit));
+                // The entered children by entry distance; on a tie, in lane order.
+                let mut entered: ArrayVec<(f64, Child), WIDTH> = ArrayVec::new();
+                for c in 0..WIDTH {
+                    if hit[c] {
+                        let at = entered.iter().position(|e| t[c] < e.0);
+                        entered.insert(at.unwrap_or(entered.len()), (t[c], node.child[c]));
                     }
-                    ([true, false], _) => {
-                        at = node.child[0];
-                        continue 'visit;
+                }
+                if let Some(&(_, nearest)) = entered.first() {
+                    // The others wait, the farthest deepest in the stack.
+                    for &(t_enter, c) in entered[1..].iter().rev() {
+                        stack.push((c, t_enter));
                     }
-                    ([false, true], _) => {
-                        at = node.child[1];
-                        continue 'visit;
-                    }
-                    ([false, false], _) => {}
+                    at = nearest;
+                    continue 'visit;
                 }
             }
             // Next pending subtree that may still start before the limit.
@@ -456,8 +557,8 @@ impl Bvh {
         if self.items.is_empty() || !touches(&self.root_bounds) {
             return false;
         }
-        // One pending sibling per interior level of the current path, as in `traverse`, so
-        // the depth cap bounds it.
+        // At most `WIDTH − 1` pending siblings per interior level of the current path, as
+        // in `traverse`, so the depth cap bounds it.
         let mut stack: ArrayVec<Child, STACK> = ArrayVec::new();
         let mut at = Some(self.root);
         loop {
@@ -475,16 +576,14 @@ impl Bvh {
                 continue;
             }
             let node = &self.nodes[here.index as usize];
-            let [a, b] = [0, 1].map(|c| touches(&node.child_bounds(c)));
-            match (a, b) {
-                (true, true) => {
-                    stack.push(node.child[1]);
-                    at = Some(node.child[0]);
-                }
-                (true, false) => at = Some(node.child[0]),
-                (false, true) => at = Some(node.child[1]),
-                (false, false) => {}
-            }
+            // Children in lane order: the first one that touches is visited next, the
+            // others wait on the stack in order.
+            let touching: ArrayVec<Child, WIDTH> = (0..WIDTH)
+                .filter(|&c| !node.child[c].is_none() && touches(&node.child_bounds(c)))
+                .map(|c| node.child[c])
+                .collect();
+            stack.extend(touching.iter().skip(1).rev().copied());
+            at = touching.first().copied();
         }
     }
 }
@@ -500,6 +599,16 @@ impl Node {
             )
         };
         Aabb::new(axis(0), axis(1))
+    }
+}
+
+/// Where to split `items` (whose union box is `bounds`) at binary depth `depth`, if at all:
+/// never a single item, nor below [`MAX_DEPTH`]; otherwise as the SAH says ([`sah_split`]).
+fn split(items: &mut [BuildItem], bounds: &Aabb, depth: usize) -> Option<usize> {
+    if items.len() <= 1 || depth >= MAX_DEPTH {
+        None
+    } else {
+        sah_split(items, bounds)
     }
 }
 

@@ -225,9 +225,12 @@ fn lane_test_accepts_what_the_exact_box_test_accepts() {
         } else {
             rng.range(0.0, 6.0)
         };
-        let node = Node::new([b, Aabb::EMPTY], [Child::default(); 2]);
+        let node = Node::new(&[b, Aabb::EMPTY], &[Child::default(); 2]);
         let (hit, t) = node.hit(&SlabRay::new(o, inv), limit);
-        assert!(!hit[1], "the empty lane was hit by {o:?} {d:?}");
+        assert!(
+            !hit[1] && !hit[2] && !hit[3],
+            "an empty lane was hit by {o:?} {d:?}"
+        );
         if let Some((t0, _)) = b.hit_interval(o, inv, limit) {
             assert!(hit[0], "box {b:?}, ray {o:?} {d:?}, limit {limit}");
             assert!(t[0] <= t0, "entry {} after the exact {t0}", t[0]);
@@ -241,10 +244,10 @@ fn lane_test_accepts_what_the_exact_box_test_accepts() {
         for x in [-5.0, 0.0, 1.0] {
             let o = DVec3::new(x, y, 0.0);
             let inv = Ray::new(o, DVec3::X).inv_dir();
-            let node = Node::new([b, b], [Child::default(); 2]);
+            let node = Node::new(&[b, b, b, b], &[Child::default(); 4]);
             assert_eq!(
                 node.hit(&SlabRay::new(o, inv), f64::INFINITY).0,
-                [true, true],
+                [true; 4],
                 "{b:?} from {o:?}"
             );
         }
@@ -290,4 +293,106 @@ fn weighted_items_and_shared_ids_are_all_offered() {
         }
         assert!(offered.iter().all(|&n| n <= 2));
     }
+}
+
+/// [`Node::hit`] compiled for AVX2, as [`Bvh::traverse`] runs it on a CPU that has it.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn hit_avx2(node: &Node, r: &SlabRay, limit: f64) -> ([bool; WIDTH], [f64; WIDTH]) {
+    node.hit(r, limit)
+}
+
+/// The AVX2 build of the four-lane slab test gives the plain build's bits, lane for lane,
+/// on the inputs where an IEEE select could differ from a compare-and-keep: zero
+/// direction components of either sign (infinite `1/d`), origins on the boxes' planes
+/// (`0·∞ = NaN`), flat and empty boxes, empty lanes, limits of zero and infinity.
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn avx2_slab_test_gives_the_plain_bits() {
+    if !has_avx2() {
+        eprintln!("no AVX2 on this CPU: only the plain slab test runs here");
+        return;
+    }
+    let mut rng = Rng::new(41);
+    let mut hits = 0;
+    for _ in 0..20000 {
+        let lanes = 1 + rng.range(0.0, 4.0) as usize;
+        let boxes: Vec<Aabb> = (0..lanes)
+            .map(|_| {
+                let c = rng.in_ball(3.0);
+                let mut h = DVec3::new(
+                    rng.range(0.0, 1.0),
+                    rng.range(0.0, 1.0),
+                    rng.range(0.0, 1.0),
+                );
+                if rng.range(0.0, 3.0) < 1.0 {
+                    h.y = 0.0;
+                }
+                Aabb::new(c - h, c + h)
+            })
+            .collect();
+        let node = Node::new(&boxes, &vec![Child::default(); lanes]);
+        let b = boxes[0];
+        let pick = |rng: &mut Rng, i: usize| match rng.range(0.0, 3.0) as u32 {
+            0 => b.min[i],
+            1 => b.max[i],
+            _ => rng.range(-5.0, 5.0),
+        };
+        let o = DVec3::new(pick(&mut rng, 0), pick(&mut rng, 1), pick(&mut rng, 2));
+        let mut d = rng.in_ball(1.0);
+        for i in 0..3 {
+            if rng.range(0.0, 3.0) < 1.0 {
+                d[i] = if rng.range(0.0, 1.0) < 0.5 { 0.0 } else { -0.0 };
+            }
+        }
+        let limit = match rng.range(0.0, 4.0) as u32 {
+            0 => f64::INFINITY,
+            1 => 0.0,
+            _ => rng.range(0.0, 8.0),
+        };
+        let r = SlabRay::new(o, Ray::new(o, d).inv_dir());
+        let (plain_hit, plain_t) = node.hit(&r, limit);
+        // SAFETY: this CPU has AVX2 (checked above).
+        let (wide_hit, wide_t) = unsafe { hit_avx2(&node, &r, limit) };
+        assert_eq!(plain_hit, wide_hit, "{boxes:?} {o:?} {d:?} {limit}");
+        assert_eq!(
+            plain_t.map(f64::to_bits),
+            wide_t.map(f64::to_bits),
+            "{boxes:?} {o:?} {d:?} {limit}"
+        );
+        hits += plain_hit.iter().filter(|&&h| h).count();
+    }
+    assert!(hits > 5000, "{hits}");
+}
+
+/// Traversal with the AVX2 slab test offers the same items in the same order as with the
+/// plain one, and so every caller gets the same answers from either.
+#[test]
+fn both_slab_tests_offer_the_same_items_in_the_same_order() {
+    let mut rng = Rng::new(43);
+    let boxes = random_boxes(&mut rng, 500);
+    let (plain, _) = Bvh::build(&boxes);
+    let plain = plain.with_avx2(false);
+    let wide = plain.clone().with_avx2(true);
+    let mut offered = 0;
+    for _ in 0..500 {
+        let o = rng.in_ball(15.0);
+        let d = rng.in_ball(10.0) - o;
+        let inv = Ray::new(o, d).inv_dir();
+        // A limit that shrinks as items are offered, as a nearest-hit search's does.
+        let walk = |bvh: &Bvh| {
+            let mut seen = Vec::new();
+            let mut limit = 40.0;
+            bvh.traverse(o, inv, limit, |slot| {
+                seen.push(slot);
+                limit *= 0.9;
+                ControlFlow::Continue(limit)
+            });
+            seen
+        };
+        let seen = walk(&plain);
+        assert_eq!(seen, walk(&wide), "ray {o:?} {d:?}");
+        offered += seen.len();
+    }
+    assert!(offered > 1000, "{offered}");
 }
