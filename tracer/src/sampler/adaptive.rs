@@ -425,6 +425,12 @@ fn exact_cells(max: u32) -> u32 {
     (max * max).max(16)
 }
 
+/// `v` as `n` copies of `value`, in the allocation it has.
+fn refill<T: Clone>(v: &mut Vec<T>, n: usize, value: T) {
+    v.clear();
+    v.resize(n, value);
+}
+
 /// The adaptive sampler over `rect`.
 ///
 /// With a smoothness test, every pixel of the rect first traces its first ray alone (its
@@ -453,6 +459,85 @@ pub(super) fn adaptive<F, G>(
     F: Fn(f64, f64) -> Sample,
     G: PixelGeometry,
 {
+    SCRATCH.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut scratch) => {
+            adaptive_in(rect, max, threshold, trace, geometry, out, &mut scratch);
+            if scratch.bytes() > SCRATCH_KEPT {
+                *scratch = Scratch::default();
+            }
+        }
+        // A rect traced from inside another's rays: no such caller exists, but it would get
+        // memory of its own rather than a panic.
+        Err(_) => adaptive_in(
+            rect,
+            max,
+            threshold,
+            trace,
+            geometry,
+            out,
+            &mut Scratch::default(),
+        ),
+    });
+}
+
+/// The adaptive sampler's working arrays for one rect (indexed by the pixels of the rect
+/// grown by two on every side), kept by each thread and reused from rect to rect: a tile's
+/// arrays are some hundred kilobytes, and allocated afresh for every tile, the allocator
+/// hands their pages back to the system in between and every tile faults them in again,
+/// which costs more than the rays on a scene of small objects. Only the allocations are
+/// reused; every array is refilled for each rect, so no value carries over.
+#[derive(Default)]
+struct Scratch {
+    ends: Vec<Option<Color>>,
+    probes: Vec<Option<((f64, f64), Sample)>>,
+    sums: Vec<Option<CellSums>>,
+    decided: Vec<bool>,
+    slot: Vec<u32>,
+    passes: Vec<FirstPass>,
+}
+
+impl Scratch {
+    /// The memory the arrays hold.
+    fn bytes(&self) -> usize {
+        use std::mem::size_of;
+        self.ends.capacity() * size_of::<Option<Color>>()
+            + self.probes.capacity() * size_of::<Option<((f64, f64), Sample)>>()
+            + self.sums.capacity() * size_of::<Option<CellSums>>()
+            + self.decided.capacity()
+            + self.slot.capacity() * size_of::<u32>()
+            + self.passes.capacity() * size_of::<FirstPass>()
+    }
+}
+
+/// What a thread keeps between rects at most: the arrays of a 128-pixel tile and more; a
+/// larger rect's are freed after it, so one big rect leaves no lasting memory behind.
+const SCRATCH_KEPT: usize = 16 << 20;
+
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
+}
+
+/// [`adaptive`] with its working arrays in `scratch`.
+fn adaptive_in<F, G>(
+    rect: Rect,
+    max: u32,
+    threshold: f64,
+    trace: &F,
+    geometry: Option<&G>,
+    out: &mut [Color],
+    scratch: &mut Scratch,
+) where
+    F: Fn(f64, f64) -> Sample,
+    G: PixelGeometry,
+{
+    let Scratch {
+        ends,
+        probes,
+        sums,
+        decided,
+        slot,
+        passes,
+    } = scratch;
     let order = max.is_multiple_of(2).then(|| QuadrantOrder::new(max / 2));
     let order = order.as_ref();
     // Pixels are indexed in the rect grown by two on every side; `(bx, by)` is the rect's
@@ -477,10 +562,10 @@ pub(super) fn adaptive<F, G>(
     // own is smooth, so a region nothing can end in (a mirror) traces no probes beyond the
     // first passes' first rays.
     // `Some(value)`: the pixel ends with that value (its probe's, or the geometry's).
-    let mut ends: Vec<Option<Color>> = vec![None; pw * ph];
-    let mut probes: Vec<Option<((f64, f64), Sample)>> = vec![None; pw * ph];
+    refill(ends, pw * ph, None);
+    refill(probes, pw * ph, None);
     // What a checkered plane's cells give each decided pixel (see `PixelGeometry::cells`).
-    let mut sums: Vec<Option<CellSums>> = vec![None; pw * ph];
+    refill(sums, pw * ph, None);
     if let Some(geometry) = geometry {
         let probe = |probes: &mut Vec<Option<((f64, f64), Sample)>>, bx: usize, by: usize| {
             let i = at(bx, by);
@@ -523,10 +608,10 @@ pub(super) fn adaptive<F, G>(
             sums[at(bx, by)] = cells;
             cells.and_then(|c| c.exact)
         };
-        let mut decided = vec![false; pw * ph];
+        refill(decided, pw * ph, false);
         for by in 2..h + 2 {
             for bx in 2..w + 2 {
-                ends[at(bx, by)] = decide(&mut probes, &mut sums, bx, by);
+                ends[at(bx, by)] = decide(probes, sums, bx, by);
                 decided[at(bx, by)] = true;
             }
         }
@@ -537,7 +622,7 @@ pub(super) fn adaptive<F, G>(
                 }
                 for (nx, ny) in neighbours(bx, by) {
                     if !decided[at(nx, ny)] {
-                        ends[at(nx, ny)] = decide(&mut probes, &mut sums, nx, ny);
+                        ends[at(nx, ny)] = decide(probes, sums, nx, ny);
                         decided[at(nx, ny)] = true;
                     }
                 }
@@ -561,8 +646,8 @@ pub(super) fn adaptive<F, G>(
     // First passes where the rect's decisions need them: its pixels that go on, and their
     // neighbours that go on (`slot` indexes `passes`, NONE where a pixel has none).
     const NONE: u32 = u32::MAX;
-    let mut slot = vec![NONE; pw * ph];
-    let mut passes: Vec<FirstPass> = Vec::new();
+    refill(slot, pw * ph, NONE);
+    passes.clear();
     for by in 2..h + 2 {
         for bx in 2..w + 2 {
             if ends[at(bx, by)].is_some() {
