@@ -101,15 +101,16 @@ impl Counters {
 }
 
 /// A hit point ready to spawn secondary rays: its world position, what bounds its error,
-/// and the normal facing the ray that arrived. The bound an origin must clear is worked out
-/// only when a secondary ray is spawned ([`SurfacePoint::err`]): most hits on a scene
-/// without mirrors, or lit by lights known clear, spawn none.
+/// and the normal facing the ray that arrived. The bound an origin must clear, the world
+/// point's own error among it, is worked out only when a secondary ray is spawned
+/// ([`SurfacePoint::err`]): most hits on a scene without mirrors, or lit by lights known
+/// clear, spawn none.
 #[derive(Debug, Clone, Copy)]
 pub struct SurfacePoint<'a> {
     /// The hit point in world space.
     pub p: DVec3,
-    /// The hit point's own error bound, per axis.
-    p_err: DVec3,
+    /// The hit point in the object's space, and its error bound there.
+    local: (DVec3, DVec3),
     /// The object's placement, which carries the next intersection test's origin back.
     transform: &'a Transform,
     /// Unit normal facing the incoming ray.
@@ -121,13 +122,13 @@ pub struct SurfacePoint<'a> {
 impl<'a> SurfacePoint<'a> {
     /// The world-space surface point of `hit` on `obj`, for a ray arriving along `incoming`.
     pub fn new(obj: &'a Object, hit: &LocalHit, incoming: DVec3) -> SurfacePoint<'a> {
-        let (p, p_err) = obj.transform.point_to_world(hit.p, hit.p_err);
+        let p = obj.transform.to_world().transform_point3(hit.p);
         let outward = obj.transform.normal_to_world(hit.n).normalize();
         let outside = outward.dot(incoming) <= 0.0;
         let n = if outside { outward } else { -outward };
         SurfacePoint {
             p,
-            p_err,
+            local: (hit.p, hit.p_err),
             transform: &obj.transform,
             n,
             outside,
@@ -140,7 +141,9 @@ impl<'a> SurfacePoint<'a> {
     /// own rounding when it classifies the new origin as off the surface (a few ulps of the
     /// unit shape).
     pub fn err(&self) -> DVec3 {
-        2.0 * (self.p_err + self.transform.round_trip_error(self.p))
+        let (local, local_err) = self.local;
+        let p_err = self.transform.error_to_world(local, local_err);
+        2.0 * (p_err + self.transform.round_trip_error(self.p))
     }
 
     /// Origin for a secondary ray leaving towards `dir`: off the surface, on `dir`'s side.

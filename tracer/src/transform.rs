@@ -161,12 +161,20 @@ impl Transform {
     /// product itself plus `(1 + γ(3))·|M|·p_err` for the carried error).
     #[inline]
     pub fn point_to_world(&self, p: DVec3, p_err: DVec3) -> (DVec3, DVec3) {
+        (
+            self.to_world.transform_point3(p),
+            self.error_to_world(p, p_err),
+        )
+    }
+
+    /// The error bound half of [`Self::point_to_world`], on its own: for callers that need
+    /// the point at once and its bound only sometimes.
+    #[inline]
+    pub fn error_to_world(&self, p: DVec3, p_err: DVec3) -> DVec3 {
         let m = &self.to_world.matrix3;
         let abs_m = DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
-        let world = self.to_world.transform_point3(p);
-        let err = gamma(3) * (abs_m * p.abs() + self.to_world.translation.abs())
-            + (1.0 + gamma(3)) * (abs_m * p_err);
-        (world, err)
+        gamma(3) * (abs_m * p.abs() + self.to_world.translation.abs())
+            + (1.0 + gamma(3)) * (abs_m * p_err)
     }
 
     /// A world-space bound on the error made when a world point `p` is carried back into
