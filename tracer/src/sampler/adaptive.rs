@@ -459,24 +459,19 @@ pub(super) fn adaptive<F, G>(
     F: Fn(f64, f64) -> Sample,
     G: PixelGeometry,
 {
-    SCRATCH.with(|cell| match cell.try_borrow_mut() {
-        Ok(mut scratch) => {
-            adaptive_in(rect, max, threshold, trace, geometry, out, &mut scratch);
-            if scratch.bytes() > SCRATCH_KEPT {
-                *scratch = Scratch::default();
-            }
+    SCRATCH.with(|cell| {
+        // A rect traced from inside another's rays (no caller does that) would find the
+        // thread's arrays in use, and gets arrays of its own rather than a panic.
+        let mut own = Scratch::default();
+        let mut kept = cell.try_borrow_mut();
+        let scratch = match kept {
+            Ok(ref mut s) => &mut **s,
+            Err(_) => &mut own,
+        };
+        adaptive_in(rect, max, threshold, trace, geometry, out, scratch);
+        if scratch.bytes() > SCRATCH_KEPT {
+            *scratch = Scratch::default();
         }
-        // A rect traced from inside another's rays: no such caller exists, but it would get
-        // memory of its own rather than a panic.
-        Err(_) => adaptive_in(
-            rect,
-            max,
-            threshold,
-            trace,
-            geometry,
-            out,
-            &mut Scratch::default(),
-        ),
     });
 }
 
