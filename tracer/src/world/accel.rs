@@ -176,8 +176,9 @@ impl PointTables {
     }
 }
 
-/// What testing a prim costs in the BVH's SAH, in units of one node visit (the two-lane
-/// test of two boxes, about 50 instructions). A sphere placed by a similarity is mostly
+/// What testing a prim costs in the BVH's SAH, in units of one binary split's node visit
+/// (a two-box slab test, about 50 instructions; the tree's four-wide nodes test two such
+/// splits at once). A sphere placed by a similarity is mostly
 /// rejected by its packed pre-test before its object is touched, and is costed as one
 /// visit (with the miss bookkeeping); any other object carries the ray into its own space
 /// and solves its shape; a CSG tree does that for each child it reaches. Only the ratios

@@ -128,8 +128,8 @@ impl Scene {
     }
 
     /// The unbounded prims, then the BVH's candidates until one blocks. Not inlined into
-    /// the shading code, like [`Self::intersect_bvh`]: compiled on its own, the two-lane box
-    /// test is vectorised the same way in both searches (inlined into the shader it is
+    /// the shading code, like [`Self::intersect_bvh`]: compiled on its own, the four-lane
+    /// box test is vectorised the same way in both searches (inlined into the shader it is
     /// not, and costs half as much again).
     #[inline(never)]
     pub(super) fn occluded_bvh(
