@@ -16,6 +16,25 @@ fn random_boxes(rng: &mut Rng, n: usize) -> Vec<(u32, Aabb)> {
         .collect()
 }
 
+/// A ray where slab tests go wrong: each origin coordinate on one of `b`'s planes or
+/// anywhere within `reach`, and each direction component, a third of the time, a zero of
+/// either sign.
+fn awkward_ray(rng: &mut Rng, b: &Aabb, reach: f64) -> (DVec3, DVec3) {
+    let mut pick = |i: usize| match rng.range(0.0, 3.0) as u32 {
+        0 => b.min[i],
+        1 => b.max[i],
+        _ => rng.range(-reach, reach),
+    };
+    let o = DVec3::new(pick(0), pick(1), pick(2));
+    let mut d = rng.in_ball(1.0);
+    for i in 0..3 {
+        if rng.range(0.0, 3.0) < 1.0 {
+            d[i] = if rng.range(0.0, 1.0) < 0.5 { 0.0 } else { -0.0 };
+        }
+    }
+    (o, d)
+}
+
 /// Every item whose box the ray enters before the limit is offered, whatever the tree.
 #[test]
 fn offers_every_box_the_ray_enters() {
@@ -206,19 +225,7 @@ fn lane_test_accepts_what_the_exact_box_test_accepts() {
                 Aabb::new(c - h, c + h)
             }
         };
-        // Origins on the box's planes and corners, or anywhere.
-        let pick = |rng: &mut Rng, i: usize| match rng.range(0.0, 3.0) as u32 {
-            0 => b.min[i],
-            1 => b.max[i],
-            _ => rng.range(-4.0, 4.0),
-        };
-        let o = DVec3::new(pick(&mut rng, 0), pick(&mut rng, 1), pick(&mut rng, 2));
-        let mut d = rng.in_ball(1.0);
-        for i in 0..3 {
-            if rng.range(0.0, 3.0) < 1.0 {
-                d[i] = if rng.range(0.0, 1.0) < 0.5 { 0.0 } else { -0.0 };
-            }
-        }
+        let (o, d) = awkward_ray(&mut rng, &b, 4.0);
         let inv = Ray::new(o, d).inv_dir();
         let limit = if rng.range(0.0, 4.0) < 1.0 {
             f64::INFINITY
@@ -332,19 +339,7 @@ fn avx2_slab_test_gives_the_plain_bits() {
             })
             .collect();
         let node = Node::new(&boxes, &vec![Child::default(); lanes]);
-        let b = boxes[0];
-        let pick = |rng: &mut Rng, i: usize| match rng.range(0.0, 3.0) as u32 {
-            0 => b.min[i],
-            1 => b.max[i],
-            _ => rng.range(-5.0, 5.0),
-        };
-        let o = DVec3::new(pick(&mut rng, 0), pick(&mut rng, 1), pick(&mut rng, 2));
-        let mut d = rng.in_ball(1.0);
-        for i in 0..3 {
-            if rng.range(0.0, 3.0) < 1.0 {
-                d[i] = if rng.range(0.0, 1.0) < 0.5 { 0.0 } else { -0.0 };
-            }
-        }
+        let (o, d) = awkward_ray(&mut rng, &boxes[0], 5.0);
         let limit = match rng.range(0.0, 4.0) as u32 {
             0 => f64::INFINITY,
             1 => 0.0,
