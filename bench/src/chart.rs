@@ -42,7 +42,14 @@ pub struct Args {
     /// note, where it is missing).
     #[arg(long, default_value = "povray")]
     povray: String,
+    /// Valgrind, whose callgrind counts the instructions of the renders the summary compares
+    /// (skipped, with a note, where it is missing).
+    #[arg(long, default_value = "valgrind")]
+    valgrind: String,
 }
+
+/// How much smaller the quick run's images are, a side.
+const QUICK_SHRINK: u32 = 4;
 
 /// One sampler setting, and the family (line on the chart) it belongs to.
 #[derive(Debug, Clone)]
@@ -146,6 +153,64 @@ fn render_timed(scene: &Scene, sampler: &Sampler) -> (Vec<Color>, f64, u64, u64)
     (image, start.elapsed().as_secs_f64(), primary, total)
 }
 
+/// The instructions of one [`render_timed`] run, counted by callgrind: this program started
+/// again under `valgrind` as `__count SCENE QUICK LABEL`, which loads the scene as the chart
+/// does and renders it once with the setting named `label`, the count taken over
+/// [`render_counted`] alone (not the start, the parse or the build). Instructions do not
+/// vary from run to run as times do, so they check the timed speed-ups.
+fn count_instructions(valgrind: &str, scene: &Path, quick: bool, label: &str) -> Result<u64> {
+    let exe = std::env::current_exe().context("cannot find this program to run it again")?;
+    let out = std::process::Command::new(valgrind)
+        .args([
+            "--tool=callgrind",
+            "--callgrind-out-file=/dev/null",
+            "--collect-atstart=no",
+            "--toggle-collect=*render_counted*",
+        ])
+        .arg(exe)
+        .arg("__count")
+        .arg(scene)
+        .arg(if quick { "quick" } else { "full" })
+        .arg(label)
+        .output()
+        .with_context(|| format!("cannot run {valgrind}"))?;
+    let text = String::from_utf8_lossy(&out.stderr);
+    anyhow::ensure!(
+        out.status.success(),
+        "callgrind failed on {label}: {}",
+        text.lines().rev().take(5).collect::<Vec<_>>().join(" | ")
+    );
+    text.lines()
+        .find_map(|l| {
+            l.split_once("Collected :")
+                .map(|(_, n)| n.trim().parse().ok())
+        })
+        .flatten()
+        .with_context(|| format!("no instruction count from callgrind on {label}"))
+}
+
+/// The child of [`count_instructions`]: `SCENE QUICK LABEL`.
+pub fn count_child(args: &[std::ffi::OsString]) -> Result<()> {
+    let [scene, quick, label] = args else {
+        anyhow::bail!("usage: __count SCENE quick|full LABEL");
+    };
+    let quick = quick == "quick";
+    let label = label.to_string_lossy();
+    let config = configs(quick)
+        .into_iter()
+        .find(|c| c.label == label)
+        .with_context(|| format!("no setting {label}"))?;
+    let scene = load(Path::new(scene), if quick { QUICK_SHRINK } else { 1 })?;
+    std::hint::black_box(render_counted(&scene, &config.sampler));
+    Ok(())
+}
+
+/// One [`render_timed`] run, kept a function of its own so that callgrind can count it.
+#[inline(never)]
+fn render_counted(scene: &Scene, sampler: &Sampler) -> usize {
+    render_timed(scene, sampler).0.len()
+}
+
 /// The reference image at `n × n` samples per pixel, on all cores.
 fn reference(scene: &Scene, n: u32) -> Vec<Color> {
     (0..scene.height)
@@ -166,7 +231,11 @@ fn mark_pareto(points: &mut [Point]) {
 
 pub fn run(args: &Args) -> Result<()> {
     let quick = args.quick;
-    let (shrink, n_ref, repeats) = if quick { (4, 16, 1) } else { (1, 48, 5) };
+    let (shrink, n_ref, repeats) = if quick {
+        (QUICK_SHRINK, 16, 1)
+    } else {
+        (1, 48, 5)
+    };
     let repeats = args.repeats.unwrap_or(repeats).max(1);
     let files = scene_files(&args.scenes)?;
     std::fs::create_dir_all(&args.out)
@@ -187,6 +256,19 @@ pub fn run(args: &Args) -> Result<()> {
         println!(
             "povray not found ({}): its anti-aliasing is not compared",
             args.povray
+        );
+        None
+    };
+    let valgrind = if std::process::Command::new(&args.valgrind)
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success())
+    {
+        Some(args.valgrind.as_str())
+    } else {
+        println!(
+            "valgrind not found ({}): the summary's instructions are not counted",
+            args.valgrind
         );
         None
     };
@@ -237,7 +319,15 @@ pub fn run(args: &Args) -> Result<()> {
             });
         }
         mark_pareto(&mut points);
-        for line in adaptive_vs_jitter(&points) {
+        for versus in adaptive_vs_jitter(&points) {
+            let instructions = match (&valgrind, versus.adaptive) {
+                (Some(v), Some(a)) => Some((
+                    count_instructions(v, path, quick, &versus.jitter.label)?,
+                    count_instructions(v, path, quick, &a.label)?,
+                )),
+                _ => None,
+            };
+            let line = versus.line(instructions);
             println!("  {line}");
             let _ = writeln!(summary, "{name}: {line}");
         }
@@ -420,33 +510,59 @@ fn povray_vs_adaptive(points: &[Point], pov: &[Point]) -> Vec<String> {
     lines
 }
 
-/// For jitter 4×4, 6×6 and 8×8 (those the run measured): how much faster the cheapest
-/// adaptive setting reaches its error, one line each.
-fn adaptive_vs_jitter(points: &[Point]) -> Vec<String> {
+/// Jitter N×N against the cheapest adaptive setting that reaches its error, if any does.
+struct Versus<'a> {
+    jitter: &'a Point,
+    adaptive: Option<&'a Point>,
+}
+
+impl Versus<'_> {
+    /// The summary line: both errors and times, the speed-up, and, where counted, both
+    /// renders' instructions (jitter's, adaptive's).
+    fn line(&self, instructions: Option<(u64, u64)>) -> String {
+        let j = self.jitter;
+        let Some(a) = self.adaptive else {
+            return format!(
+                "{} RMSE {:.2e} in {:.1} ms; no adaptive setting reaches it",
+                j.label, j.rmse, j.time_ms
+            );
+        };
+        let mut line = format!(
+            "{} RMSE {:.2e} in {:.1} ms; {} reaches {:.2e} in {:.1} ms: {:.2}× faster",
+            j.label,
+            j.rmse,
+            j.time_ms,
+            a.label,
+            a.rmse,
+            a.time_ms,
+            j.time_ms / a.time_ms
+        );
+        if let Some((ji, ai)) = instructions {
+            let _ = write!(
+                line,
+                "; instructions {:.1} M → {:.1} M ({:.2}×)",
+                ji as f64 / 1e6,
+                ai as f64 / 1e6,
+                ji as f64 / (ai as f64).max(1.0)
+            );
+        }
+        line
+    }
+}
+
+/// For jitter 4×4, 6×6 and 8×8 (those the run measured): the cheapest adaptive setting
+/// that reaches its error.
+fn adaptive_vs_jitter(points: &[Point]) -> Vec<Versus<'_>> {
     [4, 6, 8]
         .iter()
         .filter_map(|n| {
             let label = format!("jitter {n}x{n}");
-            let j = points.iter().find(|p| p.label == label)?;
-            let best = points
+            let jitter = points.iter().find(|p| p.label == label)?;
+            let adaptive = points
                 .iter()
-                .filter(|p| p.family.starts_with("adaptive") && p.rmse <= j.rmse)
+                .filter(|p| p.family.starts_with("adaptive") && p.rmse <= jitter.rmse)
                 .min_by(|a, b| a.time_ms.total_cmp(&b.time_ms));
-            Some(match best {
-                Some(a) => format!(
-                    "{label} RMSE {:.2e} in {:.1} ms; {} reaches {:.2e} in {:.1} ms: {:.2}× faster",
-                    j.rmse,
-                    j.time_ms,
-                    a.label,
-                    a.rmse,
-                    a.time_ms,
-                    j.time_ms / a.time_ms
-                ),
-                None => format!(
-                    "{label} RMSE {:.2e} in {:.1} ms; no adaptive setting reaches it",
-                    j.rmse, j.time_ms
-                ),
-            })
+            Some(Versus { jitter, adaptive })
         })
         .collect()
 }

@@ -50,6 +50,56 @@ fn chart_quick_writes_a_csv_and_an_svg() {
     let svg = std::fs::read_to_string(out.join("chart.svg")).expect("chart.svg");
     assert!(svg.starts_with("<svg") && svg.contains("Pareto front"));
     assert!(stdout.contains("jitter 4x4 RMSE"), "{stdout}");
+    if valgrind_runs() {
+        summary_counts_each_renders_instructions(&stdout);
+    }
+}
+
+fn valgrind_runs() -> bool {
+    Command::new("valgrind")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success())
+}
+
+/// Each summary line that names an adaptive setting carries both renders' instruction
+/// counts, and they count the render: jitter 4×4 traces 16 primary rays a pixel, each at
+/// least its camera ray, a test against the scene and an encoding (well over 20
+/// instructions), and no ray of the quick scenes takes 100,000.
+fn summary_counts_each_renders_instructions(stdout: &str) {
+    let mut pixels = None;
+    let mut counted = 0;
+    for line in stdout.lines() {
+        // A scene's header: `name: W×H, reference …`.
+        if let Some((w, h)) = line
+            .split_once(": ")
+            .and_then(|(_, rest)| rest.split_once(','))
+            .and_then(|(size, _)| size.split_once('×'))
+            .and_then(|(w, h)| Some((w.parse::<f64>().ok()?, h.parse::<f64>().ok()?)))
+        {
+            pixels = Some(w * h);
+        }
+        if !line.contains(" reaches ") || line.contains("no adaptive") {
+            continue;
+        }
+        let (_, counts) = line
+            .split_once("instructions ")
+            .unwrap_or_else(|| panic!("no instructions in {line:?}"));
+        let millions: Vec<f64> = counts
+            .split(" M")
+            .take(2)
+            .map(|x| x.trim_start_matches(" → ").parse().expect("a count"))
+            .collect();
+        let rays = 16.0 * pixels.expect("a scene header before its summary");
+        let per_ray = millions[0] * 1e6 / rays;
+        assert!((20.0..1e5).contains(&per_ray), "{per_ray} a ray: {line}");
+        assert!(millions[1] > 0.0, "{line}");
+        counted += 1;
+    }
+    assert!(
+        counted > 0,
+        "no summary line names an adaptive setting:\n{stdout}"
+    );
 }
 
 #[test]
