@@ -64,7 +64,7 @@ fn configs(quick: bool) -> Vec<Config> {
     let thresholds: &[f64] = if quick {
         &[0.05]
     } else {
-        &[0.1, 0.07, 0.05, 0.03, 0.01]
+        &[0.3, 0.2, 0.1, 0.07, 0.05, 0.03, 0.01]
     };
     let mut out = vec![
         Config {

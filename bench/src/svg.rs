@@ -18,9 +18,9 @@ pub struct Panel {
     pub floor: f64,
 }
 
-const PALETTE: [&str; 10] = [
+const PALETTE: [&str; 14] = [
     "#7f7f7f", "#8c564b", "#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#17becf",
-    "#e377c2", "#bcbd22",
+    "#e377c2", "#bcbd22", "#000000", "#aec7e8", "#ffbb78", "#98df8a",
 ];
 const W: f64 = 470.0;
 const H: f64 = 330.0;
@@ -347,11 +347,15 @@ mod tests {
             "thesis",
             "grid",
             "jitter",
+            "adaptive t=0.3",
+            "adaptive t=0.2",
             "adaptive t=0.1",
             "adaptive t=0.07",
             "adaptive t=0.05",
             "adaptive t=0.03",
             "adaptive t=0.01",
+            "POV-Ray AM1",
+            "POV-Ray AM2",
         ];
         let panel = Panel {
             title: "p".into(),
