@@ -155,7 +155,7 @@ pub mod internals {
     /// The point tables' thresholds: when a scene lists the solids around the eye and the
     /// lights instead of searching the BVH.
     pub mod point_index {
-        pub use crate::point_index::{MIN_PRIMS, PIXELS_PER_BOX};
+        pub use crate::point_index::{MIN_BOXES, PIXELS_PER_BOX};
     }
 }
 

@@ -52,7 +52,7 @@
 //! listed solids exactly as it tests the BVH's candidates, with the same tie rule, so the
 //! answers are the same bit for bit (`tests/bvh.rs`). It does not hold unbounded solids
 //! (planes), which the caller tests every time. It is not used for rays through any other
-//! point (mirror rays), and not for scenes too small to gain ([`MIN_PRIMS`]).
+//! point (mirror rays), and not for scenes too small to gain ([`MIN_BOXES`]).
 
 use glam::DVec3;
 
@@ -68,10 +68,13 @@ pub const PAD: f64 = 1e-7;
 /// and a shadow ray's rounding turns it too far.
 pub const NEAR: f64 = 1e-6;
 
-/// Fewest bounded solids for which a scene builds tables: the one for its eye, and the ones
-/// for its first `MAX_LIGHTS` lights. With fewer the BVH search is a couple of node visits,
-/// and a lookup gains nothing (the cloud bench scenes show it: see PERFORMANCE.md).
-pub const MIN_PRIMS: usize = 64;
+/// Fewest BVH boxes for which a scene builds tables: the one for its eye, and the ones for
+/// its first `MAX_LIGHTS` lights. A long object's slices each count (see
+/// `Object::pieces`), since each is a box the BVH search may enter: a fan of sixteen rods
+/// cut into a hundred slices walks a tree as deep as a hundred spheres'. With fewer boxes the
+/// search is a couple of node visits, and a lookup gains nothing (the cloud bench scenes
+/// show it: see PERFORMANCE.md).
+pub const MIN_BOXES: usize = 64;
 
 /// Fewest pixels of the image per box to list for which a scene builds tables. A table costs
 /// over a thousand instructions a box to build and saves at most about a thousand a ray, some

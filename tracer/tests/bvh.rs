@@ -610,13 +610,13 @@ fn a_shadow_ray_from_far_away_still_finds_its_blocker() {
     assert!(s.occluded_towards(0, &ray, end, None, &[]));
 }
 
-/// The cloud the scaling benchmark renders: the tables are built from `point_index::MIN_PRIMS`
+/// The cloud the scaling benchmark renders: the tables are built from `point_index::MIN_BOXES`
 /// solids on, and whole images, by every sampler, are the same bytes with and without them,
 /// with a light lying on one of the spheres (whose shadow rays leave that sphere out).
 #[test]
 fn images_are_identical_with_and_without_the_point_tables() {
     let mut rng = Rng(4242);
-    let min = tessera_tracer::internals::point_index::MIN_PRIMS;
+    let min = tessera_tracer::internals::point_index::MIN_BOXES;
     for (n, sampler) in [
         (min - 2, "sampler = center"),
         (min - 1, "sampler = center"),
@@ -688,5 +688,40 @@ fn small_images_of_many_solids_build_no_tables() {
         assert_eq!(s.point_tables(), (tables, usize::from(tables)), "{w}×{h}");
         let always = s.with_acceleration(Acceleration::Always);
         assert_eq!(always.point_tables(), (true, 1), "{w}×{h}");
+    }
+}
+
+/// A long object's slices count as boxes towards `point_index::MIN_BOXES`: sixteen long thin
+/// rods, each cut into many slices, build the tables that sixteen spheres do not, and render
+/// the same bytes with and without them.
+#[test]
+fn long_rods_count_their_slices_towards_the_tables() {
+    let fan = |shape: &str| -> String {
+        (0..16)
+            .map(|i| {
+                format!(
+                    "[OBJECT]\ntype = {shape}\nradius = 0.05\nscale = <1, 7, 1>\n\
+                     rotate = <0, 0, {}>\ntranslate = <{}, 0, 0>\n[/OBJECT]\n",
+                    -35.0 + 4.5 * f64::from(i),
+                    -9.0 + 1.2 * f64::from(i)
+                )
+            })
+            .collect()
+    };
+    for (shape, tables) in [("cylinder", true), ("sphere", false)] {
+        let src = format!(
+            "[GLOBALS]\nwidth = 64\nheight = 48\nlight = <5, 10, 30>\nsampler = adaptive\n\
+             samples = 4\nthreshold = 0.05\n[/GLOBALS]\n\
+             [CAMERA]\neye = <0, 0, 30>\nfov = 30\n[/CAMERA]\n{}",
+            fan(shape)
+        );
+        let s = common::scene(&src);
+        assert_eq!(s.point_tables(), (tables, usize::from(tables)), "{shape}");
+        let plain = s.clone().without_point_tables();
+        let rect = Rect::full(s.width, s.height);
+        let ((a, sa), (b, sb)) = (s.render_rect_stats(rect), plain.render_rect_stats(rect));
+        assert_eq!(sa, sb, "{shape}");
+        assert!(sa.primary > u64::from(s.width * s.height), "{sa:?}");
+        assert!(a == b, "{shape}: images differ");
     }
 }

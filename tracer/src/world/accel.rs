@@ -102,7 +102,7 @@ pub(super) struct PointTables {
 
 impl PointTables {
     /// The tables a scene with this BVH gains from: with `Auto`, when it has at least
-    /// [`point_index::MIN_PRIMS`] bounded prims and its image at least
+    /// [`point_index::MIN_BOXES`] BVH boxes and its image at least
     /// [`point_index::PIXELS_PER_BOX`] `pixels` per box to list; with `Always`, whenever it
     /// has a BVH.
     #[allow(clippy::too_many_arguments)]
@@ -121,10 +121,7 @@ impl PointTables {
         }
         let wanted = match mode {
             Acceleration::Off => false,
-            // The items come in prim order, a long object's pieces together.
-            Acceleration::Auto => {
-                bvh_items.chunk_by(|a, b| a.id == b.id).count() >= point_index::MIN_PRIMS
-            }
+            Acceleration::Auto => bvh_items.len() >= point_index::MIN_BOXES,
             Acceleration::Always => true,
         };
         if !wanted {
