@@ -24,7 +24,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use crate::footprint::{Footprints, PixelRegion};
-use crate::math::{Color, Ray, offset_ray_origin};
+use crate::math::{Color, Ray, floor, offset_ray_origin};
 use crate::object::Object;
 use crate::sampler::{Sample, Sampler};
 use crate::shape::LocalHit;
@@ -172,9 +172,9 @@ impl Scene {
         if let Some(c2) = m.color2 {
             let p = hit.local.p * obj.own_scale;
             // `as i64` saturates, so huge coordinates cannot overflow the sum.
-            let cell = (p.x.floor() as i64)
-                .wrapping_add(p.y.floor() as i64)
-                .wrapping_add(p.z.floor() as i64);
+            let cell = (floor(p.x) as i64)
+                .wrapping_add(floor(p.y) as i64)
+                .wrapping_add(floor(p.z) as i64);
             if cell & 1 != 0 {
                 return c2;
             }

@@ -13,7 +13,7 @@ use std::sync::OnceLock;
 
 use glam::DVec2;
 
-use crate::math::Color;
+use crate::math::{Color, floor};
 use crate::shape::{SurfaceUv, Wrap};
 use crate::srgb;
 
@@ -401,7 +401,7 @@ impl Texture {
         );
         let fx = u * f64::from(self.width) - 0.5;
         let fy = (1.0 - v) * f64::from(self.height) - 0.5;
-        let (x0, y0) = (fx.floor(), fy.floor());
+        let (x0, y0) = (floor(fx), floor(fy));
         let (ax, ay) = (fx - x0, fy - y0);
         let xs = [
             wrap(x0 as i64, self.width, at.wrap_u),

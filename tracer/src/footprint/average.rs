@@ -31,7 +31,7 @@
 
 use glam::DVec3;
 
-use crate::math::Color;
+use crate::math::{Color, floor};
 use crate::world::Scene;
 
 /// An affine function `a + b·x + c·y` of a position in a pixel's square (`x`, `y` in
@@ -280,7 +280,7 @@ impl<'s> PlaneImage<'s> {
     /// The cell colour at `(x, y)`, from the same `U/W`, `V/W` the pieces are cut by.
     fn colour(&self, at: (f64, f64), c2: Color) -> Color {
         let w = self.w.at(at);
-        let (i, j) = ((self.u.at(at) / w).floor(), (self.v.at(at) / w).floor());
+        let (i, j) = (floor(self.u.at(at) / w), floor(self.v.at(at) / w));
         cell_colour(i, j, self.m.color1, c2)
     }
 }
@@ -329,8 +329,8 @@ pub(super) fn cell_sums(
     if ![ulo, uhi, vlo, vhi].iter().all(|c| c.is_finite()) {
         return None;
     }
-    let (i0, i1) = (ulo.floor(), uhi.floor());
-    let (j0, j1) = (vlo.floor(), vhi.floor());
+    let (i0, i1) = (floor(ulo), floor(uhi));
+    let (j0, j1) = (floor(vlo), floor(vhi));
     if (i1 - i0 + 1.0) * (j1 - j0 + 1.0) > f64::from(max_cells) {
         return None;
     }

@@ -3,6 +3,7 @@
 
 use glam::DVec3;
 
+use crate::math::floor;
 use crate::object::Object;
 use crate::shape::Shape;
 use crate::world::Scene;
@@ -122,7 +123,7 @@ pub(super) fn cell_edges(scene: &Scene, obj: &Object, px: i64, py: i64) -> Optio
     }
     let pad = 1e-9 * (1.0 + lo.abs().max(hi.abs()).max_element());
     // Floors of huge coordinates saturate; so does the count.
-    let lines = |a: f64, b: f64| ((b + pad).floor() - (a - pad).floor()).clamp(0.0, 1e9) as u32;
+    let lines = |a: f64, b: f64| (floor(b + pad) - floor(a - pad)).clamp(0.0, 1e9) as u32;
     Some(lines(lo.x, hi.x).saturating_add(lines(lo.z, hi.z)))
 }
 
@@ -133,9 +134,8 @@ pub(super) fn cell_edges(scene: &Scene, obj: &Object, px: i64, py: i64) -> Optio
 pub(super) fn cell_parity(scene: &Scene, obj: &Object, x: f64, y: f64) -> Option<bool> {
     let p = plane_point(scene, obj, x, y)?;
     let pad = 1e-9 * (1.0 + p.x.abs().max(p.z.abs()));
-    let clear = |v: f64| v - v.floor() > pad && v.ceil() - v > pad;
-    (clear(p.x) && clear(p.z))
-        .then(|| (p.x.floor() as i64).wrapping_add(p.z.floor() as i64) & 1 != 0)
+    let clear = |v: f64| v - floor(v) > pad && v.ceil() - v > pad;
+    (clear(p.x) && clear(p.z)).then(|| (floor(p.x) as i64).wrapping_add(floor(p.z) as i64) & 1 != 0)
 }
 
 /// Where the primary ray through image position `(x, y)` meets plane `obj`, in the plane's

@@ -8,7 +8,7 @@
 use glam::{DVec2, DVec3};
 
 use super::{Crossing, LocalHit, Span, SurfaceUv, Wrap};
-use crate::math::{Ray, gamma};
+use crate::math::{Ray, floor, gamma};
 
 #[inline]
 pub(super) fn intersect(ray: &Ray, t_max: f64) -> Option<LocalHit> {
@@ -60,7 +60,7 @@ pub(super) fn surface_at(ray: &Ray, t: f64, face: u8) -> LocalHit {
 /// along +z, repeating every unit.
 pub(super) fn uv(p: DVec3, _face: u8) -> SurfaceUv {
     SurfaceUv {
-        uv: DVec2::new(p.x - p.x.floor(), 1.0 - (p.z - p.z.floor())),
+        uv: DVec2::new(p.x - floor(p.x), 1.0 - (p.z - floor(p.z))),
         wrap_u: Wrap::Repeat,
         wrap_v: Wrap::Repeat,
     }
