@@ -261,11 +261,7 @@ pub fn run(args: &Args) -> Result<()> {
         );
         None
     };
-    let valgrind = if std::process::Command::new(&args.valgrind)
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success())
-    {
+    let valgrind = if crate::povray::available(&args.valgrind) {
         Some(args.valgrind.as_str())
     } else {
         println!(

@@ -435,9 +435,10 @@ fn run_povray(
     Ok(text)
 }
 
-/// Whether `povray` runs.
-pub(crate) fn available(povray: &str) -> bool {
-    Command::new(povray).arg("--version").output().is_ok()
+/// Whether the program `exe` runs (asked for its version): the benchmarks that need an
+/// outside program (POV-Ray, valgrind) skip that part, with a note, where it does not.
+pub(crate) fn available(exe: &str) -> bool {
+    Command::new(exe).arg("--version").output().is_ok()
 }
 
 /// One of POV-Ray's anti-aliasing settings: its method (`+AM1`, a fixed grid where a
