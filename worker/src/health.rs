@@ -104,10 +104,16 @@ impl Health {
         self.servers.iter().filter_map(|s| s.not_before).min()
     }
 
-    /// Server `i` answered a request at `now` (any answer, refusals included): it is asked
-    /// freely again. Reports its coming back if it was away.
-    pub(crate) fn answered(&mut self, i: usize, now: Instant) -> Option<Change> {
+    /// Server `i` answered a request sent at `sent` at `now` (any answer, refusals
+    /// included): it is asked freely again. Reports its coming back if it was away. An
+    /// answer to a request sent before the last counted failure came tells nothing new
+    /// either: a server that dies with several requests out may answer one of them after
+    /// another has failed, and that answer must not bring it back.
+    pub(crate) fn answered(&mut self, i: usize, sent: Instant, now: Instant) -> Option<Change> {
         let s = &mut self.servers[i];
+        if s.failed_at.is_some_and(|last| sent < last) {
+            return None;
+        }
         s.streak = 0;
         s.not_before = None;
         s.failed_at = None;
@@ -213,17 +219,17 @@ mod tests {
     #[test]
     fn going_away_and_coming_back_are_reported_once_each() {
         let (mut h, t0) = three();
-        assert_eq!(h.answered(0, t0), None, "answering all along");
+        assert_eq!(h.answered(0, t0, t0), None, "answering all along");
         assert_eq!(h.failed(0, Failure::Away, t0, t0), Some(Change::Away));
         let due = h.servers[0].not_before.expect("backing off");
         assert!(h.take(0, due));
         assert_eq!(h.failed(0, Failure::Away, due, due + MS), None);
         let back = t0 + Duration::from_secs(5);
         assert_eq!(
-            h.answered(0, back),
+            h.answered(0, back, back),
             Some(Change::Back(Duration::from_secs(5)))
         );
-        assert_eq!(h.answered(0, back + MS), None);
+        assert_eq!(h.answered(0, back + MS, back + MS), None);
         assert!(h.usable(0, back + MS));
     }
 
@@ -238,6 +244,27 @@ mod tests {
         }
         assert_eq!(h.servers[2].not_before, due);
         assert_eq!(h.servers[2].streak, 1);
+    }
+
+    #[test]
+    fn an_answer_to_a_request_sent_before_a_counted_failure_does_not_bring_it_back() {
+        let (mut h, t0) = three();
+        // Two requests out at once; the server dies; one fails, then the other's answer,
+        // written before the death, arrives.
+        assert_eq!(
+            h.failed(1, Failure::Away, t0, t0 + 10 * MS),
+            Some(Change::Away)
+        );
+        let due = h.servers[1].not_before;
+        assert_eq!(h.answered(1, t0, t0 + 11 * MS), None);
+        assert_eq!(h.servers[1].not_before, due, "still backing off");
+        assert!(!h.usable(1, t0 + 11 * MS));
+        // The next request's answer, sent after the failure, does.
+        let later = t0 + Duration::from_secs(1);
+        assert_eq!(
+            h.answered(1, later, later),
+            Some(Change::Back(later - (t0 + 10 * MS)))
+        );
     }
 
     #[test]

@@ -125,7 +125,7 @@ impl Servers {
             let mut health = self.health();
             match answer.as_ref().err().and_then(failure) {
                 Some(f) => health.failed(i, f, sent, now),
-                None => health.answered(i, now),
+                None => health.answered(i, sent, now),
             }
         };
         if let Some(change) = change {
