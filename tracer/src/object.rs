@@ -49,6 +49,8 @@ pub struct Object {
     /// For a sphere placed by a similarity (uniform scale and translation): its world centre
     /// and squared radius, for [`Object::certainly_missed_by`].
     pub(crate) sphere: Option<(DVec3, f64)>,
+    /// For a cylinder or cone: the tube around its axis that holds it, for the same test.
+    rod: Option<Rod>,
 }
 
 impl Object {
@@ -64,6 +66,10 @@ impl Object {
             (Shape::Sphere, Some((s, centre))) => Some((centre, s * s)),
             _ => None,
         };
+        let rod = match shape {
+            Shape::Cylinder | Shape::Cone => Rod::around(&transform),
+            _ => None,
+        };
         Object {
             shape,
             transform,
@@ -72,6 +78,7 @@ impl Object {
             bounds: shape.bounds().map(|b| transform.bounds_to_world(&b)),
             in_csg,
             sphere,
+            rod,
         }
     }
 
@@ -89,12 +96,16 @@ impl Object {
     /// is `Q/|d|² ≤ r² + O(ε)·(|f|² + r²)`, if it finds a hit. The test rejects only when
     /// `Q > |d|²·(r² + 1e-6·(|f|² + r²))`, a margin some 10⁹ times wider than both errors
     /// together; an overflow to ∞ or a NaN fails the comparison and so rejects nothing.
+    ///
+    /// For a cylinder or cone, whether the ray's line passes clearly outside the tube around
+    /// its axis that holds it (see [`Rod`]): rays that pass near a thin rod's box, most of
+    /// them missing the rod, are turned away before their object-space ray is made.
     #[inline]
     pub fn certainly_missed_by(&self, ray: &Ray) -> bool {
-        let Some((c, r2)) = self.sphere else {
-            return false;
-        };
-        sphere_certainly_missed(c, r2, ray)
+        if let Some((c, r2)) = self.sphere {
+            return sphere_certainly_missed(c, r2, ray);
+        }
+        self.rod.as_ref().is_some_and(|rod| rod.clears(ray))
     }
 
     /// For a sphere placed by a similarity, its world centre and squared radius.
@@ -340,6 +351,64 @@ pub struct Piece {
     pub bounds: Aabb,
     pub axis: (DVec3, DVec3),
     pub radius: f64,
+}
+
+/// The infinite tube around a cylinder's or cone's axis that holds the whole solid: the
+/// axis line through `a` along `u`, and a squared radius `r2`.
+///
+/// The unit solid lies in `x² + z² ≤ 1` (the cone's radius `(1 − y)/2` is at most 1 in the
+/// slab `|y| ≤ 1`). Its point `M·(x, y, z) + t` lies `|M·(x, 0, z)|` or less from the axis
+/// point `M·(0, y, 0) + t`, and `|M·(x, 0, z)| ≤ σ` for `x² + z² ≤ 1`, where `σ²` is the
+/// largest eigenvalue of the Gram matrix of `M·x̂` and `M·ẑ`. So `a = t`, `u = M·ŷ`,
+/// `r2 = σ²` bound any linear part, sheared or not. A tube rather than a capsule: the test
+/// is a line against a line, cheaper than against a segment, and only rays passing the
+/// axis's extension beyond the solid's ends are left to the exact test for nothing.
+#[derive(Debug, Clone, Copy)]
+struct Rod {
+    a: DVec3,
+    u: DVec3,
+    uu: f64,
+    r2: f64,
+}
+
+impl Rod {
+    /// The tube of the unit cylinder or cone placed by `transform`; `None` when its figures
+    /// are not finite (the test would then reject nothing anyway).
+    fn around(transform: &Transform) -> Option<Rod> {
+        let m = transform.to_world().matrix3;
+        let (x, z) = (m.x_axis, m.z_axis);
+        let (p, q, r) = (x.dot(x), z.dot(z), x.dot(z));
+        let half = 0.5 * (p - q);
+        let r2 = 0.5 * (p + q) + (half * half + r * r).sqrt();
+        let rod = Rod {
+            a: transform.to_world().translation,
+            u: m.y_axis,
+            uu: m.y_axis.dot(m.y_axis),
+            r2,
+        };
+        (rod.a.is_finite() && rod.u.is_finite() && rod.uu.is_finite() && r2.is_finite())
+            .then_some(rod)
+    }
+
+    /// Whether the ray's line passes outside the tube by a margin.
+    ///
+    /// With `f = o − a` and `w = d × u`, the line's distance from the axis is `|f·w|/|w|`,
+    /// so it clears the tube when `(f·w)² > r2·|w|²`. The test asks for more: a margin of
+    /// `1e-9·S·|d|²|u|²` with `S = |f|² + |o|² + |a|² + r2`. Computed, `(f·w)²` is off by
+    /// some `10ε·S·|d|²|u|²`; the exact test, through a matrix of condition up to
+    /// [`crate::transform::MAX_CONDITION`] (1e8), places a line within about `1e-8·√S` of
+    /// where it is, a squared distance of `1e-16·S` beside the margin's `1e-9·S`. A line
+    /// nearly along the axis (`|w|` near 0) never clears, nor does one whose figures
+    /// overflow (∞ or NaN fail `>`).
+    #[inline]
+    fn clears(&self, ray: &Ray) -> bool {
+        let (o, d) = (ray.origin, ray.dir);
+        let f = o - self.a;
+        let w = d.cross(self.u);
+        let fw = f.dot(w);
+        let scale = f.dot(f) + o.dot(o) + self.a.dot(self.a) + self.r2;
+        fw * fw > w.dot(w) * self.r2 + 1e-9 * scale * d.dot(d) * self.uu
+    }
 }
 
 /// The test of [`Object::certainly_missed_by`] for centre `c` and squared radius `r2`.

@@ -379,9 +379,6 @@ fn examples_build_and_render() {
     }
 }
 
-/// The sphere pre-test never rejects a ray the exact test hits: rays grazing the
-/// silhouette within 1e-9 of the radius (either side), from near and from 1e6 radii away,
-/// on spheres large and small, near the origin and far from it.
 /// A plain white Lambertian object: the shape and placement are what a test varies.
 fn white(shape: Shape, t: Transform) -> Object {
     Object::new(
@@ -399,6 +396,9 @@ fn white(shape: Shape, t: Transform) -> Object {
     )
 }
 
+/// The sphere pre-test never rejects a ray the exact test hits: rays grazing the
+/// silhouette within 1e-9 of the radius (either side), from near and from 1e6 radii away,
+/// on spheres large and small, near the origin and far from it.
 #[test]
 fn sphere_pre_test_rejects_only_misses() {
     let mut rng = Rng::new(99);
@@ -432,6 +432,101 @@ fn sphere_pre_test_rejects_only_misses() {
             rejected += 1;
         }
     }
+    assert!(rejected > 2000, "{rejected}");
+}
+
+/// The cylinder's and cone's pre-test (the tube around the axis) never rejects a ray the
+/// exact test hits: lines tangent to the side, 1e-17 to 1e-9 of its size away on either
+/// side (the failure case of a margin too thin), on rods from a thousandth to a hundred units thick,
+/// sheared, turned and placed up to 1e5 away, seen from near and from 1e6 sizes away.
+#[test]
+fn rod_pre_test_rejects_only_misses() {
+    use crate::transform::TransformOp::{Rotate, Scale, Translate};
+    let mut rng = Rng::new(7);
+    let (mut rejected, mut tried) = (0, 0);
+    let scale = |rng: &mut Rng, lo: f64, hi: f64| {
+        DVec3::new(
+            10f64.powf(rng.range(lo, hi)),
+            10f64.powf(rng.range(lo, hi)),
+            10f64.powf(rng.range(lo, hi)),
+        )
+    };
+    for k in 0..20000 {
+        let shape = if k % 2 == 0 {
+            Shape::Cylinder
+        } else {
+            Shape::Cone
+        };
+        // Half of them round in section and not sheared, where the tube fits the side
+        // exactly: a tangent line is then as far from the axis as the tube's radius.
+        let (mut a, mut b) = (scale(&mut rng, -3.0, 2.0), scale(&mut rng, -0.5, 0.5));
+        if k % 4 < 2 {
+            (a.z, b) = (a.x, DVec3::splat(b.x));
+        }
+        let angles = rng.in_ball(180.0);
+        let t = Transform::from_op(Scale(a))
+            .then(&Transform::from_op(Rotate(angles)))
+            .then(&Transform::from_op(Scale(b)))
+            .then(&Transform::from_op(Translate(
+                rng.in_ball(1.0) * 10f64.powf(rng.range(0.0, 5.0)),
+            )));
+        if !t.is_valid() {
+            continue;
+        }
+        tried += 1;
+        let obj = white(shape, t);
+        // A point on the side, its outward normal, and a tangent there, in world space.
+        let (y, phi) = (rng.range(-1.0, 1.0), rng.range(0.0, std::f64::consts::TAU));
+        let rho = if shape == Shape::Cone {
+            (1.0 - y) / 2.0
+        } else {
+            1.0
+        };
+        let (c, s) = (phi.cos(), phi.sin());
+        let local = DVec3::new(rho * c, y, rho * s);
+        let local_n = if shape == Shape::Cone {
+            DVec3::new(c, 0.5, s)
+        } else {
+            DVec3::new(c, 0.0, s)
+        };
+        let m = t.to_world().matrix3;
+        let p = t.to_world().transform_point3(local);
+        let n = t.normal_to_world(local_n).normalize();
+        let along = if shape == Shape::Cone {
+            DVec3::new(-c, 2.0, -s)
+        } else {
+            DVec3::Y
+        };
+        let tangent = (m
+            * (DVec3::new(-s, 0.0, c) * rng.range(-1.0, 1.0) + along * rng.range(-1.0, 1.0)))
+        .normalize();
+        let size = (m * DVec3::new(1.0, 1.0, 1.0)).length();
+        let offset = if rng.range(0.0, 1.0) < 0.5 {
+            let sign = if rng.range(0.0, 1.0) < 0.5 { -1.0 } else { 1.0 };
+            sign * size * 10f64.powf(rng.range(-17.0, -9.0))
+        } else {
+            size * rng.range(0.0, 3.0)
+        };
+        let dist = size * 10f64.powf(rng.range(0.0, 6.0));
+        let ray = Ray::new(
+            p + n * offset - tangent * dist,
+            tangent * rng.range(0.1, 10.0),
+        );
+        if !ray.dir.is_finite() || !ray.origin.is_finite() {
+            continue;
+        }
+        let exact = obj
+            .shape
+            .intersect(&obj.transform.ray_to_object(&ray), f64::INFINITY);
+        if obj.certainly_missed_by(&ray) {
+            assert!(
+                exact.is_none(),
+                "rejected a hit: {ray:?} on {shape:?} placed by {t:?}"
+            );
+            rejected += 1;
+        }
+    }
+    assert!(tried > 15000, "{tried}");
     assert!(rejected > 2000, "{rejected}");
 }
 
