@@ -142,8 +142,7 @@ impl<'a> SurfacePoint<'a> {
     /// unit shape).
     pub fn err(&self) -> DVec3 {
         let (local, local_err) = self.local;
-        let p_err = self.transform.error_to_world(local, local_err);
-        2.0 * (p_err + self.transform.round_trip_error(self.p))
+        2.0 * self.transform.origin_error(local, local_err, self.p)
     }
 
     /// Origin for a secondary ray leaving towards `dir`: off the surface, on `dir`'s side.

@@ -28,6 +28,12 @@ pub enum TransformOp {
 /// space, and a ray carried into object space lands measurably off the surface it aims at.
 pub const MAX_CONDITION: f64 = 1e8;
 
+/// Whether every entry of `m` off its diagonal is zero.
+fn is_diagonal(m: &DMat3) -> bool {
+    let c = m.to_cols_array_2d();
+    (0..3).all(|i| (0..3).all(|j| i == j || c[i][j] == 0.0))
+}
+
 /// An affine object-to-world transform with its inverse.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Transform {
@@ -40,6 +46,10 @@ pub struct Transform {
     /// `1 / s` of the similarity, computed once here rather than for every ray (the same
     /// correctly rounded value, so rays come out bit for bit as if divided per ray).
     inv_scale: f64,
+    /// Whether both linear parts are diagonal (every entry off the diagonal is zero): their
+    /// products with a vector of error bounds are then per-axis scalings (see
+    /// [`Self::origin_error`]).
+    diagonal: bool,
 }
 
 impl Default for Transform {
@@ -56,6 +66,7 @@ impl Transform {
         normal: DMat3::IDENTITY,
         similarity: Some((1.0, DVec3::ZERO)),
         inv_scale: 1.0,
+        diagonal: true,
     };
 
     fn from_parts(to_world: DAffine3, to_object: DAffine3) -> Transform {
@@ -68,6 +79,7 @@ impl Transform {
             normal: to_object.matrix3.transpose(),
             similarity: is_similarity.then_some((uniform, to_world.translation)),
             inv_scale: 1.0 / uniform,
+            diagonal: is_diagonal(&m) && is_diagonal(&to_object.matrix3),
         }
     }
 
@@ -175,6 +187,35 @@ impl Transform {
         let abs_m = DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
         gamma(3) * (abs_m * p.abs() + self.to_world.translation.abs())
             + (1.0 + gamma(3)) * (abs_m * p_err)
+    }
+
+    /// What a secondary ray's origin must clear, per axis, at the world point `world` of the
+    /// object-space hit `p` whose error bound is `p_err`: the world point's own error
+    /// ([`Self::error_to_world`]) plus the rounding of carrying it back
+    /// ([`Self::round_trip_error`]). Bounds are never negative (`p_err` included).
+    ///
+    /// For a diagonal transform (a scale and a translation) the matrix products become
+    /// per-axis products with the same bits: the terms they drop are `0·v`, which is `+0`
+    /// for a finite `v ≥ 0`, and adding `+0` to a sum of non-negative terms changes nothing.
+    /// A non-finite input would make `0·v` a NaN there; it also makes the short form's
+    /// result non-finite, and then the full products give the answer.
+    #[inline]
+    pub fn origin_error(&self, p: DVec3, p_err: DVec3, world: DVec3) -> DVec3 {
+        if self.diagonal {
+            let abs_diag = |m: &DMat3| DVec3::new(m.x_axis.x, m.y_axis.y, m.z_axis.z).abs();
+            let (m, n) = (
+                abs_diag(&self.to_world.matrix3),
+                abs_diag(&self.to_object.matrix3),
+            );
+            let own = gamma(3) * (m * p.abs() + self.to_world.translation.abs())
+                + (1.0 + gamma(3)) * (m * p_err);
+            let back = m * (gamma(3) * (n * world.abs() + self.to_object.translation.abs()));
+            let e = own + back;
+            if e.is_finite() {
+                return e;
+            }
+        }
+        self.error_to_world(p, p_err) + self.round_trip_error(world)
     }
 
     /// A world-space bound on the error made when a world point `p` is carried back into
@@ -306,6 +347,51 @@ mod tests {
         ops.iter().fold(Transform::IDENTITY, |t, &op| {
             t.then(&Transform::from_op(op))
         })
+    }
+
+    /// The short form of [`Transform::origin_error`] for a scale and a translation gives the
+    /// bits of the full matrix products: error bounds with zeros, subnormals and huge values,
+    /// points on the axes (`±0`), scales of either sign; an infinite input takes the full
+    /// products (a NaN), as it would without the short form.
+    #[test]
+    fn diagonal_origin_error_has_the_bits_of_the_full_products() {
+        use crate::shape::test_support::Rng;
+        let full = |t: &Transform, p: DVec3, e: DVec3, w: DVec3| {
+            t.error_to_world(p, e) + t.round_trip_error(w)
+        };
+        let bits = |v: DVec3| v.to_array().map(f64::to_bits);
+        let mut rng = Rng::new(5);
+        let special = [0.0, -0.0, f64::MIN_POSITIVE / 8.0, 1e-300, 1e300];
+        let mut pick = |rng: &mut Rng| -> f64 {
+            let k = rng.range(0.0, 8.0) as usize;
+            special
+                .get(k)
+                .copied()
+                .unwrap_or_else(|| rng.range(-1.0, 1.0) * 10f64.powf(rng.range(-8.0, 8.0)))
+        };
+        for _ in 0..20000 {
+            let mut v = || DVec3::new(pick(&mut rng), pick(&mut rng), pick(&mut rng));
+            let (scale, shift, p, e, w) = (v(), v(), v(), v(), v());
+            let t = chain(&[
+                TransformOp::Scale(scale.map(|c| if c == 0.0 { 1.0 } else { c })),
+                TransformOp::Translate(shift),
+            ]);
+            if !t.is_valid() {
+                continue;
+            }
+            assert!(t.diagonal);
+            let e = e.abs();
+            assert_eq!(
+                bits(t.origin_error(p, e, w)),
+                bits(full(&t, p, e, w)),
+                "{t:?} {p:?} {e:?} {w:?}"
+            );
+        }
+        let t = chain(&[TransformOp::Scale(DVec3::new(2.0, 3.0, 4.0))]);
+        let inf = DVec3::new(f64::INFINITY, 1.0, 1.0);
+        assert!(t.origin_error(inf, DVec3::ZERO, DVec3::ONE).is_nan());
+        let turned = chain(&[TransformOp::Rotate(DVec3::new(0.0, 30.0, 0.0))]);
+        assert!(!turned.diagonal);
     }
 
     #[test]
