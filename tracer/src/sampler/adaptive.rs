@@ -132,6 +132,8 @@ pub(super) struct FirstPass {
 pub(super) struct QuadrantOrder {
     pub(super) h: u32,
     pub(super) cells: Vec<(u32, u32)>,
+    /// `1/n` for the grid's `n = 2h` cells a side.
+    inv: f64,
 }
 
 impl QuadrantOrder {
@@ -161,24 +163,35 @@ impl QuadrantOrder {
             }
         }
         debug_assert_eq!(cells.len() as u32, h * h);
-        QuadrantOrder { h, cells }
+        QuadrantOrder {
+            h,
+            cells,
+            inv: 1.0 / f64::from(2 * h),
+        }
     }
 
     /// The cell of the `n × n` grid that quadrant `k` takes as its sample number `rank`,
     /// given the quadrant's offset `(a, b)` in `[0, h)²`.
+    #[cfg(test)]
+    pub(super) fn cell(&self, k: u32, rank: u32, offset: (u32, u32)) -> u32 {
+        let (ci, cj) = self.column_row(k, rank, offset);
+        cj * 2 * self.h + ci
+    }
+
+    /// [`Self::cell`] as the cell's column and row: what a sample's position needs, with no
+    /// division to get them back from the cell's number.
     #[inline]
-    pub(super) fn cell(&self, k: u32, rank: u32, (a, b): (u32, u32)) -> u32 {
+    pub(super) fn column_row(&self, k: u32, rank: u32, (a, b): (u32, u32)) -> (u32, u32) {
         let h = self.h;
         let (di, dj) = self.cells[rank as usize];
         // a + di < 2h, so one subtraction is the remainder.
         let wrap = |v: u32| if v >= h { v - h } else { v };
-        let ci = (k & 1) * h + wrap(a + di);
-        let cj = (k >> 1) * h + wrap(b + dj);
-        cj * 2 * h + ci
+        ((k & 1) * h + wrap(a + di), (k >> 1) * h + wrap(b + dj))
     }
 }
 
-/// The sample of cell `cell` of pixel `(x, y)`'s `n × n` grid, at the cell's hashed position.
+/// The sample of the cell at column `ci`, row `cj` of pixel `(x, y)`'s `n × n` grid, at
+/// the cell's hashed position (the hash of its number `cj·n + ci`, as `jitter`'s).
 #[inline]
 pub(super) fn cell_sample<F: Fn(f64, f64) -> Sample>(
     x: i64,
@@ -186,11 +199,10 @@ pub(super) fn cell_sample<F: Fn(f64, f64) -> Sample>(
     hash: PixelHash,
     n: u32,
     inv: f64,
-    cell: u32,
+    (ci, cj): (u32, u32),
     trace: &F,
 ) -> Sample {
-    let (ox, oy) = hash.pair(cell);
-    let (ci, cj) = (cell % n, cell / n);
+    let (ox, oy) = hash.pair(cj * n + ci);
     trace(
         x as f64 + (f64::from(ci) + ox) * inv,
         y as f64 + (f64::from(cj) + oy) * inv,
@@ -221,17 +233,14 @@ pub(super) fn first_position(
         );
     };
     let h = order.h;
-    // Each half of one 64-bit hash picks a coordinate: ⌊u · h / 2³²⌋ for u uniform on 32
-    // bits takes each value in [0, h) with probability within 2⁻³² of 1/h.
-    let r = mix(first.0 ^ u64::from(k));
-    let a = (((r >> 32) * u64::from(h)) >> 32) as u32;
-    let b = (((r & 0xffff_ffff) * u64::from(h)) >> 32) as u32;
-    let cell = order.cell(k, 0, (a, b));
+    let (a, b) = quadrant_offset(first, k, h);
+    // Rank 0 is the quadrant's cell `(a, b)` itself (`QuadrantOrder::cell` with the list's
+    // first entry `(0, 0)`), so its column and row need no division from its number.
+    let (ci, cj) = ((k & 1) * h + a, (k >> 1) * h + b);
     // The cells' positions are jitter's: a pixel refined to the full grid takes exactly the
     // rays of `jitter` with the same `n` (the same arithmetic as `cell_sample`).
-    let (ox, oy) = cells.pair(cell);
-    let (ci, cj) = (cell % n, cell / n);
-    let inv = 1.0 / f64::from(n);
+    let (ox, oy) = cells.pair(cj * n + ci);
+    let inv = order.inv;
     (
         (
             x as f64 + (f64::from(ci) + ox) * inv,
@@ -239,6 +248,18 @@ pub(super) fn first_position(
         ),
         (a, b),
     )
+}
+
+/// The offset `(a, b)` in `[0, h)²` that quadrant `k` of a pixel with first-pass hash
+/// `first` draws (see [`QuadrantOrder`]).
+#[inline]
+fn quadrant_offset(first: PixelHash, k: u32, h: u32) -> (u32, u32) {
+    // Each half of one 64-bit hash picks a coordinate: ⌊u · h / 2³²⌋ for u uniform on 32
+    // bits takes each value in [0, h) with probability within 2⁻³² of 1/h.
+    let r = mix(first.0 ^ u64::from(k));
+    let a = (((r >> 32) * u64::from(h)) >> 32) as u32;
+    let b = (((r & 0xffff_ffff) * u64::from(h)) >> 32) as u32;
+    (a, b)
 }
 
 /// A pixel's hashes for its first pass: the quadrants' offsets and the cells' positions.
@@ -261,14 +282,15 @@ impl FirstHashes {
 }
 
 /// The first pass of pixel `(x, y)`: one sample per quadrant (see [`first_position`]), the
-/// first of them `probed` when the pixel's probe already traced it.
+/// first of them `probed` (its position and sample) when the pixel's probe already traced
+/// it.
 pub(super) fn first_pass<F: Fn(f64, f64) -> Sample>(
     x: i64,
     y: i64,
     n: u32,
     order: Option<&QuadrantOrder>,
     trace: &F,
-    probed: Option<Sample>,
+    probed: Option<((f64, f64), Sample)>,
 ) -> FirstPass {
     let mut fp = FirstPass {
         tally: Tally::new(),
@@ -277,13 +299,20 @@ pub(super) fn first_pass<F: Fn(f64, f64) -> Sample>(
     };
     let hashes = FirstHashes::new(x, y);
     for k in 0..4u32 {
-        let ((sx, sy), offset) = first_position(x, y, n, order, k, &hashes);
+        let ((sx, sy), offset, sample) = match probed {
+            // The probe is this very ray: only the quadrant's offset is left to draw.
+            Some((at, s)) if k == 0 => {
+                let offset = order.map_or((0, 0), |o| quadrant_offset(hashes.first, 0, o.h));
+                (at, offset, s)
+            }
+            _ => {
+                let ((sx, sy), offset) = first_position(x, y, n, order, k, &hashes);
+                ((sx, sy), offset, trace(sx, sy))
+            }
+        };
         fp.offsets[k as usize] = offset;
         fp.positions[k as usize] = (sx, sy);
-        fp.tally.add(match probed {
-            Some(s) if k == 0 => s,
-            _ => trace(sx, sy),
-        });
+        fp.tally.add(sample);
     }
     fp
 }
@@ -354,12 +383,15 @@ pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
     let inv = 1.0 / f64::from(n);
     let (xi, yi) = (i64::from(x), i64::from(y));
     let mut tally = fp.tally;
+    let sample = |k: u32, rank: u32| {
+        let cell = order.column_row(k, rank, fp.offsets[k as usize]);
+        cell_sample(xi, yi, hash, n, inv, cell, trace)
+    };
     // Takes ranks `from..upto` of every quadrant.
     let take = |tally: &mut Tally, from: u32, upto: u32| {
         for rank in from..upto {
             for k in 0..4 {
-                let cell = order.cell(k, rank, fp.offsets[k as usize]);
-                tally.add(cell_sample(xi, yi, hash, n, inv, cell, trace));
+                tally.add(sample(k, rank));
             }
         }
     };
@@ -400,8 +432,33 @@ pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
             stage *= 2;
         }
     }
-    take(&mut tally, ranks, all);
-    tally.mean()
+    // The last ranks decide nothing more: only their sum is kept, added in the same order
+    // as `Tally::add` would add it.
+    let mut sum = tally.sum;
+    for rank in ranks..all {
+        for k in 0..4 {
+            sum += sample(k, rank).color;
+        }
+    }
+    sum / f64::from(4 * all)
+}
+
+/// Traces the probe of pixel `(x, y)` (the first ray of its first pass, see
+/// [`first_position`]) into `slot`, and returns it. Kept out of line: its callers mostly find
+/// the probe already traced, and should not pay for this body's registers.
+#[inline(never)]
+fn trace_probe<F: Fn(f64, f64) -> Sample>(
+    (x, y): (i64, i64),
+    max: u32,
+    order: Option<&QuadrantOrder>,
+    trace: &F,
+    slot: &mut Option<((f64, f64), Sample)>,
+) -> ((f64, f64), Sample) {
+    let hashes = FirstHashes::new(x, y);
+    let ((sx, sy), _) = first_position(x, y, max, order, 0, &hashes);
+    let p = ((sx, sy), trace(sx, sy));
+    *slot = Some(p);
+    p
 }
 
 /// The standard error at or below which a pixel of `rays` rays (16 or more) takes no more:
@@ -562,17 +619,14 @@ fn adaptive_in<F, G>(
     // What a checkered plane's cells give each decided pixel (see `PixelGeometry::cells`).
     refill(sums, pw * ph, None);
     if let Some(geometry) = geometry {
+        // The probe of the pixel at `i`, traced if it is not yet. The check is inlined at
+        // every call and the tracing is not: most calls find the probe traced.
         let probe = |probes: &mut Vec<Option<((f64, f64), Sample)>>, bx: usize, by: usize| {
             let i = at(bx, by);
-            if let Some(p) = probes[i] {
-                return p;
+            match probes[i] {
+                Some(p) => p,
+                None => trace_probe(pixel(bx, by), max, order, trace, &mut probes[i]),
             }
-            let (x, y) = pixel(bx, by);
-            let hashes = FirstHashes::new(x, y);
-            let ((sx, sy), _) = first_position(x, y, max, order, 0, &hashes);
-            let p = ((sx, sy), trace(sx, sy));
-            probes[i] = Some(p);
-            p
         };
         let decide = |probes: &mut Vec<Option<((f64, f64), Sample)>>,
                       sums: &mut Vec<Option<CellSums>>,
@@ -584,14 +638,26 @@ fn adaptive_in<F, G>(
                 q.object != p.object || (q.color - p.color).abs().max_element() <= threshold
             };
             // The neighbours already traced first, then the test, then the rest: each step
-            // is only taken if the ones before allow the pixel to end.
-            let smooth = neighbours(bx, by)
-                .into_iter()
-                .all(|(nx, ny)| probes[at(nx, ny)].is_none_or(|(_, q)| gentle(&q)))
+            // is only taken if the ones before allow the pixel to end. A neighbour checked
+            // in the first step is not checked again.
+            let around = neighbours(bx, by);
+            let mut traced = [false; 4];
+            let mut gentle_so_far = true;
+            for (k, &(nx, ny)) in around.iter().enumerate() {
+                if let Some((_, q)) = &probes[at(nx, ny)] {
+                    traced[k] = true;
+                    if !gentle(q) {
+                        gentle_so_far = false;
+                        break;
+                    }
+                }
+            }
+            let smooth = gentle_so_far
                 && geometry.is_smooth(x, y, sx, sy, &p)
-                && neighbours(bx, by)
-                    .into_iter()
-                    .all(|(nx, ny)| gentle(&probe(probes, nx, ny).1));
+                && around
+                    .iter()
+                    .zip(traced)
+                    .all(|(&(nx, ny), done)| done || gentle(&probe(probes, nx, ny).1));
             if smooth {
                 return Some(p.color);
             }
@@ -652,7 +718,7 @@ fn adaptive_in<F, G>(
                 let i = at(qx, qy);
                 if slot[i] == NONE && ends[i].is_none() {
                     let (x, y) = pixel(qx, qy);
-                    let probed = probes[i].map(|(at, p)| correct(sums[i], p, at));
+                    let probed = probes[i].map(|(at, p)| (at, correct(sums[i], p, at)));
                     // At most one pass per pixel of the grown rect, whose size is bounded
                     // by the image's (`Limits`) and far below u32::MAX.
                     slot[i] = passes.len() as u32;
@@ -680,11 +746,11 @@ fn adaptive_in<F, G>(
         for bx in 2..w + 2 {
             let here = at(bx, by);
             let (x, y) = (rect.x + (bx - 2) as u32, rect.y + (by - 2) as u32);
-            out[i] = match (ends[here], probes[here], slot[here]) {
-                (Some(value), _, _) => value,
+            out[i] = match (ends[here], slot[here]) {
+                (Some(value), _) => value,
                 // Unreachable: a pixel that does not end has its first pass.
-                (_, _, NONE) => Color::ZERO,
-                (_, _, k) => {
+                (_, NONE) => Color::ZERO,
+                (_, k) => {
                     let fp = &passes[k as usize];
                     let c = &fp.tally;
                     // More samples where the pixel's own samples disagree (contrast or a
