@@ -362,7 +362,7 @@ mod tests {
         let bits = |v: DVec3| v.to_array().map(f64::to_bits);
         let mut rng = Rng::new(5);
         let special = [0.0, -0.0, f64::MIN_POSITIVE / 8.0, 1e-300, 1e300];
-        let mut pick = |rng: &mut Rng| -> f64 {
+        let pick = |rng: &mut Rng| -> f64 {
             let k = rng.range(0.0, 8.0) as usize;
             special
                 .get(k)
