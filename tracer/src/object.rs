@@ -412,11 +412,11 @@ impl Rod {
 }
 
 /// The test of [`Object::certainly_missed_by`] for centre `c` and squared radius `r2`.
-/// With `r2 = ∞` it rejects nothing (the right side is ∞, or NaN when `d = 0`, and `>`
-/// fails for both), which is how prims other than similarity spheres pass through it.
+/// With `r2 = ∞` it rejects nothing, and says so before any arithmetic: that is how prims
+/// other than similarity spheres pass through it, a rod's slices listed several to a ray.
 #[inline]
 pub(crate) fn sphere_certainly_missed(c: DVec3, r2: f64, ray: &Ray) -> bool {
-    line_clears_ball(c, r2, ray, 0.0)
+    r2 < f64::INFINITY && line_clears_ball(c, r2, ray, 0.0)
 }
 
 /// Whether the ray's line passes outside the ball of centre `c` and squared radius `r2` by
