@@ -412,11 +412,19 @@ impl Rod {
 }
 
 /// The test of [`Object::certainly_missed_by`] for centre `c` and squared radius `r2`.
-/// With `r2 = ∞` it rejects nothing, and says so before any arithmetic: that is how prims
-/// other than similarity spheres pass through it, a rod's slices listed several to a ray.
+/// With `r2 = ∞` it rejects nothing (the right side is ∞, or NaN when `d = 0`, and `>`
+/// fails for both).
 #[inline]
 pub(crate) fn sphere_certainly_missed(c: DVec3, r2: f64, ray: &Ray) -> bool {
-    r2 < f64::INFINITY && line_clears_ball(c, r2, ray, 0.0)
+    line_clears_ball(c, r2, ray, 0.0)
+}
+
+/// [`sphere_certainly_missed`] for the per-prim quick tests of the BVH's items and the
+/// point tables' entries, where prims other than similarity spheres carry `r2 = ∞`: for
+/// those it answers before any arithmetic (a rod's slices list it several times to a ray).
+#[inline]
+pub(crate) fn quick_missed(c: DVec3, r2: f64, ray: &Ray) -> bool {
+    r2 < f64::INFINITY && sphere_certainly_missed(c, r2, ray)
 }
 
 /// Whether the ray's line passes outside the ball of centre `c` and squared radius `r2` by

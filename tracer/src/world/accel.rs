@@ -22,7 +22,7 @@ pub(super) struct Quick {
     /// Index into `Scene::prims`.
     pub(super) prim: u32,
     /// The similarity sphere's world centre and squared radius; `r2 = ∞` for every other
-    /// prim (see [`sphere_certainly_missed`]).
+    /// prim (see [`crate::object::quick_missed`]).
     pub(super) centre: DVec3,
     pub(super) r2: f64,
 }
@@ -96,7 +96,7 @@ pub(super) struct PointTables {
     /// Per light (the first [`point_index::MAX_LIGHTS`]).
     pub(super) lights: Vec<Option<PointIndex>>,
     /// Per prim: a similarity sphere's centre and squared radius (`r2 = ∞` for any other
-    /// prim), for the quick test of listed prims (see [`sphere_certainly_missed`]).
+    /// prim), for the quick test of listed prims (see [`crate::object::quick_missed`]).
     pub(super) quick: Vec<(DVec3, f64)>,
 }
 

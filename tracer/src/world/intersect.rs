@@ -6,7 +6,7 @@ use std::ops::ControlFlow;
 use crate::bvh::Bvh;
 use crate::csg::{Csg, Prim};
 use crate::math::Ray;
-use crate::object::sphere_certainly_missed;
+use crate::object::quick_missed;
 use crate::point_index::{self};
 
 use super::accel::{Accel, Quick};
@@ -118,7 +118,7 @@ impl Scene {
                 break;
             }
             let (c, r2) = self.points.quick[e.prim as usize];
-            let rejected = sphere_certainly_missed(c, r2, ray);
+            let rejected = quick_missed(c, r2, ray);
             self.consider(&mut best, &mut t_best, e.prim, rejected, ray, skip);
         }
         best.map(|(h, _)| h)
@@ -163,7 +163,7 @@ impl Scene {
         }
         bvh.traverse(ray.origin, ray.inv_dir(), t_max, |slot| {
             let q = &quick[slot];
-            let rejected = sphere_certainly_missed(q.centre, q.r2, ray);
+            let rejected = quick_missed(q.centre, q.r2, ray);
             self.consider(&mut best, &mut t_best, q.prim, rejected, ray, skip);
             ControlFlow::Continue(t_best)
         });

@@ -6,7 +6,7 @@ use std::ops::ControlFlow;
 use crate::bvh::Bvh;
 use crate::csg::Prim;
 use crate::math::Ray;
-use crate::object::sphere_certainly_missed;
+use crate::object::quick_missed;
 use crate::point_index::{self};
 
 use super::accel::{Accel, Quick};
@@ -99,7 +99,7 @@ impl Scene {
                 .take_while(|e| f64::from(e.near_sq) <= reach)
                 .any(|e| {
                     let (c, r2) = self.points.quick[e.prim as usize];
-                    !sphere_certainly_missed(c, r2, ray)
+                    !quick_missed(c, r2, ray)
                         && self.prim_blocks(&self.prims[e.prim as usize], ray, t_max, skip)
                 })
     }
@@ -146,7 +146,7 @@ impl Scene {
             .any(|&i| self.prim_blocks(&self.prims[i as usize], ray, t_max, skip))
             || bvh.traverse(ray.origin, ray.inv_dir(), t_max, |slot| {
                 let q = &quick[slot];
-                if !sphere_certainly_missed(q.centre, q.r2, ray)
+                if !quick_missed(q.centre, q.r2, ray)
                     && self.prim_blocks(&self.prims[q.prim as usize], ray, t_max, skip)
                 {
                     ControlFlow::Break(())
