@@ -98,7 +98,7 @@ impl Object {
     /// together; an overflow to ∞ or a NaN fails the comparison and so rejects nothing.
     ///
     /// For a cylinder or cone, whether the ray's line passes clearly outside the tube around
-    /// its axis that holds it (see [`Rod`]): rays that pass near a thin rod's box, most of
+    /// its axis that holds it (see `Rod`): rays that pass near a thin rod's box, most of
     /// them missing the rod, are turned away before their object-space ray is made.
     #[inline]
     pub fn certainly_missed_by(&self, ray: &Ray) -> bool {
