@@ -396,6 +396,24 @@ fn white(shape: Shape, t: Transform) -> Object {
     )
 }
 
+/// Whether `obj`'s world-space pre-test rejects `ray`, asserting that the exact test in the
+/// object's space finds no hit on a ray it rejects.
+fn rejects_only_misses(obj: &Object, ray: &Ray) -> bool {
+    let rejected = obj.certainly_missed_by(ray);
+    if rejected {
+        let exact = obj
+            .shape
+            .intersect(&obj.transform.ray_to_object(ray), f64::INFINITY);
+        assert!(
+            exact.is_none(),
+            "rejected a hit: {ray:?} on {:?} placed by {:?}",
+            obj.shape,
+            obj.transform
+        );
+    }
+    rejected
+}
+
 /// The sphere pre-test never rejects a ray the exact test hits: rays grazing the
 /// silhouette within 1e-9 of the radius (either side), from near and from 1e6 radii away,
 /// on spheres large and small, near the origin and far from it.
@@ -421,14 +439,7 @@ fn sphere_pre_test_rejects_only_misses() {
             r * rng.range(0.0, 3.0)
         };
         let ray = Ray::new(o, (c + side * offset - o) * rng.range(0.1, 10.0));
-        let exact = obj
-            .shape
-            .intersect(&obj.transform.ray_to_object(&ray), f64::INFINITY);
-        if obj.certainly_missed_by(&ray) {
-            assert!(
-                exact.is_none(),
-                "rejected a hit: {ray:?} on r = {r}, c = {c:?}"
-            );
+        if rejects_only_misses(&obj, &ray) {
             rejected += 1;
         }
     }
@@ -515,14 +526,7 @@ fn rod_pre_test_rejects_only_misses() {
         if !ray.dir.is_finite() || !ray.origin.is_finite() {
             continue;
         }
-        let exact = obj
-            .shape
-            .intersect(&obj.transform.ray_to_object(&ray), f64::INFINITY);
-        if obj.certainly_missed_by(&ray) {
-            assert!(
-                exact.is_none(),
-                "rejected a hit: {ray:?} on {shape:?} placed by {t:?}"
-            );
+        if rejects_only_misses(&obj, &ray) {
             rejected += 1;
         }
     }
