@@ -28,6 +28,11 @@ pub enum TransformOp {
 /// space, and a ray carried into object space lands measurably off the surface it aims at.
 pub const MAX_CONDITION: f64 = 1e8;
 
+/// `m` with every entry replaced by its magnitude.
+fn abs(m: &DMat3) -> DMat3 {
+    DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs())
+}
+
 /// Whether every entry of `m` off its diagonal is zero.
 fn is_diagonal(m: &DMat3) -> bool {
     let c = m.to_cols_array_2d();
@@ -126,7 +131,6 @@ impl Transform {
     /// in one space; the tracer's error bounds carry `|M|` and `|N|` for the other. Any
     /// scale alone, before or after a rotation, keeps one of them near 1 however extreme.
     pub fn condition(&self) -> f64 {
-        let abs = |m: &DMat3| DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
         let (m, n) = (abs(&self.to_world.matrix3), abs(&self.to_object.matrix3));
         let norm = |p: DMat3| {
             let r = p.transpose();
@@ -183,10 +187,14 @@ impl Transform {
     /// the point at once and its bound only sometimes.
     #[inline]
     pub fn error_to_world(&self, p: DVec3, p_err: DVec3) -> DVec3 {
-        let m = &self.to_world.matrix3;
-        let abs_m = DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
-        gamma(3) * (abs_m * p.abs() + self.to_world.translation.abs())
-            + (1.0 + gamma(3)) * (abs_m * p_err)
+        let abs_m = abs(&self.to_world.matrix3);
+        self.error_to_world_by(p, p_err, |v| abs_m * v)
+    }
+
+    /// [`Self::error_to_world`] with `by(v)` for the product `|M|·v`.
+    #[inline]
+    fn error_to_world_by(&self, p: DVec3, p_err: DVec3, by: impl Fn(DVec3) -> DVec3) -> DVec3 {
+        gamma(3) * (by(p.abs()) + self.to_world.translation.abs()) + (1.0 + gamma(3)) * by(p_err)
     }
 
     /// What a secondary ray's origin must clear, per axis, at the world point `world` of the
@@ -207,10 +215,8 @@ impl Transform {
                 abs_diag(&self.to_world.matrix3),
                 abs_diag(&self.to_object.matrix3),
             );
-            let own = gamma(3) * (m * p.abs() + self.to_world.translation.abs())
-                + (1.0 + gamma(3)) * (m * p_err);
-            let back = m * (gamma(3) * (n * world.abs() + self.to_object.translation.abs()));
-            let e = own + back;
+            let e = self.error_to_world_by(p, p_err, |v| m * v)
+                + m * self.object_error_by(world, |v| n * v);
             if e.is_finite() {
                 return e;
             }
@@ -224,18 +230,21 @@ impl Transform {
     /// object-space test may see it back on the surface it left.
     #[inline]
     pub fn round_trip_error(&self, p: DVec3) -> DVec3 {
-        let m = &self.to_world.matrix3;
-        let abs_m = DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
-        abs_m * self.to_object_error(p)
+        abs(&self.to_world.matrix3) * self.to_object_error(p)
     }
 
     /// An object-space bound on the error of carrying world point `p` into object space
     /// (`γ(3)·(|M⁻¹|·|p| + |t⁻¹|)`, the products of the inverse matrix), per axis.
     #[inline]
     pub fn to_object_error(&self, p: DVec3) -> DVec3 {
-        let inv = &self.to_object.matrix3;
-        let abs_inv = DMat3::from_cols(inv.x_axis.abs(), inv.y_axis.abs(), inv.z_axis.abs());
-        gamma(3) * (abs_inv * p.abs() + self.to_object.translation.abs())
+        let abs_inv = abs(&self.to_object.matrix3);
+        self.object_error_by(p, |v| abs_inv * v)
+    }
+
+    /// [`Self::to_object_error`] with `by(v)` for the product `|M⁻¹|·v`.
+    #[inline]
+    fn object_error_by(&self, p: DVec3, by: impl Fn(DVec3) -> DVec3) -> DVec3 {
+        gamma(3) * (by(p.abs()) + self.to_object.translation.abs())
     }
 
     /// World point `p` in object space, computed as the ray tests compute a ray's origin
