@@ -57,28 +57,17 @@ impl Cone {
         }
     }
 
-    /// Whether some direction of the cone meets the ball of centre `c` and radius `r`.
+    /// Whether some direction of the cone meets the ball of centre `c` and radius `r`. The
+    /// footprints prepare a [`BallTest`] once per ball instead; this is the tests' form.
+    #[cfg(test)]
     pub fn meets_sphere(&self, c: DVec3, r: f64) -> bool {
-        // From inside (or on) the ball every direction meets it; NaN lands here too.
-        let Some(seen) = self.sphere_seen(c, r) else {
-            return true;
-        };
-        let ap = &self.aperture;
-        // β = α + φ + margin; as sines only while β stays well below 90°.
-        let sin_b0 = seen.sin_a * ap.cos + seen.cos_a * ap.sin;
-        let cos_b0 = seen.cos_a * ap.cos - seen.sin_a * ap.sin;
-        let sin_b = sin_b0 * MARGIN_COS + cos_b0 * MARGIN_SIN;
-        if !(sin_b < 0.9) {
-            let alpha = seen.sin_a.asin();
-            return angle_between(self.axis, seen.v) <= alpha + ap.half_angle + ANGLE_MARGIN;
-        }
-        seen.within(self.axis, sin_b)
+        BallTest::new(self.origin, self.aperture, c, r).meets(self.axis)
     }
 
     /// Whether every direction of the cone meets the ball of centre `c` and radius `r`, the
     /// origin being outside it.
     pub fn inside_sphere(&self, c: DVec3, r: f64) -> bool {
-        let Some(seen) = self.sphere_seen(c, r) else {
+        let Some(seen) = sphere_seen(self.origin, c, r) else {
             return false;
         };
         let ap = &self.aperture;
@@ -89,24 +78,6 @@ impl Cone {
         sin_g > 0.0 && seen.within(self.axis, sin_g)
     }
 
-    /// The ball of centre `c` and radius `r` as seen from the origin: `None` from inside it
-    /// (or for NaN).
-    pub(super) fn sphere_seen(&self, c: DVec3, r: f64) -> Option<SphereSeen> {
-        let v = c - self.origin;
-        let d2 = v.length_squared();
-        if !(d2 > r * r) {
-            return None;
-        }
-        let d = d2.sqrt();
-        let sin_a = r / d;
-        Some(SphereSeen {
-            v,
-            d,
-            sin_a,
-            cos_a: (1.0 - sin_a * sin_a).max(0.0).sqrt(),
-        })
-    }
-
     /// Whether the cone may meet the capsule of radius `r` around the segment from `a` to
     /// `b`: unless the segment's distance from the axis exceeds `r` by more than the cone's
     /// radius at the capsule's farthest point (a point of the capsule in the cone would be
@@ -114,37 +85,12 @@ impl Cone {
     /// that of the closest points of the segment and the axis up to that farthest distance,
     /// which holds the axis points nearest to every point of the capsule (Ericson, *Real-Time
     /// Collision Detection*, 5.1.9); the comparison keeps 1e-9 of that distance to spare.
+    ///
+    /// The footprints prepare a [`CapsuleTest`] once per capsule instead; this is the tests'
+    /// form.
+    #[cfg(test)]
     pub fn may_meet_capsule(&self, a: DVec3, b: DVec3, r: f64) -> bool {
-        let far = (a - self.origin).length().max((b - self.origin).length()) + r;
-        let d1 = self.axis * far;
-        let d2 = b - a;
-        let w = self.origin - a;
-        let (aa, ee, ff) = (d1.dot(d1), d2.dot(d2), d2.dot(w));
-        let c = d1.dot(w);
-        let (s, t) = if ee <= f64::MIN_POSITIVE {
-            ((-c / aa).clamp(0.0, 1.0), 0.0)
-        } else {
-            let bb = d1.dot(d2);
-            let denom = aa * ee - bb * bb;
-            let mut s = if denom > 0.0 {
-                ((bb * ff - c * ee) / denom).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let mut t = (bb * s + ff) / ee;
-            if t < 0.0 {
-                t = 0.0;
-                s = (-c / aa).clamp(0.0, 1.0);
-            } else if t > 1.0 {
-                t = 1.0;
-                s = ((bb - c) / aa).clamp(0.0, 1.0);
-            }
-            (s, t)
-        };
-        let gap = ((self.origin + d1 * s) - (a + d2 * t)).length();
-        let width = self.aperture.half_angle.tan() * far;
-        // NaN anywhere: "may".
-        !(gap - r > width + 1e-9 * far)
+        CapsuleTest::new(self.origin, self.aperture, a, b, r).meets(self.axis)
     }
 
     /// How the cone meets the plane through `p0` with normal `n` (any length).
@@ -169,8 +115,151 @@ impl Cone {
     }
 }
 
+/// [`Cone::meets_sphere`] for every cone of one origin and aperture, with what depends on
+/// the axis alone left to [`BallTest::meets`]: a tile's pixels ask it of one ball with many
+/// axes.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum BallTest {
+    /// The origin is inside (or on) the ball, or something is NaN: every direction meets it.
+    Always,
+    /// The axis meets it when its angle from the centre has a sine at most `sin_b`.
+    Sine { seen: SphereSeen, sin_b: f64 },
+    /// β = α + φ is too near 90° for sines: the angle itself, at most `limit`.
+    Angle { v: DVec3, limit: f64 },
+}
+
+impl BallTest {
+    pub(super) fn new(origin: DVec3, ap: Aperture, c: DVec3, r: f64) -> BallTest {
+        let Some(seen) = sphere_seen(origin, c, r) else {
+            return BallTest::Always;
+        };
+        // β = α + φ + margin; as sines only while β stays well below 90°.
+        let sin_b0 = seen.sin_a * ap.cos + seen.cos_a * ap.sin;
+        let cos_b0 = seen.cos_a * ap.cos - seen.sin_a * ap.sin;
+        let sin_b = sin_b0 * MARGIN_COS + cos_b0 * MARGIN_SIN;
+        if !(sin_b < 0.9) {
+            let alpha = seen.sin_a.asin();
+            return BallTest::Angle {
+                v: seen.v,
+                limit: alpha + ap.half_angle + ANGLE_MARGIN,
+            };
+        }
+        BallTest::Sine { seen, sin_b }
+    }
+
+    /// Whether some direction of the cone around unit `axis` meets the ball.
+    #[inline]
+    pub(super) fn meets(&self, axis: DVec3) -> bool {
+        match self {
+            BallTest::Always => true,
+            BallTest::Sine { seen, sin_b } => seen.within(axis, *sin_b),
+            BallTest::Angle { v, limit } => angle_between(axis, *v) <= *limit,
+        }
+    }
+}
+
+/// [`Cone::may_meet_capsule`] for every cone of one origin and aperture, with what depends
+/// on the axis alone left to [`CapsuleTest::meets`].
+#[derive(Debug, Clone, Copy)]
+pub(super) struct CapsuleTest {
+    origin: DVec3,
+    a: DVec3,
+    r: f64,
+    /// The farthest distance from the origin of a point of the capsule.
+    far: f64,
+    /// `b − a`, `w = origin − a`, and their products.
+    d2: DVec3,
+    w: DVec3,
+    ee: f64,
+    ff: f64,
+    /// The cone's radius at `far`, with 1e-9 of `far` to spare.
+    slack: f64,
+}
+
+impl CapsuleTest {
+    pub(super) fn new(origin: DVec3, ap: Aperture, a: DVec3, b: DVec3, r: f64) -> CapsuleTest {
+        let far = (a - origin).length().max((b - origin).length()) + r;
+        let d2 = b - a;
+        let w = origin - a;
+        let width = ap.half_angle.tan() * far;
+        CapsuleTest {
+            origin,
+            a,
+            r,
+            far,
+            d2,
+            w,
+            ee: d2.dot(d2),
+            ff: d2.dot(w),
+            slack: width + 1e-9 * far,
+        }
+    }
+
+    /// Whether the cone around unit `axis` may meet the capsule (see
+    /// [`Cone::may_meet_capsule`]).
+    #[inline]
+    pub(super) fn meets(&self, axis: DVec3) -> bool {
+        let CapsuleTest {
+            origin,
+            a,
+            r,
+            far,
+            d2,
+            w,
+            ee,
+            ff,
+            slack,
+        } = *self;
+        let d1 = axis * far;
+        let aa = d1.dot(d1);
+        let c = d1.dot(w);
+        let (s, t) = if ee <= f64::MIN_POSITIVE {
+            ((-c / aa).clamp(0.0, 1.0), 0.0)
+        } else {
+            let bb = d1.dot(d2);
+            let denom = aa * ee - bb * bb;
+            let mut s = if denom > 0.0 {
+                ((bb * ff - c * ee) / denom).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let mut t = (bb * s + ff) / ee;
+            if t < 0.0 {
+                t = 0.0;
+                s = (-c / aa).clamp(0.0, 1.0);
+            } else if t > 1.0 {
+                t = 1.0;
+                s = ((bb - c) / aa).clamp(0.0, 1.0);
+            }
+            (s, t)
+        };
+        let gap = ((origin + d1 * s) - (a + d2 * t)).length();
+        // NaN anywhere: "may".
+        !(gap - r > slack)
+    }
+}
+
+/// The ball of centre `c` and radius `r` as seen from `origin`: `None` from inside it (or
+/// for NaN).
+pub(super) fn sphere_seen(origin: DVec3, c: DVec3, r: f64) -> Option<SphereSeen> {
+    let v = c - origin;
+    let d2 = v.length_squared();
+    if !(d2 > r * r) {
+        return None;
+    }
+    let d = d2.sqrt();
+    let sin_a = r / d;
+    Some(SphereSeen {
+        v,
+        d,
+        sin_a,
+        cos_a: (1.0 - sin_a * sin_a).max(0.0).sqrt(),
+    })
+}
+
 /// A ball seen from a cone's origin: the direction `v` and distance `d` to its centre, and
 /// the sine and cosine of the angle `α` it fills around that direction.
+#[derive(Debug, Clone, Copy)]
 pub(super) struct SphereSeen {
     pub(super) v: DVec3,
     pub(super) d: f64,

@@ -69,6 +69,7 @@ mod cells;
 mod cone;
 
 pub use cone::{Aperture, Cone, PlaneView};
+use cone::{BallTest, CapsuleTest};
 
 /// A rectangle of pixels (it may reach outside the image: the adaptive sampler looks at a
 /// border around each tile).
@@ -131,6 +132,25 @@ const SEVERAL: u32 = u32::MAX - 1;
 /// scene holds at most `Limits::max_objects` objects (a million by default), and the
 /// renderer numbers them in `u32` with `u32::MAX` meaning the background.
 const CSG: u32 = u32::MAX - 2;
+
+/// One piece of a solid counted pixel by pixel (a similarity sphere's ball, or a capsule
+/// that holds a long object's slice or a torus's ring piece), as the cones around the
+/// pixels' centre rays test it (never a false no).
+#[derive(Debug, Clone, Copy)]
+enum PieceTest {
+    Ball(BallTest),
+    Capsule(CapsuleTest),
+}
+
+impl PieceTest {
+    #[inline]
+    fn meets(&self, axis: DVec3) -> bool {
+        match self {
+            PieceTest::Ball(t) => t.meets(axis),
+            PieceTest::Capsule(t) => t.meets(axis),
+        }
+    }
+}
 
 /// Counts solid `id` in a pixel's record: [`NOTHING`] → `id` → [`SEVERAL`].
 #[inline]
@@ -337,7 +357,9 @@ impl<'s> Footprints<'s> {
             let r = r2.sqrt();
             let b = Aabb::new(c - DVec3::splat(r), c + DVec3::splat(r));
             if let Some(b) = clipped(b) {
-                self.add_where(o, &b, |cone| cone.meets_sphere(c, r));
+                let eye = self.scene.camera.eye();
+                let ball = BallTest::new(eye, self.centre_aperture, c, r);
+                self.add_where(o, &b, PieceTest::Ball(ball));
             }
             return true;
         }
@@ -348,7 +370,9 @@ impl<'s> Footprints<'s> {
         for p in pieces {
             let (a, e) = p.axis;
             if let Some(b) = clipped(p.bounds) {
-                self.add_where(o, &b, |cone| cone.may_meet_capsule(a, e, p.radius));
+                let eye = self.scene.camera.eye();
+                let capsule = CapsuleTest::new(eye, self.centre_aperture, a, e, p.radius);
+                self.add_where(o, &b, PieceTest::Capsule(capsule));
             }
         }
         true
@@ -378,9 +402,9 @@ impl<'s> Footprints<'s> {
         }
     }
 
-    /// Counts `id` in the pixels of the rectangle of box `b` where `meets` holds for the
-    /// cone around the ray through the pixel's centre.
-    fn add_where(&mut self, id: u32, b: &Aabb, meets: impl Fn(&Cone) -> bool) {
+    /// Counts `id` in the pixels of the rectangle of box `b` where the cone around the ray
+    /// through the pixel's centre meets `piece`.
+    fn add_where(&mut self, id: u32, b: &Aabb, piece: PieceTest) {
         let rect = match bvh::padded(b).map(|p| self.project_box(&p)) {
             Some(Projection::Behind) => return,
             Some(Projection::Within(rect)) => rect,
@@ -397,7 +421,7 @@ impl<'s> Footprints<'s> {
             for col in xs.clone() {
                 let (px, py) = (reg.x + col as i64, reg.y + row as i64);
                 let ray = self.scene.camera.ray(px as f64 + 0.5, py as f64 + 0.5);
-                if meets(&Cone::new(ray.origin, ray.dir, self.centre_aperture)) {
+                if piece.meets(ray.dir) {
                     let i = row * reg.width + col;
                     self.mark(i, id);
                     count(&mut self.fitted[i], id);
