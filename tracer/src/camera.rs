@@ -65,6 +65,13 @@ impl Camera {
         self.widest_angle(0.5)
     }
 
+    /// An upper bound on the angle between the ray through the centre of a quarter of a
+    /// pixel's square (half its side each way) and any other ray through that quarter: as
+    /// [`Camera::pixel_angle`], for a quarter of the diagonal.
+    pub fn quadrant_angle_from_centre(&self) -> f64 {
+        self.widest_angle(0.25)
+    }
+
     /// The widest angle a segment of `fraction` of a pixel's diagonal subtends (see
     /// [`Camera::pixel_angle`]).
     fn widest_angle(&self, fraction: f64) -> f64 {

@@ -279,6 +279,68 @@ fn a_sphere_or_rod_that_shows_in_a_pixel_is_never_hidden() {
     );
 }
 
+/// The quarters a fitted solid may show in: wherever [`Footprints::fitted_quadrants`]
+/// answers, every quarter of the square it leaves out shows one and the same thing (the
+/// background, or one plane in one checker cell) at every point of a dense grid over it,
+/// edges and corners included. Same random scenes as above.
+#[test]
+fn the_quarters_left_out_show_one_backdrop_alone() {
+    let mut rng = Rng(0x0c7a_b1e5);
+    let (mut answered, mut partial, mut partial_showing) = (0u32, 0u32, 0u32);
+    for case in 0..40 {
+        let src = random_scene(&mut rng);
+        let s = common::scene(&src);
+        let fp = Footprints::new(&s, past_the_image(&s));
+        for py in -2..s.height as i64 + 2 {
+            for px in -2..s.width as i64 + 2 {
+                let Some(bits) = fp.fitted_quadrants(px, py) else {
+                    continue;
+                };
+                answered += 1;
+                let mut backdrop = None;
+                let mut showing = false;
+                for k in 0..4u8 {
+                    let (x0, y0) = (
+                        px as f64 + 0.5 * f64::from(k & 1),
+                        py as f64 + 0.5 * f64::from(k >> 1),
+                    );
+                    for j in 0..=6 {
+                        for i in 0..=6 {
+                            let (qx, qy) = (x0 + i as f64 / 12.0, y0 + j as f64 / 12.0);
+                            let here = seen_cell(&s, qx, qy);
+                            if bits & (1 << k) != 0 {
+                                showing |= backdrop.is_some_and(|b| b != here);
+                                continue;
+                            }
+                            let b = *backdrop.get_or_insert(here);
+                            assert_eq!(
+                                here, b,
+                                "case {case}, pixel ({px}, {py}): quarter {k} is left out of \
+                                 {bits:04b}, but ({qx}, {qy}) sees something else\n{src}"
+                            );
+                        }
+                    }
+                }
+                if bits != 0 && bits != 0b1111 {
+                    partial += 1;
+                    partial_showing += u32::from(showing);
+                }
+            }
+        }
+    }
+    // Not vacuous: many pixels are answered, and in many of those a solid shows in the
+    // quarters named while the others are left out.
+    assert!(answered > 5_000, "{answered} pixels answered");
+    assert!(
+        partial > 250,
+        "{partial} pixels with some quarters left out"
+    );
+    assert!(
+        partial_showing > 100,
+        "{partial_showing} of them showing a solid"
+    );
+}
+
 /// Shading that a shadow could change is never smooth: a plane under a sphere and a light is
 /// smooth nowhere while its shadow rays are traced, and wherever the horizon and the sphere
 /// are out of the pixel once `shadow = 0`.

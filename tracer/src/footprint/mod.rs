@@ -35,6 +35,11 @@
 //! small spheres, thin rods and thin tori; other thin solids keep the sampler's colour and
 //! neighbour rules alone.
 //!
+//! **Quarters.** Each pixel's record also names the first few pieces (balls, capsules) whose
+//! cone met it. [`Footprints::fitted_quadrants`] tests them against the narrower cone of
+//! each quarter of the square, where everything else in it is one backdrop of smooth
+//! shading; the sampler then refines only the quarters a thin solid may show in.
+//!
 //! **Cones.** Every ray through a pixel's square lies within [`crate::camera::Camera::pixel_angle`]
 //! of any other, so within the cone of that half-angle around any one of them, and within
 //! [`crate::camera::Camera::pixel_angle_from_centre`] of the ray through its centre. A sphere of
@@ -59,7 +64,7 @@ use glam::DVec3;
 use crate::bvh;
 use crate::csg::Prim;
 use crate::math::{Aabb, Color};
-use crate::sampler::{CellSums, Sample, UnseenPattern};
+use crate::sampler::{ALL_QUADRANTS, CellSums, Sample, UnseenPattern};
 use crate::shape::Shape;
 use crate::world::Scene;
 use cells::{cell_edges, cell_parity, covers, one_cell, plane_of};
@@ -94,6 +99,8 @@ pub struct Footprints<'s> {
     /// Around any ray through a pixel, and around the ray through its centre.
     aperture: Aperture,
     centre_aperture: Aperture,
+    /// Around the ray through the centre of a quarter of a pixel's square.
+    quadrant_aperture: Aperture,
     /// Per pixel, row-major: [`NOTHING`], the one solid that may show in it, or
     /// [`SEVERAL`].
     shown: Vec<u32>,
@@ -101,6 +108,15 @@ pub struct Footprints<'s> {
     /// (spheres, and long rods and tori piece by piece, in a CSG tree or not): what
     /// [`Footprints::may_hide`] answers from.
     fitted: Vec<u32>,
+    /// The pieces of the solids counted pixel by pixel, as `near` refers to them.
+    outlines: Vec<Outline>,
+    /// Per pixel, the first [`NEAR`] pieces whose cone test met it, as their index into
+    /// `outlines` plus one; 0 in the slots left (so that the records start as zeroed memory).
+    near: Vec<[u32; NEAR]>,
+    /// Per pixel: [`ROUGH`] where a solid counted by its rectangle may show, [`MANY`] where
+    /// more pieces met it than `near` holds. With `near`, what
+    /// [`Footprints::fitted_quadrants`] answers from.
+    flags: Vec<u8>,
     /// The planes (world point, normal, object), tested per pixel.
     planes: Vec<(DVec3, DVec3, u32)>,
     /// The checkered planes without a texture, with their rays' map in image coordinates,
@@ -133,9 +149,23 @@ const SEVERAL: u32 = u32::MAX - 1;
 /// renderer numbers them in `u32` with `u32::MAX` meaning the background.
 const CSG: u32 = u32::MAX - 2;
 
-/// One piece of a solid counted pixel by pixel (a similarity sphere's ball, or a capsule
-/// that holds a long object's slice or a torus's ring piece), as the cones around the
-/// pixels' centre rays test it (never a false no).
+/// A pixel's flag: a solid counted by its rectangle may show in it.
+const ROUGH: u8 = 1;
+/// A pixel's flag: more pieces met it than [`NEAR`].
+const MANY: u8 = 2;
+/// How many pieces a pixel's record names.
+const NEAR: usize = 4;
+
+/// A piece of a solid counted pixel by pixel (a similarity sphere's ball, or a capsule that
+/// holds a long object's slice or a torus's ring piece), as the cones from the eye test it:
+/// around a pixel's centre ray, and around a quarter's.
+#[derive(Debug, Clone, Copy)]
+struct Outline {
+    centre: PieceTest,
+    quadrant: PieceTest,
+}
+
+/// One piece's cone test for one aperture (never a false no).
 #[derive(Debug, Clone, Copy)]
 enum PieceTest {
     Ball(BallTest),
@@ -181,8 +211,12 @@ impl<'s> Footprints<'s> {
             region,
             aperture: Aperture::new(scene.camera.pixel_angle()),
             centre_aperture: Aperture::new(scene.camera.pixel_angle_from_centre()),
+            quadrant_aperture: Aperture::new(scene.camera.quadrant_angle_from_centre()),
             shown: vec![NOTHING; n],
             fitted: vec![NOTHING; n],
+            outlines: Vec::new(),
+            near: vec![[0; NEAR]; n],
+            flags: vec![0; n],
             planes: Vec::new(),
             checker_planes: Vec::new(),
             solids: std::cell::OnceCell::new(),
@@ -358,8 +392,12 @@ impl<'s> Footprints<'s> {
             let b = Aabb::new(c - DVec3::splat(r), c + DVec3::splat(r));
             if let Some(b) = clipped(b) {
                 let eye = self.scene.camera.eye();
-                let ball = BallTest::new(eye, self.centre_aperture, c, r);
-                self.add_where(o, &b, PieceTest::Ball(ball));
+                let ball = |ap| PieceTest::Ball(BallTest::new(eye, ap, c, r));
+                let piece = Outline {
+                    centre: ball(self.centre_aperture),
+                    quadrant: ball(self.quadrant_aperture),
+                };
+                self.add_where(o, &b, piece);
             }
             return true;
         }
@@ -371,8 +409,12 @@ impl<'s> Footprints<'s> {
             let (a, e) = p.axis;
             if let Some(b) = clipped(p.bounds) {
                 let eye = self.scene.camera.eye();
-                let capsule = CapsuleTest::new(eye, self.centre_aperture, a, e, p.radius);
-                self.add_where(o, &b, PieceTest::Capsule(capsule));
+                let capsule = |ap| PieceTest::Capsule(CapsuleTest::new(eye, ap, a, e, p.radius));
+                let piece = Outline {
+                    centre: capsule(self.centre_aperture),
+                    quadrant: capsule(self.quadrant_aperture),
+                };
+                self.add_where(o, &b, piece);
             }
         }
         true
@@ -403,8 +445,8 @@ impl<'s> Footprints<'s> {
     }
 
     /// Counts `id` in the pixels of the rectangle of box `b` where the cone around the ray
-    /// through the pixel's centre meets `piece`.
-    fn add_where(&mut self, id: u32, b: &Aabb, piece: PieceTest) {
+    /// through the pixel's centre meets `piece`, and names the piece in their records.
+    fn add_where(&mut self, id: u32, b: &Aabb, piece: Outline) {
         let rect = match bvh::padded(b).map(|p| self.project_box(&p)) {
             Some(Projection::Behind) => return,
             Some(Projection::Within(rect)) => rect,
@@ -415,24 +457,33 @@ impl<'s> Footprints<'s> {
                 f64::INFINITY,
             ],
         };
+        // At most one piece per BVH leaf of every solid, far below u32::MAX.
+        self.outlines.push(piece);
+        let slot_value = self.outlines.len() as u32;
         let (xs, ys) = self.pixels_of(rect);
         let reg = self.region;
         for row in ys {
             for col in xs.clone() {
                 let (px, py) = (reg.x + col as i64, reg.y + row as i64);
                 let ray = self.scene.camera.ray(px as f64 + 0.5, py as f64 + 0.5);
-                if piece.meets(ray.dir) {
+                if piece.centre.meets(ray.dir) {
                     let i = row * reg.width + col;
-                    self.mark(i, id);
+                    count(&mut self.shown[i], id);
                     count(&mut self.fitted[i], id);
+                    match self.near[i].iter_mut().find(|slot| **slot == 0) {
+                        Some(slot) => *slot = slot_value,
+                        None => self.flags[i] |= MANY,
+                    }
                 }
             }
         }
     }
 
+    /// Counts solid `id`, counted by its rectangle, in pixel `i`.
     #[inline]
     fn mark(&mut self, i: usize, id: u32) {
         count(&mut self.shown[i], id);
+        self.flags[i] |= ROUGH;
     }
 
     /// Whether a similarity sphere, a long object's slice or a torus's ring piece other than
@@ -442,6 +493,58 @@ impl<'s> Footprints<'s> {
     pub fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
         self.index(px, py)
             .is_some_and(|i| self.fitted[i] != NOTHING && self.fitted[i] != object)
+    }
+
+    /// The quarters of pixel `(px, py)`'s square in which a similarity sphere, a long
+    /// object's slice or a torus's ring piece may show (bit `k` for the quarter in column
+    /// `k & 1`, row `k >> 1`), where everything else the square shows is one backdrop of
+    /// smooth shading: the background, or one plain plane that every ray of the square meets
+    /// in one checker cell. The quarters without a bit then hold that backdrop alone: no
+    /// edge, texture, reflection or shadow. `None` where another solid may show (one counted
+    /// by its rectangle, a CSG tree), a plane's horizon crosses the square, the plane is not
+    /// plain, or the pixel lies outside the region.
+    pub fn fitted_quadrants(&self, px: i64, py: i64) -> Option<u8> {
+        let i = self.index(px, py)?;
+        if self.flags[i] & ROUGH != 0 {
+            return None;
+        }
+        if !self.planes.is_empty() {
+            let ray = self.scene.camera.ray(px as f64 + 0.5, py as f64 + 0.5);
+            let cone = Cone::new(ray.origin, ray.dir, self.centre_aperture);
+            let mut backdrop = false;
+            for &(p0, n, o) in &self.planes {
+                match cone.view_of_plane(p0, n) {
+                    PlaneView::Misses => {}
+                    PlaneView::Covers if !backdrop && self.scene.plain(o) => {
+                        let obj = &self.scene.objects[o as usize];
+                        if obj.material.color2.is_some() && !one_cell(self.scene, obj, px, py) {
+                            return None;
+                        }
+                        backdrop = true;
+                    }
+                    _ => return None,
+                }
+            }
+        }
+        if self.flags[i] & MANY != 0 {
+            return Some(ALL_QUADRANTS);
+        }
+        // Each quarter of the square lies within the cone of the quarter-pixel aperture
+        // around the ray through its centre.
+        let mut bits = 0;
+        for k in 0..4u8 {
+            let (qx, qy) = (f64::from(k & 1), f64::from(k >> 1));
+            let (cx, cy) = (px as f64 + 0.25 + 0.5 * qx, py as f64 + 0.25 + 0.5 * qy);
+            let axis = self.scene.camera.ray(cx, cy).dir;
+            let met = self.near[i]
+                .iter()
+                .take_while(|&&slot| slot != 0)
+                .any(|&slot| self.outlines[slot as usize - 1].quadrant.meets(axis));
+            if met {
+                bits |= 1 << k;
+            }
+        }
+        Some(bits)
     }
 
     /// What an edge of `object`'s checker can hide in pixel `(px, py)`'s square on a side
@@ -623,6 +726,10 @@ impl crate::sampler::PixelGeometry for Footprints<'_> {
 
     fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
         Footprints::may_hide(self, px, py, object)
+    }
+
+    fn fitted_quadrants(&self, px: i64, py: i64) -> Option<u8> {
+        Footprints::fitted_quadrants(self, px, py)
     }
 
     fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool {

@@ -6,7 +6,7 @@ use crate::math::Color;
 use crate::tile::Rect;
 
 use super::jitter::{PixelHash, SEED_FIRST, SEED_JITTER, mix, stratified};
-use super::{CellSums, PixelGeometry, Sample, UnseenPattern};
+use super::{ALL_QUADRANTS, CellSums, PixelGeometry, Sample, UnseenPattern};
 
 /// The samples an adaptive pixel has taken so far: their sum, sum of squares, range and
 /// whether they met more than one object.
@@ -101,12 +101,14 @@ impl Tally {
     }
 }
 
-/// First-pass result of one pixel for the adaptive sampler: the tally of its four samples,
-/// where they were taken, and, for even `n`, the cell offset each quadrant drew (see
+/// First-pass result of one pixel for the adaptive sampler: its four samples and their
+/// tally, where they were taken, and, for even `n`, the cell offset each quadrant drew (see
 /// [`QuadrantOrder`]).
 #[derive(Clone, Copy)]
 pub(super) struct FirstPass {
     pub(super) tally: Tally,
+    /// Quadrant `k`'s sample.
+    pub(super) samples: [Sample; 4],
     pub(super) positions: [(f64, f64); 4],
     pub(super) offsets: [(u32, u32); 4],
 }
@@ -294,6 +296,10 @@ pub(super) fn first_pass<F: Fn(f64, f64) -> Sample>(
 ) -> FirstPass {
     let mut fp = FirstPass {
         tally: Tally::new(),
+        samples: [Sample {
+            color: Color::ZERO,
+            object: Sample::BACKGROUND,
+        }; 4],
         positions: [(0.0, 0.0); 4],
         offsets: [(0, 0); 4],
     };
@@ -312,6 +318,7 @@ pub(super) fn first_pass<F: Fn(f64, f64) -> Sample>(
         };
         fp.offsets[k as usize] = offset;
         fp.positions[k as usize] = (sx, sy);
+        fp.samples[k as usize] = sample;
         fp.tally.add(sample);
     }
     fp
@@ -361,6 +368,13 @@ pub(super) enum Ask {
 /// - `n²/4` (all `n × n` cells).
 ///
 /// Odd `n`: `n × n` stratified samples besides the first pass, count-weighted with it.
+///
+/// Even `n` with `quadrants` short of [`ALL_QUADRANTS`]: the stages above run over the
+/// quadrants named alone (their rays' tally decides each stop), and every other quadrant
+/// keeps its one first-pass sample. The pixel is the mean of its four quadrants' means, each
+/// an unbiased estimate of its quarter. The geometry names the quadrants where anything but
+/// one backdrop's smooth shading may show ([`super::PixelGeometry::fitted_quadrants`]);
+/// a feature there is found by exactly the rays that find it with every quadrant refined.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
     x: u32,
@@ -370,6 +384,7 @@ pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
     ask: Ask,
     fp: &FirstPass,
     order: Option<&QuadrantOrder>,
+    quadrants: u8,
     trace: &F,
 ) -> Color {
     let Some(order) = order else {
@@ -382,15 +397,46 @@ pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
     let hash = PixelHash::new(x, y, SEED_JITTER);
     let inv = 1.0 / f64::from(n);
     let (xi, yi) = (i64::from(x), i64::from(y));
-    let mut tally = fp.tally;
+    // The quadrants refined, in order, and the first-pass samples of the others.
+    let full = quadrants & ALL_QUADRANTS == ALL_QUADRANTS;
+    let mut ks = [0u32; 4];
+    let mut kn = 0;
+    let (mut tally, mut rest) = if full {
+        (fp.tally, Color::ZERO)
+    } else {
+        (Tally::new(), Color::ZERO)
+    };
+    for k in 0..4u32 {
+        if quadrants & (1 << k) != 0 {
+            ks[kn] = k;
+            kn += 1;
+            if !full {
+                tally.add(fp.samples[k as usize]);
+            }
+        } else {
+            rest += fp.samples[k as usize].color;
+        }
+    }
+    let ks = &ks[..kn];
+    if ks.is_empty() {
+        return rest / 4.0;
+    }
+    // The pixel's value with `ranks` ranks taken in each refined quadrant, their sum `sum`.
+    let value = |sum: Color, ranks: u32| {
+        if full {
+            sum / f64::from(4 * ranks)
+        } else {
+            (sum / f64::from(ranks) + rest) / 4.0
+        }
+    };
     let sample = |k: u32, rank: u32| {
         let cell = order.column_row(k, rank, fp.offsets[k as usize]);
         cell_sample(xi, yi, hash, n, inv, cell, trace)
     };
-    // Takes ranks `from..upto` of every quadrant.
+    // Takes ranks `from..upto` of every refined quadrant.
     let take = |tally: &mut Tally, from: u32, upto: u32| {
         for rank in from..upto {
-            for k in 0..4 {
+            for &k in ks {
                 tally.add(sample(k, rank));
             }
         }
@@ -401,7 +447,7 @@ pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
         take(&mut tally, ranks, 2);
         ranks = 2;
         if !tally.contrast(threshold) {
-            return tally.mean();
+            return value(tally.sum, ranks);
         }
     }
     if let Ask::Pattern(pattern) = ask {
@@ -413,7 +459,7 @@ pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
                 if pattern.error_bound(m) <= threshold
                     && tally.standard_error() <= se_bound(threshold, 4 * stage)
                 {
-                    return tally.mean();
+                    return value(tally.sum, stage);
                 }
                 (stage, m) = (stage * 4, m * 2);
             }
@@ -424,7 +470,7 @@ pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
             take(&mut tally, ranks, stage);
             ranks = stage;
             if tally.standard_error() <= se_bound(threshold, 4 * stage) {
-                return tally.mean();
+                return value(tally.sum, stage);
             }
             if !h.is_power_of_two() {
                 break;
@@ -436,11 +482,11 @@ pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
     // as `Tally::add` would add it.
     let mut sum = tally.sum;
     for rank in ranks..all {
-        for k in 0..4 {
+        for &k in ks {
             sum += sample(k, rank).color;
         }
     }
-    sum / f64::from(4 * all)
+    value(sum, all)
 }
 
 /// Traces the probe of pixel `(x, y)` (the first ray of its first pass, see
@@ -772,9 +818,9 @@ fn adaptive_in<F, G>(
                     // between two objects of like colours costs less than the threshold if
                     // missed, so only colours count here.
                     let mean = c.mean();
-                    let own = c.contrast(threshold)
-                        || geometry
-                            .is_some_and(|g| g.may_hide(i64::from(x), i64::from(y), c.object));
+                    let (px, py) = (i64::from(x), i64::from(y));
+                    let flagged =
+                        !c.mixed && geometry.is_some_and(|g| g.may_hide(px, py, c.object));
                     // Two pixels on one checkered plane whose rays are corrected by its cells
                     // (`corrected`) compare what is left: shadows and reflections. Their
                     // cells differ, and the cells are summed exactly in both.
@@ -797,7 +843,16 @@ fn adaptive_in<F, G>(
                     // the pixel, an unseen step beside it is a cell edge: the pattern's own
                     // bound below decides how far this pixel is searched, and an edge that
                     // lies in the neighbour costs this pixel nothing.
-                    let (px, py) = (i64::from(x), i64::from(y));
+                    // The quarters a thin solid may show in, asked once and only where
+                    // needed (see `refine`).
+                    let quarters = std::cell::OnceCell::new();
+                    let quarters = || {
+                        *quarters.get_or_init(|| match (order, geometry) {
+                            (Some(_), Some(g)) => g.fitted_quadrants(px, py),
+                            _ => None,
+                        })
+                    };
+                    let own = c.contrast(threshold) || flagged;
                     if unseen && !c.mixed {
                         let (sx, sy) = fp.positions[0];
                         unseen =
@@ -828,7 +883,26 @@ fn adaptive_in<F, G>(
                         Ask::Neighbour
                     };
                     if own || near || pattern.is_some() {
-                        refine(x, y, max, threshold, ask, fp, order, &corrected(mine))
+                        // Where a thin solid is why the pixel goes on (the geometry flags
+                        // one, or the first pass met two objects), the geometry knows which
+                        // quarters it may show in and the rest holds one smooth backdrop:
+                        // only those quarters are refined.
+                        let quadrants = if flagged || c.mixed {
+                            quarters().unwrap_or(ALL_QUADRANTS)
+                        } else {
+                            ALL_QUADRANTS
+                        };
+                        refine(
+                            x,
+                            y,
+                            max,
+                            threshold,
+                            ask,
+                            fp,
+                            order,
+                            quadrants,
+                            &corrected(mine),
+                        )
                     } else {
                         mean
                     }

@@ -52,7 +52,9 @@ pub enum Sampler {
     /// and stops there unless they disagree (or the step between them went unseen by both:
     /// then both take every ray), and a pixel at 16 rays (or, for `max/2` a power of two,
     /// 32, 64, …) stops there once the standard error of its mean is at most `threshold` ·
-    /// √(rays/16) (see `refine` and `se_bound` in `sampler/adaptive.rs`).
+    /// √(rays/16) (see `refine` and `se_bound` in `sampler/adaptive.rs`). Where the geometry names the quarters of the square a thin solid may show in
+    /// (`PixelGeometry::fitted_quadrants`), a pixel that goes on because of one refines
+    /// only those.
     Adaptive {
         /// Most rays per axis: a pixel takes at most `max × max`.
         max: u32,
@@ -241,6 +243,10 @@ impl Sample {
     pub const BACKGROUND: u32 = u32::MAX;
 }
 
+/// The four quarters of a pixel's square as bits, bit `k` for the quarter in column
+/// `k & 1`, row `k >> 1` (see [`PixelGeometry::fitted_quadrants`]).
+pub(crate) const ALL_QUADRANTS: u8 = 0b1111;
+
 /// How far around a rect the adaptive sampler traces probes (its smoothness test is asked
 /// about the pixels within one less).
 pub const PROBE_BORDER: usize = 2;
@@ -261,6 +267,16 @@ pub trait PixelGeometry {
     /// `object` may have slipped between. Such a pixel is refined as if its own rays
     /// disagreed.
     fn may_hide(&self, px: i64, py: i64, object: u32) -> bool;
+
+    /// The quarters of pixel `(px, py)`'s square (bit `k` for column `k & 1`, row `k >> 1`)
+    /// in which a solid that [`PixelGeometry::may_hide`] asks about may show, where the rest
+    /// of the square shows one backdrop of smooth shading alone; `None` where it does not
+    /// know. A quarter without its bit then holds nothing its one first-pass ray can miss but
+    /// smooth shading, and the sampler refines only the others. May set bits where none is
+    /// true, never leave one out.
+    fn fitted_quadrants(&self, _px: i64, _py: i64) -> Option<u8> {
+        None
+    }
 
     /// What an edge of `object`'s own pattern (a checker's cell boundary) can hide in pixel
     /// `(px, py)`'s square on a side that none of the first pass's rays, through image

@@ -782,6 +782,87 @@ fn a_pixel_that_may_hide_a_solid_is_refined_though_its_rays_agree() {
     }
 }
 
+/// [`PixelGeometry`] `G` that also names the quarters of each pixel a thin solid may show
+/// in, by `quadrants(px, py)`.
+struct Quartered<'g, G, Q>(&'g G, Q);
+
+impl<G: PixelGeometry, Q: Fn(i64, i64) -> Option<u8>> PixelGeometry for Quartered<'_, G, Q> {
+    fn is_smooth(&self, px: i64, py: i64, x: f64, y: f64, seen: &Sample) -> bool {
+        self.0.is_smooth(px, py, x, y, seen)
+    }
+
+    fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
+        self.0.may_hide(px, py, object)
+    }
+
+    fn fitted_quadrants(&self, px: i64, py: i64) -> Option<u8> {
+        (self.1)(px, py)
+    }
+
+    fn unseen_pattern(
+        &self,
+        px: i64,
+        py: i64,
+        object: u32,
+        seen: &[(f64, f64)],
+    ) -> Option<UnseenPattern> {
+        self.0.unseen_pattern(px, py, object, seen)
+    }
+
+    fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool {
+        self.0.pattern_alone(px, py, x, y, object)
+    }
+}
+
+/// Where the geometry names the quarters a hidden solid may show in, only those take more
+/// rays: the others keep their one first-pass ray. The refined quarters take what the whole
+/// pixel would (jitter's cells at cap 4; the four of the 16-ray stage at cap 8), and none at
+/// all where no quarter is named.
+#[test]
+fn only_the_quarters_a_solid_may_show_in_are_refined() {
+    use std::cell::RefCell;
+    for (max, named, expected) in [
+        (4, 0b0110, 4 + 2 * 3),
+        (4, 0b1000, 4 + 3),
+        (8, 0b0110, 4 + 2 * 3),
+        (8, 0b0000, 4),
+    ] {
+        let s = Sampler::Adaptive {
+            max,
+            threshold: 0.02,
+        };
+        let rays = RefCell::new(Vec::new());
+        let trace = |x: f64, y: f64| {
+            rays.borrow_mut().push((x, y));
+            Sample {
+                color: Color::splat(0.5),
+                object: Sample::BACKGROUND,
+            }
+        };
+        let hides = |px: i64, py: i64, _: u32| (px, py) == (4, 2);
+        let flags = Geo(|_, _| false, hides, no_crossing);
+        let geometry = Quartered(&flags, |_, _| Some(named));
+        let mut out = vec![Color::ZERO; 1];
+        s.render_rect_probed(Rect::new(4, 2, 1, 1), trace, &geometry, &mut out);
+        let rays = rays_in(&rays.into_inner(), 4, 2);
+        assert_eq!(rays.len(), expected, "max {max}, quarters {named:04b}");
+        // One first-pass ray in each unnamed quarter, and the rest in the named ones.
+        for k in 0..4u8 {
+            let inside = |&(x, y): &(f64, f64)| {
+                let (qx, qy) = (f64::from(k & 1), f64::from(k >> 1));
+                (x - 4.0 - 0.5 * qx) * 2.0 < 1.0
+                    && (x - 4.0 - 0.5 * qx) >= 0.0
+                    && (y - 2.0 - 0.5 * qy) * 2.0 < 1.0
+                    && (y - 2.0 - 0.5 * qy) >= 0.0
+            };
+            let n = rays.iter().filter(|r| inside(r)).count();
+            let want = if named & (1 << k) != 0 { 4 } else { 1 };
+            assert_eq!(n, want, "max {max}, quarters {named:04b}, quarter {k}");
+        }
+        assert_eq!(out[0], Color::splat(0.5));
+    }
+}
+
 /// A line a twentieth of a pixel wide, which four rays mostly miss: where the geometry
 /// flags the pixels it crosses, adaptive with cap 4 gives jitter 4 × 4's value in every
 /// one of them (the second method), however its first rays fell; without the geometry,
@@ -831,4 +912,50 @@ fn flagged_thin_features_get_jitters_estimate() {
     // The failure the geometry is there for: without it, some crossed pixels kept
     // none of the line that jitter found.
     assert!(missed > 0, "no pixel lost the line without the geometry");
+
+    // Naming the quarters the line crosses (the same band test on each half-pixel
+    // square) gives the same values with fewer rays: the others hold the ground alone.
+    let crosses_quarter = |px: i64, py: i64, k: u8| {
+        let (x0, y0) = (
+            px as f64 + 0.5 * f64::from(k & 1),
+            py as f64 + 0.5 * f64::from(k >> 1),
+        );
+        let (lo, hi) = (2.0 + 0.37 * y0 - 0.025, 2.0 + 0.37 * (y0 + 0.5) + 0.025);
+        x0 < hi && x0 + 0.5 > lo
+    };
+    let quarters = |px: i64, py: i64| {
+        Some((0..4u8).fold(0, |bits, k| {
+            bits | (u8::from(crosses_quarter(px, py, k)) << k)
+        }))
+    };
+    let count = std::cell::Cell::new(0usize);
+    let counted = |x: f64, y: f64| {
+        count.set(count.get() + 1);
+        line(x, y)
+    };
+    let mut quartered = vec![Color::ZERO; rect.pixel_count()];
+    s.render_rect_probed(
+        rect,
+        counted,
+        &Quartered(&geometry, quarters),
+        &mut quartered,
+    );
+    let with_quarters = count.replace(0);
+    s.render_rect_probed(rect, counted, &geometry, &mut flagged);
+    let without = count.get();
+    for (i, (q, j)) in quartered.iter().zip(&jit).enumerate() {
+        let (px, py) = ((i % 12) as i64, (i / 12) as i64);
+        if crosses(px, py) {
+            assert!((*q - *j).abs().max_element() < 1e-12, "pixel ({px}, {py})");
+        }
+    }
+    // A crossed pixel's quarters the line misses (about one and a half of four) save
+    // three rays each.
+    let crossed = (0..rect.pixel_count())
+        .filter(|&i| crosses((i % 12) as i64, (i / 12) as i64))
+        .count();
+    assert!(
+        with_quarters + 3 * crossed <= without,
+        "{with_quarters} rays with quarters named, {without} without, {crossed} pixels crossed"
+    );
 }
