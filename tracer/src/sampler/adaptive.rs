@@ -369,6 +369,10 @@ pub(super) enum Ask {
 ///
 /// Odd `n`: `n × n` stratified samples besides the first pass, count-weighted with it.
 ///
+/// With `hidden` (a thin solid may show in the pixel that its rays have not met), no stage
+/// stops it while its rays all meet one object: agreeing rays bound nothing about what they
+/// all missed, and the pixel takes jitter's rays until one meets a second object.
+///
 /// Even `n` with `quadrants` short of [`ALL_QUADRANTS`]: the stages above run over the
 /// quadrants named alone (their rays' tally decides each stop), and every other quadrant
 /// keeps its one first-pass sample. The pixel is the mean of its four quadrants' means, each
@@ -382,6 +386,7 @@ pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
     n: u32,
     threshold: f64,
     ask: Ask,
+    hidden: bool,
     fp: &FirstPass,
     order: Option<&QuadrantOrder>,
     quadrants: u8,
@@ -457,6 +462,7 @@ pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
                 take(&mut tally, ranks, stage);
                 ranks = stage;
                 if pattern.error_bound(m) <= threshold
+                    && (!hidden || tally.mixed)
                     && tally.standard_error() <= se_bound(threshold, 4 * stage)
                 {
                     return value(tally.sum, stage);
@@ -469,7 +475,8 @@ pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
         while stage < all {
             take(&mut tally, ranks, stage);
             ranks = stage;
-            if tally.standard_error() <= se_bound(threshold, 4 * stage) {
+            if (!hidden || tally.mixed) && tally.standard_error() <= se_bound(threshold, 4 * stage)
+            {
                 return value(tally.sum, stage);
             }
             if !h.is_power_of_two() {
@@ -825,7 +832,7 @@ fn adaptive_in<F, G>(
                     // (`corrected`) compare what is left: shadows and reflections. Their
                     // cells differ, and the cells are summed exactly in both.
                     let mine = sums[here];
-                    let (mut near, mut unseen) = (false, false);
+                    let (mut near, mut unseen, mut beside_other) = (false, false, false);
                     for (nx, ny) in neighbours(bx, by) {
                         let there = at(nx, ny);
                         let (mut c, mut nb) = (*c, seen(there));
@@ -837,6 +844,7 @@ fn adaptive_in<F, G>(
                         let other_object = nb.object != c.object;
                         let other_mean = (nb.mean() - c.mean()).abs().max_element() > threshold;
                         near |= nb.mixed || other_object || other_mean;
+                        beside_other |= nb.mixed || other_object;
                         unseen |= c.unseen_step(&nb, threshold);
                     }
                     // Where nothing but smooth shading and a checker's cells can change in
@@ -852,7 +860,14 @@ fn adaptive_in<F, G>(
                             _ => None,
                         })
                     };
-                    let own = c.contrast(threshold) || flagged;
+                    // A solid the first pass did not see may show in the pixel (the
+                    // geometry flags one), or the pixel's one object is a thin solid whose
+                    // silhouette may cross it (a neighbour saw another object, and nothing
+                    // but thin solids shows here besides the backdrop): agreeing rays bound
+                    // nothing about what they all missed.
+                    let hidden =
+                        flagged || (!c.mixed && beside_other && quarters().is_some_and(|q| q != 0));
+                    let own = c.contrast(threshold) || hidden;
                     if unseen && !c.mixed {
                         let (sx, sy) = fp.positions[0];
                         unseen =
@@ -887,7 +902,7 @@ fn adaptive_in<F, G>(
                         // one, or the first pass met two objects), the geometry knows which
                         // quarters it may show in and the rest holds one smooth backdrop:
                         // only those quarters are refined.
-                        let quadrants = if flagged || c.mixed {
+                        let quadrants = if hidden || c.mixed {
                             quarters().unwrap_or(ALL_QUADRANTS)
                         } else {
                             ALL_QUADRANTS
@@ -898,6 +913,7 @@ fn adaptive_in<F, G>(
                             max,
                             threshold,
                             ask,
+                            hidden,
                             fp,
                             order,
                             quadrants,

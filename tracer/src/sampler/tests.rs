@@ -746,13 +746,14 @@ fn probed_pixels_do_not_depend_on_the_tile() {
 
 /// Where the geometry says a solid may hide, a pixel whose first rays all agree is
 /// refined as if they had not: to jitter's rays for caps up to 4 (a cap of 3 adds its
-/// 3 × 3 to its first four), and to the 16 of its first complete stage above that; the
-/// pixel beside it, which the geometry does not flag, stops at its first four.
+/// 3 × 3 to its first four), and above that to every ray of its cap while its rays all meet
+/// one object (agreeing rays bound nothing about a solid they all missed); the pixel beside
+/// it, which the geometry does not flag, stops at its first four.
 #[test]
 fn a_pixel_that_may_hide_a_solid_is_refined_though_its_rays_agree() {
     use std::cell::RefCell;
     // A flat image: no contrast anywhere, so only the geometry can ask for more rays.
-    for (max, flagged) in [(2, 4), (3, 13), (4, 16), (6, 16), (8, 16), (16, 16)] {
+    for (max, flagged) in [(2, 4), (3, 13), (4, 16), (6, 36), (8, 64), (16, 256)] {
         let s = Sampler::Adaptive {
             max,
             threshold: 0.02,
@@ -779,6 +780,43 @@ fn a_pixel_that_may_hide_a_solid_is_refined_though_its_rays_agree() {
         assert_eq!(rays_in(&rays, 4, 2).len(), flagged, "max {max}");
         assert_eq!(rays_in(&rays, 5, 2).len(), 4, "max {max}");
         assert_eq!(out, vec![Color::splat(0.5); 2], "max {max}");
+    }
+}
+
+/// A flagged pixel whose rays have met the solid (a second object, here of the same
+/// colour, so that only the objects differ) stops at its first complete stage of 16 rays
+/// when their spread allows, as any pixel with two objects does: the rule that takes every
+/// ray holds only while the solid is unseen.
+#[test]
+fn a_flagged_pixel_stops_early_once_its_rays_meet_the_solid() {
+    use std::cell::RefCell;
+    for max in [6, 8, 16] {
+        let s = Sampler::Adaptive {
+            max,
+            threshold: 0.02,
+        };
+        let rays = RefCell::new(Vec::new());
+        // The left half of every pixel is object 1, the right the background, one colour.
+        let trace = |x: f64, y: f64| {
+            rays.borrow_mut().push((x, y));
+            Sample {
+                color: Color::splat(0.5),
+                object: if x.fract() < 0.5 {
+                    1
+                } else {
+                    Sample::BACKGROUND
+                },
+            }
+        };
+        let hides = |px: i64, py: i64, _: u32| (px, py) == (4, 2);
+        let mut out = vec![Color::ZERO; 1];
+        s.render_rect_probed(
+            Rect::new(4, 2, 1, 1),
+            trace,
+            &Geo(|_, _| false, hides, no_crossing),
+            &mut out,
+        );
+        assert_eq!(rays_in(&rays.into_inner(), 4, 2).len(), 16, "max {max}");
     }
 }
 
@@ -816,15 +854,15 @@ impl<G: PixelGeometry, Q: Fn(i64, i64) -> Option<u8>> PixelGeometry for Quartere
 
 /// Where the geometry names the quarters a hidden solid may show in, only those take more
 /// rays: the others keep their one first-pass ray. The refined quarters take what the whole
-/// pixel would (jitter's cells at cap 4; the four of the 16-ray stage at cap 8), and none at
-/// all where no quarter is named.
+/// pixel would (jitter's cells at cap 4; every cell at cap 8 while nothing else is seen), and
+/// none at all where no quarter is named.
 #[test]
 fn only_the_quarters_a_solid_may_show_in_are_refined() {
     use std::cell::RefCell;
     for (max, named, expected) in [
         (4, 0b0110, 4 + 2 * 3),
         (4, 0b1000, 4 + 3),
-        (8, 0b0110, 4 + 2 * 3),
+        (8, 0b0110, 4 + 2 * 15),
         (8, 0b0000, 4),
     ] {
         let s = Sampler::Adaptive {
@@ -856,10 +894,47 @@ fn only_the_quarters_a_solid_may_show_in_are_refined() {
                     && (y - 2.0 - 0.5 * qy) >= 0.0
             };
             let n = rays.iter().filter(|r| inside(r)).count();
-            let want = if named & (1 << k) != 0 { 4 } else { 1 };
+            let want = if named & (1 << k) != 0 {
+                (max * max / 4) as usize
+            } else {
+                1
+            };
             assert_eq!(n, want, "max {max}, quarters {named:04b}, quarter {k}");
         }
         assert_eq!(out[0], Color::splat(0.5));
+    }
+}
+
+/// A pixel whose rays all met one thin solid, beside a neighbour that saw another object,
+/// may hold a sliver of what lies behind the solid: where the geometry says only thin solids
+/// and a backdrop show there, it takes every ray until a second object is met; where the
+/// geometry does not know, it stops at 8 agreeing rays as any pixel a neighbour asked about.
+#[test]
+fn a_thin_solid_s_silhouette_beside_a_neighbour_is_searched_to_the_cap() {
+    use std::cell::RefCell;
+    for (quarters, expected) in [(Some(0b1111), 64), (None, 8)] {
+        let s = Sampler::Adaptive {
+            max: 8,
+            threshold: 0.02,
+        };
+        let rays = RefCell::new(Vec::new());
+        // Object 1 left of x = 5, the background right of it, in one colour.
+        let trace = |x: f64, y: f64| {
+            rays.borrow_mut().push((x, y));
+            Sample {
+                color: Color::splat(0.5),
+                object: if x < 5.0 { 1 } else { Sample::BACKGROUND },
+            }
+        };
+        let flags = Geo(|_, _| false, |_, _, _| false, no_crossing);
+        let geometry = Quartered(&flags, |_, _| quarters);
+        let mut out = vec![Color::ZERO; 2];
+        s.render_rect_probed(Rect::new(4, 2, 2, 1), trace, &geometry, &mut out);
+        assert_eq!(
+            rays_in(&rays.into_inner(), 4, 2).len(),
+            expected,
+            "quarters {quarters:?}"
+        );
     }
 }
 
