@@ -371,7 +371,9 @@ pub(super) enum Ask {
 ///
 /// With `hidden` (a thin solid may show in the pixel that its rays have not met), no stage
 /// stops it while its rays all meet one object: agreeing rays bound nothing about what they
-/// all missed, and the pixel takes jitter's rays until one meets a second object.
+/// all missed, and the pixel takes jitter's rays until one meets a second object. The same
+/// holds for the quadrants refined alone (below) of a pixel whose first pass met two
+/// objects.
 ///
 /// Even `n` with `quadrants` short of [`ALL_QUADRANTS`]: the stages above run over the
 /// quadrants named alone (their rays' tally decides each stop), and every other quadrant
@@ -404,6 +406,10 @@ pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
     let (xi, yi) = (i64::from(x), i64::from(y));
     // The quadrants refined, in order, and the first-pass samples of the others.
     let full = quadrants & ALL_QUADRANTS == ALL_QUADRANTS;
+    // Where the first pass met two objects, the edge between them lies in the quadrants
+    // refined (the others hold the backdrop alone): their rays may all fall on one side
+    // of it, so they too stop only once they meet two objects.
+    let hidden = hidden || (!full && fp.tally.mixed);
     let mut ks = [0u32; 4];
     let mut kn = 0;
     let (mut tally, mut rest) = if full {
