@@ -102,8 +102,7 @@ fn configs(quick: bool) -> Vec<Config> {
     // More caps for adaptive alone. Jitter at 12 × 12 or 16 × 16 costs 144 or 256 rays in
     // every pixel, but adaptive spends them only where a pixel needs them, and these caps
     // reach errors below jitter 8 × 8's that cap 8 cannot. An odd cap has no stages: a pixel
-    // that goes on takes all `n × n` rays, which on thin solids reaches errors the even cap
-    // below cannot, for fewer rays than the even cap above.
+    // that goes on takes all `n × n` rays, a count between the even caps' around it.
     let higher: &[u32] = if quick { &[] } else { &[5, 7, 9, 12, 16] };
     for &n in higher {
         out.extend(thresholds.iter().map(|&t| adaptive(n, t)));
