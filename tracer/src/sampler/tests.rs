@@ -250,6 +250,23 @@ fn traced(s: Sampler, rect: Rect, f: impl Fn(f64, f64) -> Sample) -> (Vec<Color>
     (out, rays.into_inner())
 }
 
+/// [`traced`], with `geometry`.
+fn traced_probed(
+    s: Sampler,
+    rect: Rect,
+    f: impl Fn(f64, f64) -> Sample,
+    geometry: &impl PixelGeometry,
+) -> (Vec<Color>, Vec<(f64, f64)>) {
+    let rays = std::cell::RefCell::new(Vec::new());
+    let trace = |x: f64, y: f64| {
+        rays.borrow_mut().push((x, y));
+        f(x, y)
+    };
+    let mut out = vec![Color::ZERO; rect.pixel_count()];
+    s.render_rect_probed(rect, trace, geometry, &mut out);
+    (out, rays.into_inner())
+}
+
 /// Rays traced inside pixel `(px, py)` (border first passes of other pixels excluded).
 fn rays_in(rays: &[(f64, f64)], px: u32, py: u32) -> Vec<(f64, f64)> {
     rays.iter()
@@ -751,32 +768,20 @@ fn probed_pixels_do_not_depend_on_the_tile() {
 /// it, which the geometry does not flag, stops at its first four.
 #[test]
 fn a_pixel_that_may_hide_a_solid_is_refined_though_its_rays_agree() {
-    use std::cell::RefCell;
     // A flat image: no contrast anywhere, so only the geometry can ask for more rays.
+    let flat = |_: f64, _: f64| Sample {
+        color: Color::splat(0.5),
+        object: Sample::BACKGROUND,
+    };
+    // Pixel (4, 2) may hide a solid other than the background; nothing is smooth.
+    let hides = |px: i64, py: i64, object: u32| (px, py) == (4, 2) && object == Sample::BACKGROUND;
+    let geometry = Geo(|_, _| false, hides, no_crossing);
     for (max, flagged) in [(2, 4), (3, 13), (4, 16), (6, 36), (8, 64), (16, 256)] {
         let s = Sampler::Adaptive {
             max,
             threshold: 0.02,
         };
-        let rays = RefCell::new(Vec::new());
-        let trace = |x: f64, y: f64| {
-            rays.borrow_mut().push((x, y));
-            Sample {
-                color: Color::splat(0.5),
-                object: Sample::BACKGROUND,
-            }
-        };
-        // Pixel (4, 2) may hide a solid other than the background; nothing is smooth.
-        let hides =
-            |px: i64, py: i64, object: u32| (px, py) == (4, 2) && object == Sample::BACKGROUND;
-        let mut out = vec![Color::ZERO; 2];
-        s.render_rect_probed(
-            Rect::new(4, 2, 2, 1),
-            trace,
-            &Geo(|_, _| false, hides, no_crossing),
-            &mut out,
-        );
-        let rays = rays.into_inner();
+        let (out, rays) = traced_probed(s, Rect::new(4, 2, 2, 1), flat, &geometry);
         assert_eq!(rays_in(&rays, 4, 2).len(), flagged, "max {max}");
         assert_eq!(rays_in(&rays, 5, 2).len(), 4, "max {max}");
         assert_eq!(out, vec![Color::splat(0.5); 2], "max {max}");
@@ -789,34 +794,24 @@ fn a_pixel_that_may_hide_a_solid_is_refined_though_its_rays_agree() {
 /// ray holds only while the solid is unseen.
 #[test]
 fn a_flagged_pixel_stops_early_once_its_rays_meet_the_solid() {
-    use std::cell::RefCell;
+    // The left half of every pixel is object 1, the right the background, one colour.
+    let halves = |x: f64, _: f64| Sample {
+        color: Color::splat(0.5),
+        object: if x.fract() < 0.5 {
+            1
+        } else {
+            Sample::BACKGROUND
+        },
+    };
+    let hides = |px: i64, py: i64, _: u32| (px, py) == (4, 2);
+    let geometry = Geo(|_, _| false, hides, no_crossing);
     for max in [6, 8, 16] {
         let s = Sampler::Adaptive {
             max,
             threshold: 0.02,
         };
-        let rays = RefCell::new(Vec::new());
-        // The left half of every pixel is object 1, the right the background, one colour.
-        let trace = |x: f64, y: f64| {
-            rays.borrow_mut().push((x, y));
-            Sample {
-                color: Color::splat(0.5),
-                object: if x.fract() < 0.5 {
-                    1
-                } else {
-                    Sample::BACKGROUND
-                },
-            }
-        };
-        let hides = |px: i64, py: i64, _: u32| (px, py) == (4, 2);
-        let mut out = vec![Color::ZERO; 1];
-        s.render_rect_probed(
-            Rect::new(4, 2, 1, 1),
-            trace,
-            &Geo(|_, _| false, hides, no_crossing),
-            &mut out,
-        );
-        assert_eq!(rays_in(&rays.into_inner(), 4, 2).len(), 16, "max {max}");
+        let (_, rays) = traced_probed(s, Rect::new(4, 2, 1, 1), halves, &geometry);
+        assert_eq!(rays_in(&rays, 4, 2).len(), 16, "max {max}");
     }
 }
 
@@ -858,7 +853,12 @@ impl<G: PixelGeometry, Q: Fn(i64, i64) -> Option<u8>> PixelGeometry for Quartere
 /// none at all where no quarter is named.
 #[test]
 fn only_the_quarters_a_solid_may_show_in_are_refined() {
-    use std::cell::RefCell;
+    let flat = |_: f64, _: f64| Sample {
+        color: Color::splat(0.5),
+        object: Sample::BACKGROUND,
+    };
+    let hides = |px: i64, py: i64, _: u32| (px, py) == (4, 2);
+    let flags = Geo(|_, _| false, hides, no_crossing);
     for (max, named, expected) in [
         (4, 0b0110, 4 + 2 * 3),
         (4, 0b1000, 4 + 3),
@@ -869,20 +869,9 @@ fn only_the_quarters_a_solid_may_show_in_are_refined() {
             max,
             threshold: 0.02,
         };
-        let rays = RefCell::new(Vec::new());
-        let trace = |x: f64, y: f64| {
-            rays.borrow_mut().push((x, y));
-            Sample {
-                color: Color::splat(0.5),
-                object: Sample::BACKGROUND,
-            }
-        };
-        let hides = |px: i64, py: i64, _: u32| (px, py) == (4, 2);
-        let flags = Geo(|_, _| false, hides, no_crossing);
         let geometry = Quartered(&flags, |_, _| Some(named));
-        let mut out = vec![Color::ZERO; 1];
-        s.render_rect_probed(Rect::new(4, 2, 1, 1), trace, &geometry, &mut out);
-        let rays = rays_in(&rays.into_inner(), 4, 2);
+        let (out, rays) = traced_probed(s, Rect::new(4, 2, 1, 1), flat, &geometry);
+        let rays = rays_in(&rays, 4, 2);
         assert_eq!(rays.len(), expected, "max {max}, quarters {named:04b}");
         // One first-pass ray in each unnamed quarter, and the rest in the named ones.
         for k in 0..4u8 {
@@ -911,27 +900,21 @@ fn only_the_quarters_a_solid_may_show_in_are_refined() {
 /// geometry does not know, it stops at 8 agreeing rays as any pixel a neighbour asked about.
 #[test]
 fn a_thin_solid_s_silhouette_beside_a_neighbour_is_searched_to_the_cap() {
-    use std::cell::RefCell;
+    // Object 1 left of x = 5, the background right of it, in one colour.
+    let split = |x: f64, _: f64| Sample {
+        color: Color::splat(0.5),
+        object: if x < 5.0 { 1 } else { Sample::BACKGROUND },
+    };
+    let flags = Geo(|_, _| false, |_, _, _| false, no_crossing);
+    let s = Sampler::Adaptive {
+        max: 8,
+        threshold: 0.02,
+    };
     for (quarters, expected) in [(Some(0b1111), 64), (None, 8)] {
-        let s = Sampler::Adaptive {
-            max: 8,
-            threshold: 0.02,
-        };
-        let rays = RefCell::new(Vec::new());
-        // Object 1 left of x = 5, the background right of it, in one colour.
-        let trace = |x: f64, y: f64| {
-            rays.borrow_mut().push((x, y));
-            Sample {
-                color: Color::splat(0.5),
-                object: if x < 5.0 { 1 } else { Sample::BACKGROUND },
-            }
-        };
-        let flags = Geo(|_, _| false, |_, _, _| false, no_crossing);
         let geometry = Quartered(&flags, |_, _| quarters);
-        let mut out = vec![Color::ZERO; 2];
-        s.render_rect_probed(Rect::new(4, 2, 2, 1), trace, &geometry, &mut out);
+        let (_, rays) = traced_probed(s, Rect::new(4, 2, 2, 1), split, &geometry);
         assert_eq!(
-            rays_in(&rays.into_inner(), 4, 2).len(),
+            rays_in(&rays, 4, 2).len(),
             expected,
             "quarters {quarters:?}"
         );
