@@ -428,7 +428,7 @@ impl Scene {
             on_ray(x, y);
             self.primary::<TABLES>(x, y, &counters)
         };
-        if matches!(sampler, Sampler::Adaptive { .. }) {
+        if matches!(sampler, Sampler::Adaptive { max: 2.., .. }) {
             // The adaptive sampler asks the geometry which pixels may end after one ray and
             // which may hide a solid their first rays missed; which solids may show in each
             // pixel is worked out once for the tile and the border the sampler looks at.

@@ -275,14 +275,16 @@ fn band_coverage(i: u32, j: u32, x0: f64, slope: f64, w: f64) -> f64 {
 /// in which a feature covers a fraction `A` is estimated without any ray on the feature with
 /// probability at most `e^(−4A)` (each of its four stratified first-pass samples misses the part
 /// of the feature in its own cell; later stages and the neighbours' first passes only add
-/// chances to see it). Checked on thin bands at several widths and slopes, for a cap of 4
-/// (refinement in one step) and of 8 (in stages): the observed rate of such pixels stays under
-/// the bound (plus three standard deviations). Axis-aligned bands do much better, as the
-/// neighbours' samples predict: a pixel they cross keeps only its first pass with probability
-/// at most `(1 − 2w)⁶`.
+/// chances to see it; an odd cap's four rays in four cells drawn without replacement miss
+/// it no more often). Checked on thin bands at several widths and slopes, for a cap of 4
+/// (refinement in one step), of 8 (in stages) and of 3 and 5 (four random cells of the
+/// grid): the observed rate of such pixels stays under the bound (plus three standard
+/// deviations). Axis-aligned bands do much better for even caps, as the neighbours' samples
+/// predict: a pixel they cross keeps only its first pass with probability at most
+/// `(1 − 2w)⁶`.
 #[test]
 fn adaptive_misses_thin_features_no_more_than_its_bound() {
-    for (max, (w, slope)) in [4, 8].into_iter().flat_map(|m| {
+    for (max, (w, slope)) in [3, 4, 5, 8].into_iter().flat_map(|m| {
         [
             (0.05, 0.0),
             (0.1, 0.0),
@@ -345,7 +347,7 @@ fn adaptive_misses_thin_features_no_more_than_its_bound() {
             "max = {max}, w = {w}, slope = {slope}: {misses} of {crossed} never seen, \
              bound {expected_misses:.1}"
         );
-        if slope == 0.0 {
+        if slope == 0.0 && max % 2 == 0 {
             let axis_bound = (1.0 - 2.0 * w).powi(6) * f64::from(crossed);
             assert!(
                 first_pass_only <= axis_bound + 3.0 * axis_bound.sqrt() + 1.0,

@@ -5,7 +5,7 @@
 use crate::math::Color;
 use crate::tile::Rect;
 
-use super::jitter::{PixelHash, SEED_FIRST, SEED_JITTER, mix, stratified};
+use super::jitter::{PixelHash, SEED_FIRST, SEED_JITTER, mix};
 use super::{ALL_QUADRANTS, CellSums, PixelGeometry, Sample, UnseenPattern};
 
 /// The samples an adaptive pixel has taken so far: their sum, sum of squares, range and
@@ -215,8 +215,10 @@ pub(super) fn cell_sample<F: Fn(f64, f64) -> Sample>(
 /// quadrant's offset (see [`QuadrantOrder`]).
 ///
 /// For even `n` it is rank 0 of the quadrant, so every later stage reuses it. For odd `n`
-/// the quadrants do not align with the grid, and the first pass is an independent 2 × 2
-/// jittered set.
+/// (at least 3) the quadrants do not align with the grid: the four samples are four
+/// distinct cells of the `n × n` grid drawn at random (see `odd_first_cell`), at the
+/// cells' own hashed positions, and the offset returned is the cell's column and row. A
+/// pixel refined takes the other cells, its `n × n` rays being exactly `jitter`'s.
 pub(super) fn first_position(
     x: i64,
     y: i64,
@@ -227,11 +229,15 @@ pub(super) fn first_position(
 ) -> ((f64, f64), (u32, u32)) {
     let FirstHashes { first, cells } = *hashes;
     let Some(order) = order else {
-        let (ox, oy) = first.pair(k);
-        let (qx, qy) = (f64::from(k % 2), f64::from(k / 2));
+        let (ci, cj) = odd_first_cell(first, k, n);
+        let (ox, oy) = cells.pair(cj * n + ci);
+        let inv = 1.0 / f64::from(n);
         return (
-            (x as f64 + (qx + ox) * 0.5, y as f64 + (qy + oy) * 0.5),
-            (0, 0),
+            (
+                x as f64 + (f64::from(ci) + ox) * inv,
+                y as f64 + (f64::from(cj) + oy) * inv,
+            ),
+            (ci, cj),
         );
     };
     let h = order.h;
@@ -250,6 +256,38 @@ pub(super) fn first_position(
         ),
         (a, b),
     )
+}
+
+/// The column and row of the cell of the `n × n` grid (odd `n ≥ 3`) that first-pass sample
+/// `k` of a pixel with first-pass hash `first` takes (see [`first_position`]).
+///
+/// The four cells are a uniformly random set of four distinct cells, drawn without
+/// replacement: sample `k` takes the `r`-th of the `n² − k` cells the samples before it
+/// left, `r` uniform. So each cell is among them with chance `4/n²` (the mean of the four is
+/// unbiased), and whether each cell is among them is negatively associated, which keeps the
+/// bound that four rays in four quadrants give on missing a feature (STABILITY.md).
+#[inline]
+fn odd_first_cell(first: PixelHash, k: u32, n: u32) -> (u32, u32) {
+    let mut taken = [0u32; 4];
+    for j in 0..=k {
+        // ⌊u · m / 2³²⌋ for u uniform on 32 bits takes each value in [0, m) with probability
+        // within 2⁻³² of 1/m (as in `quadrant_offset`).
+        let u = mix(first.0 ^ u64::from(j)) >> 32;
+        let mut r = ((u * u64::from(n * n - j)) >> 32) as u32;
+        // The r-th cell not yet taken: step past each taken cell at or below it, in
+        // ascending order.
+        let mut earlier = [u32::MAX; 4];
+        earlier[..j as usize].copy_from_slice(&taken[..j as usize]);
+        earlier.sort_unstable();
+        for c in earlier {
+            if c <= r {
+                r += 1;
+            }
+        }
+        taken[j as usize] = r;
+    }
+    let c = taken[k as usize];
+    (c % n, c / n)
 }
 
 /// The offset `(a, b)` in `[0, h)²` that quadrant `k` of a pixel with first-pass hash
@@ -308,7 +346,10 @@ pub(super) fn first_pass<F: Fn(f64, f64) -> Sample>(
         let ((sx, sy), offset, sample) = match probed {
             // The probe is this very ray: only the quadrant's offset is left to draw.
             Some((at, s)) if k == 0 => {
-                let offset = order.map_or((0, 0), |o| quadrant_offset(hashes.first, 0, o.h));
+                let offset = match order {
+                    Some(o) => quadrant_offset(hashes.first, 0, o.h),
+                    None => odd_first_cell(hashes.first, 0, n),
+                };
                 (at, offset, s)
             }
             _ => {
@@ -367,7 +408,8 @@ pub(super) enum Ask {
 ///   most the stage's bound;
 /// - `n²/4` (all `n × n` cells).
 ///
-/// Odd `n`: `n × n` stratified samples besides the first pass, count-weighted with it.
+/// Odd `n`: the `n × n` cells the first pass did not take, so that the pixel is `jitter`'s
+/// `n × n` set; no stage stops it.
 ///
 /// With `hidden` (a thin solid may show in the pixel that its rays have not met), no stage
 /// stops it while its rays all meet one object: agreeing rays bound nothing about what they
@@ -395,10 +437,22 @@ pub(super) fn refine<F: Fn(f64, f64) -> Sample>(
     trace: &F,
 ) -> Color {
     let Some(order) = order else {
-        // Both sets are unbiased estimates of the pixel, so their count-weighted mean is too.
-        let n2 = f64::from(n * n);
-        let t = &fp.tally;
-        return (t.sum + stratified(x, y, n, Some(SEED_JITTER), trace) * n2) / (4.0 + n2);
+        // Summed in `stratified`'s order, the first pass's samples in their cells' places:
+        // where no cells correct the rays, the very bits of `jitter`'s pixel.
+        let hash = PixelHash::new(x, y, SEED_JITTER);
+        let inv = 1.0 / f64::from(n);
+        let mut sum = Color::ZERO;
+        for cj in 0..n {
+            for ci in 0..n {
+                sum += match fp.offsets.iter().position(|&o| o == (ci, cj)) {
+                    Some(k) => fp.samples[k].color,
+                    None => {
+                        cell_sample(i64::from(x), i64::from(y), hash, n, inv, (ci, cj), trace).color
+                    }
+                };
+            }
+        }
+        return sum / f64::from(n * n);
     };
     let h = order.h;
     let hash = PixelHash::new(x, y, SEED_JITTER);
@@ -886,14 +940,17 @@ fn adaptive_in<F, G>(
                     // would end the pixel on theirs. The geometry knows where a checker
                     // plane's cells meet and which cells the rays met.
                     //
-                    // The first pass is itself a stratified set over the 2 × 2 quadrants:
-                    // where that already bounds the edges' error, nothing changes.
+                    // For even `max` the first pass is itself a stratified set over the
+                    // 2 × 2 quadrants: where that already bounds the edges' error, nothing
+                    // changes. An odd cap's four cells are no stratified set, and bound only
+                    // what one ray would.
                     //
                     // Rays corrected by the cells' control variate have no such edges left.
+                    let first_grid = if order.is_some() { 2 } else { 1 };
                     let pattern = (!unseen && !c.mixed && mine.is_none())
                         .then(|| geometry?.unseen_pattern(px, py, c.object, &fp.positions))
                         .flatten()
-                        .filter(|p| p.error_bound(2) > threshold);
+                        .filter(|p| p.error_bound(first_grid) > threshold);
                     let ask = if unseen {
                         Ask::Unseen
                     } else if let Some(p) = pattern {

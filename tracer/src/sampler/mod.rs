@@ -147,9 +147,7 @@ impl Sampler {
         match *self {
             Sampler::Center => 1,
             Sampler::Thesis => 5,
-            Sampler::Grid { n } | Sampler::Jitter { n } => n * n,
-            Sampler::Adaptive { max, .. } if max.is_multiple_of(2) => max * max,
-            Sampler::Adaptive { max, .. } => 4 + max * max,
+            Sampler::Grid { n } | Sampler::Jitter { n } | Sampler::Adaptive { max: n, .. } => n * n,
         }
     }
 
@@ -189,7 +187,9 @@ impl Sampler {
         G: PixelGeometry,
     {
         debug_assert_eq!(out.len(), rect.pixel_count());
-        if let Sampler::Adaptive { max, threshold } = *self {
+        if let Sampler::Adaptive { max, threshold } = *self
+            && max >= 2
+        {
             adaptive(rect, max, threshold, trace, geometry, out);
             return;
         }
@@ -215,6 +215,8 @@ impl Sampler {
             }
             Sampler::Grid { n } => stratified(x, y, n, None, trace),
             Sampler::Jitter { n } => stratified(x, y, n, Some(SEED_JITTER), trace),
+            // A cap of one ray leaves nothing to adapt: the pixel is `jitter`'s one ray.
+            Sampler::Adaptive { max: 1, .. } => stratified(x, y, 1, Some(SEED_JITTER), trace),
             Sampler::Adaptive { max, threshold } => {
                 let mut one = [Color::ZERO];
                 adaptive(

@@ -530,7 +530,7 @@ fn a_fully_refined_pixel_equals_jitter_with_the_same_count() {
             object: u32::from(v < 0.5),
         }
     };
-    for n in [2, 3, 4, 6, 8, 16] {
+    for n in [1, 2, 3, 4, 5, 6, 8, 9, 16] {
         let rect = Rect::new(3, 2, 4, 3);
         let mut jit = vec![Color::ZERO; rect.pixel_count()];
         Sampler::Jitter { n }.render_rect(rect, busy, &mut jit);
@@ -545,11 +545,66 @@ fn a_fully_refined_pixel_equals_jitter_with_the_same_count() {
                 // Only the order of the sum differs.
                 assert!((*a - *j).abs().max_element() < 1e-12, "n = {n}: {a} vs {j}");
             } else {
-                // Odd n adds its independent 2 × 2 first pass, weighted by count.
-                let n2 = f64::from(n * n);
-                assert!(
-                    (*a - *j).abs().max_element() <= 4.0 / (4.0 + n2) + 1e-12,
-                    "n = {n}"
+                // Odd n sums its cells in jitter's order.
+                assert_eq!(a, j, "n = {n}");
+            }
+        }
+    }
+}
+
+/// An odd cap's first pass takes four distinct cells of its `n × n` grid, each at its own
+/// jittered position, drawn as a uniformly random set of four: over many pixels every cell
+/// is among them with chance 4/n² (so their mean is unbiased) and every pair of cells with
+/// chance 4·3/(n²(n² − 1)), as sampling without replacement gives.
+#[test]
+fn an_odd_cap_s_first_pass_is_four_cells_drawn_without_replacement() {
+    for n in [3u32, 5, 7] {
+        let cells = (n * n) as usize;
+        let mut once = vec![0u32; cells];
+        let mut pairs = vec![0u32; cells * cells];
+        let pixels = 40_000;
+        for p in 0..pixels {
+            let (x, y) = (i64::from(p % 200), i64::from(p / 200));
+            let hashes = FirstHashes::new(x, y);
+            let mut taken = Vec::new();
+            for k in 0..4 {
+                let ((sx, sy), (ci, cj)) = first_position(x, y, n, None, k, &hashes);
+                // The position lies in the cell named, where jitter puts that cell's ray.
+                let (ox, oy) = unit_pair(x as u32, y as u32, cj * n + ci, SEED_JITTER);
+                let inv = 1.0 / f64::from(n);
+                assert_eq!(sx, x as f64 + (f64::from(ci) + ox) * inv, "n = {n}");
+                assert_eq!(sy, y as f64 + (f64::from(cj) + oy) * inv, "n = {n}");
+                taken.push((cj * n + ci) as usize);
+            }
+            let mut distinct = taken.clone();
+            distinct.sort_unstable();
+            distinct.dedup();
+            assert_eq!(distinct.len(), 4, "n = {n}: {taken:?}");
+            for &a in &taken {
+                once[a] += 1;
+                for &b in &taken {
+                    if a < b {
+                        pairs[a * cells + b] += 1;
+                    }
+                }
+            }
+        }
+        // Binomial counts within five of their standard deviations.
+        let within = |count: u32, p: f64, what: &str| {
+            let (mean, sd) = (pixels as f64 * p, (pixels as f64 * p * (1.0 - p)).sqrt());
+            assert!(
+                (f64::from(count) - mean).abs() < 5.0 * sd,
+                "n = {n}, {what}: {count} vs {mean}"
+            );
+        };
+        let m = cells as f64;
+        for (a, &c) in once.iter().enumerate() {
+            within(c, 4.0 / m, &format!("cell {a}"));
+            for b in a + 1..cells {
+                within(
+                    pairs[a * cells + b],
+                    12.0 / (m * (m - 1.0)),
+                    &format!("cells {a}, {b}"),
                 );
             }
         }
@@ -762,8 +817,8 @@ fn probed_pixels_do_not_depend_on_the_tile() {
 }
 
 /// Where the geometry says a solid may hide, a pixel whose first rays all agree is
-/// refined as if they had not: to jitter's rays for caps up to 4 (a cap of 3 adds its
-/// 3 × 3 to its first four), and above that to every ray of its cap while its rays all meet
+/// refined as if they had not: to jitter's rays for caps up to 4 (a cap of 3 takes the
+/// five cells of its 3 × 3 that its first four left), and above that to every ray of its cap while its rays all meet
 /// one object (agreeing rays bound nothing about a solid they all missed); the pixel beside
 /// it, which the geometry does not flag, stops at its first four.
 #[test]
@@ -776,7 +831,7 @@ fn a_pixel_that_may_hide_a_solid_is_refined_though_its_rays_agree() {
     // Pixel (4, 2) may hide a solid other than the background; nothing is smooth.
     let hides = |px: i64, py: i64, object: u32| (px, py) == (4, 2) && object == Sample::BACKGROUND;
     let geometry = Geo(|_, _| false, hides, no_crossing);
-    for (max, flagged) in [(2, 4), (3, 13), (4, 16), (6, 36), (8, 64), (16, 256)] {
+    for (max, flagged) in [(2, 4), (3, 9), (4, 16), (6, 36), (8, 64), (16, 256)] {
         let s = Sampler::Adaptive {
             max,
             threshold: 0.02,
