@@ -42,9 +42,10 @@ pub enum Sampler {
     /// nothing but smooth shading changes in the pixel and no neighbour's probe on the same
     /// surface differs from it by more than `threshold` (see
     /// [`Sampler::render_rect_probed`]). Elsewhere a first pass of one jittered ray per
-    /// pixel quadrant (the probe among them), then more where the image needs them, in
-    /// stages that reuse every ray already traced, up to `max × max` stratified rays (for
-    /// even `max`, the very rays of `Jitter { n: max }`): where the first pass varies by
+    /// pixel quadrant (for odd `max`, four cells of the `max × max` grid drawn at random;
+    /// the probe among them), then more where the image needs them, reusing every ray
+    /// already traced (for even `max` in stages), up to `max × max` stratified rays, the
+    /// very rays of `Jitter { n: max }` (`max = 1` is that one ray): where the first pass varies by
     /// more than `threshold` or meets two objects, where the scene's geometry says a solid
     /// the first pass did not see may show in the pixel (`PixelGeometry::may_hide`), or
     /// where a neighbour's first pass saw an edge, another object or another mean. For even
