@@ -53,7 +53,7 @@ pub enum Sampler {
     /// and stops there unless they disagree (or the step between them went unseen by both:
     /// then both take every ray), and a pixel at 16 rays (or, for `max/2` a power of two,
     /// 32, 64, …) stops there once the standard error of its mean is at most `threshold` ·
-    /// √(rays/16) (see `refine` and `se_bound` in `sampler/adaptive.rs`), unless a thin
+    /// √(rays/16) (see `refine` and `se_bound` in `sampler/adaptive/refine.rs`), unless a thin
     /// solid may hide in it unseen: then it stops only once its rays meet two objects.
     /// Where the geometry names the quarters of the square a thin solid may show in
     /// (`PixelGeometry::fitted_quadrants`), a pixel that goes on because of one refines
