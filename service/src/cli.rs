@@ -43,6 +43,7 @@ where
             )
             .exit();
     }
+    crate::memory::settle();
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
