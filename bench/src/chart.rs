@@ -2,7 +2,7 @@
 //! scenes that stress sampling, measured against a high-rate reference of the exact image.
 //!
 //! For each scene and configuration the chart records the median render time of repeated
-//! single-threaded runs (the image rendered in 32-pixel tiles, as the CLI does; the repeats
+//! single-threaded runs (the image rendered in the tiles the CLI takes on one thread; the repeats
 //! interleaved across configurations), the primary and total rays per pixel, and the RMS
 //! and worst-pixel error in linear RGB. The reference is `n × n` stratified samples per
 //! pixel; it is also computed at `n/2`, and since its RMS error falls as `n^-3/2` (see
@@ -17,7 +17,9 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use rayon::prelude::*;
 use tessera_tracer::internals::exact::error;
-use tessera_tracer::{Color, DirAssets, Rect, Sampler, Scene, SceneDesc, TextureLimits, tiles};
+use tessera_tracer::{
+    Color, DirAssets, Rect, Sampler, Scene, SceneDesc, TextureLimits, local_tile, tiles,
+};
 
 use crate::scenes::{read_desc, scene_files, scene_name};
 use crate::stats::median;
@@ -141,7 +143,7 @@ fn render_timed(scene: &Scene, sampler: &Sampler) -> (Vec<Color>, f64, u64, u64)
     let mut image = vec![Color::ZERO; (w * h) as usize];
     let (mut primary, mut total) = (0, 0);
     let start = Instant::now();
-    for r in tiles(w, h, 32) {
+    for r in tiles(w, h, local_tile(w, h, 1)) {
         let (px, stats) = scene.render_rect_linear_with(r, sampler);
         primary += stats.primary;
         total += stats.total();

@@ -378,8 +378,8 @@ fn median(mut v: Vec<Duration>) -> Duration {
     v[v.len() / 2]
 }
 
-/// What `tessera-render --threads n` does, timed: parse, build, render in 32-pixel tiles on
-/// a pool of `n` threads, encode the PNG.
+/// What `tessera-render --threads n` does, timed: parse, build, render in its tiles
+/// ([`tessera_tracer::local_tile`]) on a pool of `n` threads, encode the PNG.
 fn local(scene: &str, threads: usize, samples: Option<u32>) -> Result<(Vec<u8>, Duration)> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
@@ -393,7 +393,8 @@ fn local(scene: &str, threads: usize, samples: Option<u32>) -> Result<(Vec<u8>, 
             .map_err(anyhow::Error::msg)?;
     }
     let s = Scene::build(&desc, &MemoryAssets::new(), &TextureLimits::default())?;
-    let (rgb, _) = pool.install(|| s.render_image(32, |_| {}));
+    let tile = tessera_tracer::local_tile(s.width, s.height, threads);
+    let (rgb, _) = pool.install(|| s.render_image(tile, |_| {}));
     let png = encode_png(s.width, s.height, &rgb)?;
     Ok((png, start.elapsed()))
 }

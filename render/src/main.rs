@@ -18,7 +18,7 @@ use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use tessera_tracer::{
     DirAssets, Limits, MAX_SCENE_FILE_BYTES, MAX_THREADS, PngWriter, Scene, SceneError,
-    TextureLimits, parse, scene_text,
+    TextureLimits, local_tile, parse, scene_text,
 };
 
 /// The output file, shared with the PNG encoder. The encoder owns its writer and gives no
@@ -246,7 +246,8 @@ fn run(args: &Args) -> Result<()> {
         bar
     };
     let start = Instant::now();
-    let (rgb, stats) = pool.install(|| scene.render_image(32, |done| bar.set_position(done)));
+    let tile = local_tile(scene.width, scene.height, pool.current_num_threads());
+    let (rgb, stats) = pool.install(|| scene.render_image(tile, |done| bar.set_position(done)));
     bar.finish_and_clear();
     let elapsed = start.elapsed();
 

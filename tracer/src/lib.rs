@@ -65,7 +65,7 @@ pub use texture::{
     AssetSource, DirAssets, MemoryAssets, Texture, TextureError, TextureLimits,
     lexical as lexical_texture_path,
 };
-pub use tile::{Rect, tile_count, tiles};
+pub use tile::{Rect, local_tile, tile_count, tiles};
 pub use transform::{Transform, TransformOp};
 pub use world::{Acceleration, Scene};
 
