@@ -21,8 +21,10 @@ const MAP_FROM: libc::c_int = 256 << 10;
 /// when freed, and arena tops are trimmed from 128 KiB.
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 pub fn settle() {
-    // SAFETY: `mallopt` sets an allocator parameter under the allocator's own lock; a
-    // refused value (it returns 0) leaves the default in place, which is only larger.
+    // SAFETY: `mallopt` sets an allocator parameter under the allocator's own lock. A
+    // refused value (it returns 0) leaves glibc's own adjusting threshold in place, as
+    // without this call: the service runs as before, only holding more memory after a
+    // burst of checks.
     unsafe {
         libc::mallopt(libc::M_MMAP_THRESHOLD, MAP_FROM);
     }
