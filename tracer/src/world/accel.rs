@@ -36,11 +36,12 @@ pub(super) struct Quick {
 pub(super) const BVH_MIN_COST: f64 = BVH_MIN_PRIMS as f64 * SPHERE_COST;
 
 /// The acceleration structure of a scene.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub(super) enum Accel {
-    /// Test every prim in order.
-    #[default]
-    Linear,
+    /// Test every prim in order, each first by its packed quick test (per prim, in prim
+    /// order: see [`quick_of`]), so that a missed sphere costs a few multiplications in the
+    /// loop rather than a call.
+    Linear(Vec<(DVec3, f64)>),
     /// A BVH over the bounded prims (items are indices into `prims`) and the prims without
     /// a usable box (planes, unbounded CSG), tested every time.
     Bvh {
@@ -137,14 +138,7 @@ impl PointTables {
         {
             return PointTables::default();
         }
-        let quick = prims
-            .iter()
-            .map(|p| match p {
-                Prim::Object(o) => objects[*o as usize].sphere,
-                Prim::Csg(_) => None,
-            })
-            .map(|s| s.unwrap_or((DVec3::ZERO, f64::INFINITY)))
-            .collect();
+        let quick = prims.iter().map(|p| quick_of(p, objects)).collect();
         // The eye's first, then the lights' in order, while the budget lasts: each table
         // lists every solid at least once, so once fewer entries than items are left, no
         // further table is tried (a scene of many solids under many lights spent seconds
@@ -192,11 +186,28 @@ pub(super) fn prim_cost(prim: &Prim, objects: &[Object]) -> f64 {
 /// SAH cost of a sphere placed by a similarity (see [`prim_cost`]).
 pub(super) const SPHERE_COST: f64 = 1.0;
 
+impl Default for Accel {
+    /// The plain loop over no prims.
+    fn default() -> Accel {
+        Accel::Linear(Vec::new())
+    }
+}
+
+/// A prim's quick test: a similarity sphere's world centre and squared radius, `r2 = ∞` for
+/// every other prim (see [`crate::object::quick_missed`]).
+fn quick_of(prim: &Prim, objects: &[Object]) -> (DVec3, f64) {
+    let sphere = match prim {
+        Prim::Object(o) => objects[*o as usize].sphere,
+        Prim::Csg(_) => None,
+    };
+    sphere.unwrap_or((DVec3::ZERO, f64::INFINITY))
+}
+
 impl Accel {
     /// The BVH, if there is one.
     pub(super) fn bvh(&self) -> Option<&Bvh> {
         match self {
-            Accel::Linear => None,
+            Accel::Linear(_) => None,
             Accel::Bvh { bvh, .. } => Some(bvh),
         }
     }
@@ -220,7 +231,8 @@ impl Accel {
         // Prim indices fit in u32 (objects do, and every prim has at least one); a scene
         // where they did not would simply stay linear.
         if !wanted || u32::try_from(prims.len()).is_err() {
-            return (Accel::Linear, Vec::new());
+            let quick = prims.iter().map(|p| quick_of(p, objects)).collect();
+            return (Accel::Linear(quick), Vec::new());
         }
         let items = bvh_items(prims, objects, &bounded);
         let (bvh, mut unbounded) = Bvh::build_items(&items);
@@ -236,11 +248,7 @@ impl Accel {
             .items()
             .iter()
             .map(|&i| {
-                let sphere = match &prims[i as usize] {
-                    Prim::Object(o) => objects[*o as usize].sphere,
-                    Prim::Csg(_) => None,
-                };
-                let (centre, r2) = sphere.unwrap_or((DVec3::ZERO, f64::INFINITY));
+                let (centre, r2) = quick_of(&prims[i as usize], objects);
                 Quick {
                     prim: i,
                     centre,

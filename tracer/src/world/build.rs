@@ -266,7 +266,7 @@ impl Scene {
     /// The BVH and the prims it leaves out (planes, unbounded CSG), when rays use one.
     pub(crate) fn bvh_and_unbounded(&self) -> Option<(&Bvh, &[u32])> {
         match &self.accel {
-            Accel::Linear => None,
+            Accel::Linear(_) => None,
             Accel::Bvh { bvh, unbounded, .. } => Some((bvh, unbounded)),
         }
     }
@@ -300,7 +300,7 @@ fn surfaces_through(
         }
     };
     match accel {
-        Accel::Linear => (0..prims.len() as u32).for_each(&mut ask),
+        Accel::Linear(_) => (0..prims.len() as u32).for_each(&mut ask),
         Accel::Bvh { bvh, unbounded, .. } => {
             unbounded.iter().copied().for_each(&mut ask);
             bvh.any_item(

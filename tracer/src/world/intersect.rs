@@ -3,6 +3,8 @@
 
 use std::ops::ControlFlow;
 
+use glam::DVec3;
+
 use crate::bvh::Bvh;
 use crate::csg::{Csg, Prim};
 use crate::math::Ray;
@@ -38,7 +40,7 @@ impl Scene {
         skip: Option<u32>,
     ) -> Option<Hit> {
         match &self.accel {
-            Accel::Linear => self.intersect_linear(ray, t_max, skip),
+            Accel::Linear(quick) => self.intersect_linear(quick, ray, t_max, skip),
             Accel::Bvh {
                 bvh,
                 unbounded,
@@ -124,12 +126,22 @@ impl Scene {
         best.map(|(h, _)| h)
     }
 
-    /// Every prim in order: a prim replaces the best hit only when strictly nearer.
+    /// Every prim in order: a prim replaces the best hit only when strictly nearer. A prim
+    /// its quick test rejects (`quick`, per prim) has no hit, and is not asked.
     #[inline]
-    pub(super) fn intersect_linear(&self, ray: &Ray, t_max: f64, skip: Option<u32>) -> Option<Hit> {
+    pub(super) fn intersect_linear(
+        &self,
+        quick: &[(DVec3, f64)],
+        ray: &Ray,
+        t_max: f64,
+        skip: Option<u32>,
+    ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut t_best = t_max;
-        for prim in &self.prims {
+        for (prim, &(c, r2)) in self.prims.iter().zip(quick) {
+            if quick_missed(c, r2, ray) {
+                continue;
+            }
             if let Some(h) = self.prim_hit(prim, ray, t_best, skip) {
                 t_best = h.local.t;
                 best = Some(h);

@@ -115,10 +115,9 @@ impl Scene {
         skip: impl Fn(u32) -> bool + Copy,
     ) -> bool {
         match &self.accel {
-            Accel::Linear => self
-                .prims
-                .iter()
-                .any(|prim| self.prim_blocks(prim, ray, t_max, skip)),
+            Accel::Linear(quick) => self.prims.iter().zip(quick).any(|(prim, &(c, r2))| {
+                !quick_missed(c, r2, ray) && self.prim_blocks(prim, ray, t_max, skip)
+            }),
             Accel::Bvh {
                 bvh,
                 unbounded,
