@@ -156,8 +156,26 @@ impl<'a> SurfacePoint<'a> {
     /// every ray the shader spawns does, a shadow ray only towards a light with `n·l > 0`
     /// and a mirror ray by reflection. It is [`Self::origin_towards`] of any such direction,
     /// computed once per hit rather than once per ray.
+    // Used through `crate::internals` (feature `bench`) and by the tests.
+    #[cfg_attr(not(feature = "bench"), allow(dead_code))]
     pub fn origin_ahead(&self) -> DVec3 {
-        offset_ray_origin(self.p, self.err(), self.n, self.n)
+        self.origin_ahead_within(self.err())
+    }
+
+    /// [`Self::origin_ahead`] for `err`, which must be [`Self::err`] (computed once by a
+    /// caller that needs it for [`Self::reach`] too).
+    pub fn origin_ahead_within(&self, err: DVec3) -> DVec3 {
+        offset_ray_origin(self.p, err, self.n, self.n)
+    }
+
+    /// How far from `p` the origin of [`Self::origin_ahead_within`] `(err)` can lie, at
+    /// most. The offset along the unit normal is `|n̂|·err ≤ Σ errᵢ` (to a few ulps), and
+    /// the rounding of the sum and the step of one ulp outwards add at most two ulps of the
+    /// result per axis, under `10⁻¹⁵·|p|∞` while the offset is small; the factors are
+    /// generous, and the last term covers a point at zero, whose step is subnormal. NaN or
+    /// infinite when `err` is.
+    pub fn reach(&self, err: DVec3) -> f64 {
+        1.001 * (err.x + err.y + err.z) + 1e-14 * self.p.abs().max_element() + 1e-300
     }
 }
 
@@ -200,7 +218,9 @@ impl Scene {
         let sp = SurfacePoint::new(obj, &hit.local, ray.dir);
         let self_skip = self.self_skip(&hit, sp.outside);
 
-        // Every secondary ray leaves on the incoming side: one origin serves them all.
+        // Every secondary ray leaves on the incoming side: one origin serves them all, and
+        // one error bound serves it and the shadow rays' test below.
+        let mut err: Option<DVec3> = None;
         let mut ahead: Option<DVec3> = None;
         let mut ahead_len: Option<f64> = None;
         let mut color = Color::ZERO;
@@ -226,42 +246,17 @@ impl Scene {
                     let cos = cos / to_light.length();
                     let mut v = 1.0;
                     if can_block && !known_clear {
-                        Counters::bump(&c.shadow);
-                        let origin = *ahead.get_or_insert_with(|| sp.origin_ahead());
-                        let origin_len = *ahead_len.get_or_insert_with(|| origin.length());
-                        let shadow_ray = Ray::new(origin, light.position - origin);
-                        let scale = origin_len / shadow_ray.dir.length() + 1.0;
-                        let end = 1.0 - SHADOW_END_REL * scale;
-                        // Objects the light lies on cannot shadow it from their outer side
-                        // (see `Scene::lights_on`); past four, the rest are traced. Most
-                        // lights lie on nothing: their search is the plain one.
-                        let lies_on = self.lights_on(li);
-                        // Scenes with a table per light look there first (see
-                        // `crate::point_index`).
-                        let blocked = if !lies_on.is_empty() {
-                            let mut on: arrayvec::ArrayVec<u32, 4> = arrayvec::ArrayVec::new();
-                            for &(o, n) in lies_on {
-                                // An object at whose edge or corner the light lies is listed
-                                // once per face plane there: one outer side is enough.
-                                if n.dot(origin - light.position) > 0.0
-                                    && !on.contains(&o)
-                                    && on.try_push(o).is_err()
-                                {
-                                    break;
-                                }
+                        // A shadow ray shown clear of every other solid from wherever its
+                        // origin may lie is not traced (see `Scene::shadow_certainly_clear`).
+                        let err = *err.get_or_insert_with(|| sp.err());
+                        let reach = || sp.reach(err);
+                        if !self.shadow_certainly_clear(sp.p, reach, light.position, self_skip) {
+                            Counters::bump(&c.shadow);
+                            let origin = *ahead.get_or_insert_with(|| sp.origin_ahead_within(err));
+                            let origin_len = *ahead_len.get_or_insert_with(|| origin.length());
+                            if self.shadow_blocked::<TABLES>(li, origin, origin_len, self_skip) {
+                                v = 1.0 - self.shadow;
                             }
-                            if TABLES {
-                                self.occluded_towards(li, &shadow_ray, end, self_skip, &on)
-                            } else {
-                                self.occluded_skipping(&shadow_ray, end, self_skip, &on)
-                            }
-                        } else if TABLES {
-                            self.occluded_towards(li, &shadow_ray, end, self_skip, &[])
-                        } else {
-                            self.occluded(&shadow_ray, end, self_skip)
-                        };
-                        if blocked {
-                            v = 1.0 - self.shadow;
                         }
                     }
                     light_sum += light.color * (cos * v);
@@ -274,13 +269,59 @@ impl Scene {
             Counters::bump(&c.mirror);
             let d = ray.dir.normalize();
             let r = d - sp.n * (2.0 * d.dot(sp.n));
-            let origin = *ahead.get_or_insert_with(|| sp.origin_ahead());
+            let origin = *ahead.get_or_insert_with(|| {
+                sp.origin_ahead_within(*err.get_or_insert_with(|| sp.err()))
+            });
             let mirror_ray = Ray::new(origin, r);
             let (reflected, _) =
                 self.radiance::<TABLES>(&mirror_ray, bounces_left - 1, self_skip, c);
             color += reflected * m.mirror;
         }
         (color, hit.object)
+    }
+
+    /// Whether the shadow ray from `origin` (of length `origin_len`, off a surface of object
+    /// `self_skip`) to light `li` is blocked. It stops [`SHADOW_END_REL`] of its scale short
+    /// of the light.
+    #[inline(always)]
+    fn shadow_blocked<const TABLES: bool>(
+        &self,
+        li: usize,
+        origin: DVec3,
+        origin_len: f64,
+        self_skip: Option<u32>,
+    ) -> bool {
+        let light = &self.lights[li];
+        let shadow_ray = Ray::new(origin, light.position - origin);
+        let scale = origin_len / shadow_ray.dir.length() + 1.0;
+        let end = 1.0 - SHADOW_END_REL * scale;
+        // Objects the light lies on cannot shadow it from their outer side (see
+        // `Scene::lights_on`); past four, the rest are traced. Most lights lie on nothing:
+        // their search is the plain one.
+        let lies_on = self.lights_on(li);
+        // Scenes with a table per light look there first (see `crate::point_index`).
+        if !lies_on.is_empty() {
+            let mut on: arrayvec::ArrayVec<u32, 4> = arrayvec::ArrayVec::new();
+            for &(o, n) in lies_on {
+                // An object at whose edge or corner the light lies is listed once per face
+                // plane there: one outer side is enough.
+                if n.dot(origin - light.position) > 0.0
+                    && !on.contains(&o)
+                    && on.try_push(o).is_err()
+                {
+                    break;
+                }
+            }
+            if TABLES {
+                self.occluded_towards(li, &shadow_ray, end, self_skip, &on)
+            } else {
+                self.occluded_skipping(&shadow_ray, end, self_skip, &on)
+            }
+        } else if TABLES {
+            self.occluded_towards(li, &shadow_ray, end, self_skip, &[])
+        } else {
+            self.occluded(&shadow_ray, end, self_skip)
+        }
     }
 
     /// The clamped radiance of the primary ray through image-plane position `(x, y)`.

@@ -269,18 +269,70 @@ fn lattice_scene(rng: &mut Rng, k: u32, floor: bool) -> String {
     s
 }
 
-/// Shadow rays that nothing can block are not traced (see `tessera_tracer::shadow`), and no
-/// pixel changes: lattices of solids whose shadow rays skim one another, with a floor and
-/// without, and random scenes of every kind, against the same scenes tracing every shadow
-/// ray.
+/// A few spheres (turned and uniformly scaled, some of them mirrors) and a sphere less a
+/// cube, standing on a checkered floor under two lights, one low: the kind of scene the
+/// thesis draws, small enough to be searched solid by solid, whose floor's shadow rays pass
+/// every distance from the solids.
+fn few_on_a_floor(rng: &mut Rng) -> String {
+    let mut s = String::from(
+        "[GLOBALS]\nwidth = 64\nheight = 48\nambient = 0.2\nshadow = 0.7\nmax_depth = 3\n[/GLOBALS]\n\
+         [CAMERA]\neye = <0, 3, 9>\nlook_at = <0, 0.5, 0>\nfov = 55\n[/CAMERA]\n\
+         [OBJECT]\ntype = plane\ncolor1 = 0.9\ncolor2 = 0.15\n[/OBJECT]\n",
+    );
+    for height in [rng.range(6.0, 20.0), rng.range(0.5, 2.0)] {
+        let a = rng.range(0.0, std::f64::consts::TAU);
+        let d = rng.range(2.0, 10.0);
+        s += &format!(
+            "[LIGHT]\nposition = <{}, {height}, {}>\ncolor = 0.5\n[/LIGHT]\n",
+            d * a.cos(),
+            d * a.sin()
+        );
+    }
+    for _ in 0..3 {
+        let r = rng.range(0.3, 1.2);
+        let mirror = if rng.below(3) == 0 {
+            "mirror = 0.6\n"
+        } else {
+            ""
+        };
+        s += &format!(
+            "[OBJECT]\ntype = sphere\nradius = {r}\nrotate = {}\ntranslate = <{}, {}, {}>\n{mirror}[/OBJECT]\n",
+            v(rng.vec(90.0)),
+            rng.range(-3.0, 3.0),
+            r + rng.range(0.0, 0.5),
+            rng.range(-3.0, 2.0)
+        );
+    }
+    s += &format!(
+        "[CSG]\nop = difference\nrotate = {}\ntranslate = <{}, 1.2, {}>\n\
+         [OBJECT]\ntype = sphere\nradius = 1\n[/OBJECT]\n\
+         [OBJECT]\ntype = cube\nscale = 0.6\ntranslate = <0.5, 0.5, 0.5>\n[/OBJECT]\n[/CSG]\n",
+        v(rng.vec(90.0)),
+        rng.range(-3.0, 3.0),
+        rng.range(-3.0, 1.0)
+    );
+    s
+}
+
+/// Shadow rays that nothing can block are not traced (see `tessera_tracer::shadow`), nor
+/// those a scene of few solids shows clear of every solid's ball (see
+/// `Scene::shadow_certainly_clear`), and no pixel changes: lattices of solids whose shadow
+/// rays skim one another, with a floor and without, from four solids (searched in turn)
+/// to 144 (through the BVH), and random scenes of every kind, few and many, against the
+/// same scenes tracing every shadow ray.
 #[test]
 fn culling_clear_shadow_rays_changes_no_pixel() {
     let mut rng = Rng(31);
     let (mut culled, mut kept) = (0, 0);
+    let (mut culled_lone, mut kept_lone) = (0, 0);
     let mut scenes: Vec<String> = Vec::new();
-    for k in [3, 6, 12] {
+    for k in [2, 3, 6, 12] {
         scenes.push(lattice_scene(&mut rng, k, false));
         scenes.push(lattice_scene(&mut rng, k, true));
+    }
+    for _ in 0..4 {
+        scenes.push(few_on_a_floor(&mut rng));
+        scenes.push(random_scene(&mut rng, 4, 3.0, true));
     }
     scenes.push(random_scene(&mut rng, 12, 6.0, false));
     scenes.push(random_scene(&mut rng, 60, 10.0, true));
@@ -294,9 +346,18 @@ fn culling_clear_shadow_rays_changes_no_pixel() {
         assert!(sa.shadow <= sb.shadow);
         culled += sb.shadow - sa.shadow;
         kept += sa.shadow;
+        if !s.uses_bvh() {
+            culled_lone += sb.shadow - sa.shadow;
+            kept_lone += sa.shadow;
+        }
     }
-    // Both kinds occur in numbers: the culling works, and it keeps the rays that matter.
+    // Both kinds occur in numbers, in the scenes of few solids too: the culling works, and
+    // it keeps the rays that matter.
     assert!(culled > 2000 && kept > 2000, "{culled} culled, {kept} kept");
+    assert!(
+        culled_lone > 2000 && kept_lone > 2000,
+        "{culled_lone} culled, {kept_lone} kept without a BVH"
+    );
 }
 
 /// The benchmark's many-small-spheres scene, where the BVH does its work.

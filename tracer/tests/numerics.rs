@@ -234,6 +234,57 @@ fn offsets_prevent_the_self_hits_that_raw_hit_points_make() {
     );
 }
 
+/// A secondary ray's origin lies within `SurfacePoint::reach` of its hit point, which the
+/// shadow pre-test of scenes of few solids relies on: hits on spheres, planes, boxes and
+/// rods scaled unevenly by up to a thousand, turned, and placed up to 1e9 from the origin,
+/// among them planes hit a billion units from their own origin (whose error bound is then
+/// far larger than the hit point's own ulps), seen from near and far.
+#[test]
+fn lifted_origins_lie_within_their_reach() {
+    let mut rng = common::Rng(17);
+    let mut tested = 0;
+    for i in 0..400 {
+        let shape = ["sphere", "plane", "cube", "cylinder"][i % 4];
+        let big = 10f64.powf(rng.range(0.0, 9.0));
+        let at = |p: DVec3| format!("<{:e}, {:e}, {:e}>", p.x, p.y, p.z);
+        let scale = DVec3::new(
+            rng.range(-3.0, 3.0),
+            rng.range(-3.0, 3.0),
+            rng.range(-3.0, 3.0),
+        );
+        let scale = scale.map(|e| 10f64.powf(e.clamp(-1.0, 3.0)));
+        let place = rng.vec(1.0) * big;
+        let src = format!(
+            "[OBJECT]\ntype = {shape}\nscale = {}\nrotate = {}\ntranslate = {}\n[/OBJECT]\n",
+            at(scale),
+            at(rng.vec(180.0)),
+            at(place)
+        );
+        let s = scene(&src);
+        let obj = &s.objects()[0];
+        // Aim at the solid's own centre, or (a plane) at the world origin's foot on it.
+        let aim = if shape == "plane" { DVec3::ZERO } else { place };
+        for _ in 0..20 {
+            let far = scale.max_element() * 10f64.powf(rng.range(0.0, 4.0));
+            let from = aim + rng.vec(1.0) * far;
+            let ray = Ray::new(from, aim + rng.vec(0.5) * scale.min_element() - from);
+            let local = obj.transform.ray_to_object(&ray);
+            let Some(hit) = obj.shape.intersect(&local, f64::INFINITY) else {
+                continue;
+            };
+            let sp = SurfacePoint::new(obj, &hit, ray.dir);
+            let moved = (sp.origin_ahead() - sp.p).length();
+            assert!(
+                moved <= sp.reach(sp.err()),
+                "origin {moved:e} from the hit, reach {:e}: {src}",
+                sp.reach(sp.err())
+            );
+            tested += 1;
+        }
+    }
+    assert!(tested > 4000, "{tested}");
+}
+
 /// A camera zoomed onto a sphere's limb: hundreds of rays graze it. Every pixel is finite and
 /// equals the reference (hit and lit, or background) except the few within 1e-7 of tangency.
 #[test]

@@ -59,7 +59,7 @@ impl Prim {
 
     /// The balls every line meeting the solid meets: a sphere's own ball when it is placed
     /// by a rotation, uniform scale and translation; a tree's [`Csg::balls`].
-    pub(super) fn balls(&self, objects: &[Object]) -> Vec<Ball> {
+    pub(crate) fn balls(&self, objects: &[Object]) -> Vec<Ball> {
         match self {
             Prim::Object(i) => {
                 let o = &objects[*i as usize];

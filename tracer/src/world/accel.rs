@@ -5,9 +5,13 @@
 use glam::DVec3;
 
 use crate::bvh::{Bvh, Item};
+#[cfg(doc)]
+use crate::csg::Ball;
 use crate::csg::Prim;
 use crate::math::Aabb;
+use crate::math::Ray;
 use crate::object::Object;
+use crate::object::line_clears_ball;
 use crate::point_index::{self, PointIndex};
 use crate::scene::Light;
 
@@ -35,13 +39,95 @@ pub(super) struct Quick {
 /// with one and stay linear; docs/PERFORMANCE.md has the figures.
 pub(super) const BVH_MIN_COST: f64 = BVH_MIN_PRIMS as f64 * SPHERE_COST;
 
+/// What the plain loop reads of each prim, in prim order.
+#[derive(Debug, Clone, Default)]
+pub(super) struct Lone {
+    /// The packed quick test (see [`quick_of`]), so that a missed sphere costs a few
+    /// multiplications in the loop rather than a call.
+    pub(super) quick: Vec<(DVec3, f64)>,
+    /// Per prim, a ball every line meeting it meets, for
+    /// [`Scene::shadow_certainly_clear`](super::Scene::shadow_certainly_clear).
+    pub(super) balls: Vec<ShadowBall>,
+}
+
+/// A ball about a prim, with the margin its test needs: a lone sphere placed by a
+/// similarity has its own ball, tested as its quick test is
+/// ([`crate::object::quick_missed`]); another sphere turned as well, and a CSG tree, the
+/// first of the balls of `Prim::balls`, tested as a tree tests them ([`Ball`], whose margin
+/// grows with the coordinates' magnitude); any other prim (a plane, a box, a union) a ball
+/// of infinite radius, which no line misses.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct ShadowBall {
+    /// The object the prim is (`u32::MAX` for a CSG tree).
+    pub(super) object: u32,
+    pub(super) centre: DVec3,
+    pub(super) r2: f64,
+    /// For a [`Ball`]: `|c|²`, which its margin adds to `|o|²`.
+    ball_c2: Option<f64>,
+}
+
+impl ShadowBall {
+    /// The ball of `prim`.
+    fn of(prim: &Prim, objects: &[Object]) -> ShadowBall {
+        let object = match prim {
+            Prim::Object(o) => *o,
+            Prim::Csg(_) => u32::MAX,
+        };
+        if let Prim::Object(o) = prim
+            && let Some((centre, r2)) = objects[*o as usize].sphere
+        {
+            return ShadowBall {
+                object,
+                centre,
+                r2,
+                ball_c2: None,
+            };
+        }
+        match prim.balls(objects).first() {
+            Some(b) => ShadowBall {
+                object,
+                centre: b.centre,
+                r2: b.r2,
+                ball_c2: Some(b.centre.length_squared()),
+            },
+            None => ShadowBall {
+                object,
+                centre: DVec3::ZERO,
+                r2: f64::INFINITY,
+                ball_c2: None,
+            },
+        }
+    }
+
+    /// The ball that no line is ever shown to miss.
+    #[cfg(feature = "bench")]
+    pub(super) fn never_missed(self) -> ShadowBall {
+        ShadowBall {
+            r2: f64::INFINITY,
+            ..self
+        }
+    }
+
+    /// Whether the line of `ray` certainly misses this ball grown by `reach`, by the margin
+    /// of the prim's own test: then so does every segment each of whose points lies within
+    /// `reach` of the line, and the prim's test finds no hit on it. `o2` is
+    /// `|ray.origin|²`. The grown ball's squared radius is bounded above by
+    /// `(1 + η)·r² + (1 + 1/η)·reach²` (as `2·r·reach ≤ η·r² + reach²/η`), with
+    /// `η = 10⁻⁶`, which keeps the test free of a square root. A NaN or infinite `reach`
+    /// or radius shows nothing missed.
+    #[inline]
+    pub(super) fn missed_grown(&self, ray: &Ray, o2: f64, reach: f64) -> bool {
+        let r2 = self.r2 * (1.0 + 1e-6) + reach * reach * (1.0 + 1e6);
+        let extra = self.ball_c2.map_or(0.0, |c2| o2 + c2);
+        line_clears_ball(self.centre, r2, ray, extra)
+    }
+}
+
 /// The acceleration structure of a scene.
 #[derive(Debug, Clone)]
 pub(super) enum Accel {
-    /// Test every prim in order, each first by its packed quick test (per prim, in prim
-    /// order: see [`quick_of`]), so that a missed sphere costs a few multiplications in the
-    /// loop rather than a call.
-    Linear(Vec<(DVec3, f64)>),
+    /// Test every prim in order, each first by its quick test.
+    Linear(Lone),
     /// A BVH over the bounded prims (items are indices into `prims`) and the prims without
     /// a usable box (planes, unbounded CSG), tested every time.
     Bvh {
@@ -189,7 +275,7 @@ pub(super) const SPHERE_COST: f64 = 1.0;
 impl Default for Accel {
     /// The plain loop over no prims.
     fn default() -> Accel {
-        Accel::Linear(Vec::new())
+        Accel::Linear(Lone::default())
     }
 }
 
@@ -231,8 +317,11 @@ impl Accel {
         // Prim indices fit in u32 (objects do, and every prim has at least one); a scene
         // where they did not would simply stay linear.
         if !wanted || u32::try_from(prims.len()).is_err() {
-            let quick = prims.iter().map(|p| quick_of(p, objects)).collect();
-            return (Accel::Linear(quick), Vec::new());
+            let lone = Lone {
+                quick: prims.iter().map(|p| quick_of(p, objects)).collect(),
+                balls: prims.iter().map(|p| ShadowBall::of(p, objects)).collect(),
+            };
+            return (Accel::Linear(lone), Vec::new());
         }
         let items = bvh_items(prims, objects, &bounded);
         let (bvh, mut unbounded) = Bvh::build_items(&items);

@@ -224,11 +224,16 @@ impl Scene {
     }
 
     /// The same scene tracing every shadow ray, even those `crate::shadow` knows cannot be
-    /// blocked: the reference that tests and benchmarks compare the culling against (the
-    /// images are the same).
+    /// blocked and those [`Scene::shadow_certainly_clear`] shows clear: the reference that
+    /// tests and benchmarks compare the culling against (the images are the same).
     #[cfg(feature = "bench")]
     pub fn without_shadow_culling(mut self) -> Scene {
         self.clear_lights = ClearLights::default();
+        if let Accel::Linear(lone) = &mut self.accel {
+            for ball in &mut lone.balls {
+                *ball = ball.never_missed();
+            }
+        }
         self
     }
 

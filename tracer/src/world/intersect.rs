@@ -40,7 +40,7 @@ impl Scene {
         skip: Option<u32>,
     ) -> Option<Hit> {
         match &self.accel {
-            Accel::Linear(quick) => self.intersect_linear(quick, ray, t_max, skip),
+            Accel::Linear(lone) => self.intersect_linear(&lone.quick, ray, t_max, skip),
             Accel::Bvh {
                 bvh,
                 unbounded,

@@ -3,6 +3,8 @@
 
 use std::ops::ControlFlow;
 
+use glam::DVec3;
+
 use crate::bvh::Bvh;
 use crate::csg::Prim;
 use crate::math::Ray;
@@ -115,7 +117,7 @@ impl Scene {
         skip: impl Fn(u32) -> bool + Copy,
     ) -> bool {
         match &self.accel {
-            Accel::Linear(quick) => self.prims.iter().zip(quick).any(|(prim, &(c, r2))| {
+            Accel::Linear(lone) => self.prims.iter().zip(&lone.quick).any(|(prim, &(c, r2))| {
                 !quick_missed(c, r2, ray) && self.prim_blocks(prim, ray, t_max, skip)
             }),
             Accel::Bvh {
@@ -176,6 +178,38 @@ impl Scene {
             }
             Prim::Csg(c) => c.first_hit(&self.objects, ray, t_max).is_some(),
         }
+    }
+
+    /// Whether a shadow ray towards `light` from any origin within `reach()` of `p` certainly
+    /// meets nothing but the object `skip`: in a scene searched by the plain loop, when
+    /// every other prim has a ball (a similarity sphere's own, a CSG tree's first) that the
+    /// line from `p` to the light misses grown by `reach`, by the margin of the prim's own
+    /// test. Each point of the segment from such an origin `o` to
+    /// the light lies within `|o − p|` of the segment from `p` (the two meet at the light),
+    /// so the shadow ray misses every such ball by the ball's own margin, and no prim's test
+    /// can report a hit there ([`Self::occluded`] answers `false`, as the ball's test would
+    /// have it). `false` wherever that is not shown: a scene with a BVH, a prim with no
+    /// known ball (a plane, a box, a union), a line through a ball.
+    ///
+    /// It spares the shadow rays of the usual lit point, far from every solid's shadow, the
+    /// origin's offset and the ray's scale, which are long chains of dependent arithmetic.
+    #[inline]
+    pub(crate) fn shadow_certainly_clear(
+        &self,
+        p: DVec3,
+        reach: impl FnOnce() -> f64,
+        light: DVec3,
+        skip: Option<u32>,
+    ) -> bool {
+        let Accel::Linear(lone) = &self.accel else {
+            return false;
+        };
+        let reach = reach();
+        let line = Ray::new(p, light - p);
+        let o2 = p.length_squared();
+        lone.balls
+            .iter()
+            .all(|b| Some(b.object) == skip || b.missed_grown(&line, o2, reach))
     }
 
     /// Whether a shadow ray leaving object `skip` can be blocked by anything at all.
