@@ -11,8 +11,10 @@
 //!
 //! Work a scene does not need is not done: no shadow ray where `n·l ≤ 0`, where `shadow = 0`,
 //! where nothing but the (convex) surface itself could block the light (in the whole scene,
-//! or between this object and this light, see [`crate::shadow`]), or where the surface is a
-//! perfect mirror; no mirror ray where `m = 0`; no texture lookup without a texture.
+//! or between this object and this light, see [`crate::shadow`]), where a scene of few
+//! solids shows the line to the light clear of every other solid's ball (see
+//! `Scene::shadow_certainly_clear`), or where the surface is a perfect mirror; no mirror ray
+//! where `m = 0`; no texture lookup without a texture.
 //!
 //! Pixels are independent of one another except through the sampler, which is itself
 //! tile-independent, so any rectangle can be rendered alone and match the whole image.
@@ -156,26 +158,27 @@ impl<'a> SurfacePoint<'a> {
     /// every ray the shader spawns does, a shadow ray only towards a light with `n·l > 0`
     /// and a mirror ray by reflection. It is [`Self::origin_towards`] of any such direction,
     /// computed once per hit rather than once per ray.
-    // Used through `crate::internals` (feature `bench`) and by the tests.
-    #[cfg_attr(not(feature = "bench"), allow(dead_code))]
     pub fn origin_ahead(&self) -> DVec3 {
-        self.origin_ahead_within(self.err())
+        offset_ray_origin(self.p, self.err(), self.n, self.n)
     }
 
-    /// [`Self::origin_ahead`] for `err`, which must be [`Self::err`] (computed once by a
-    /// caller that needs it for [`Self::reach`] too).
-    pub fn origin_ahead_within(&self, err: DVec3) -> DVec3 {
-        offset_ray_origin(self.p, err, self.n, self.n)
-    }
-
-    /// How far from `p` the origin of [`Self::origin_ahead_within`] `(err)` can lie, at
-    /// most. The offset along the unit normal is `|n̂|·err ≤ Σ errᵢ` (to a few ulps), and
-    /// the rounding of the sum and the step of one ulp outwards add at most two ulps of the
-    /// result per axis, under `10⁻¹⁵·|p|∞` while the offset is small; the factors are
-    /// generous, and the last term covers a point at zero, whose step is subnormal. NaN or
-    /// infinite when `err` is.
-    pub fn reach(&self, err: DVec3) -> f64 {
-        1.001 * (err.x + err.y + err.z) + 1e-14 * self.p.abs().max_element() + 1e-300
+    /// How far from `p` the origin of [`Self::origin_ahead`] can lie, at most, without
+    /// computing it. The offset along the unit normal is `|n̂|·err ≤ Σ errᵢ ≤ 3·max errᵢ`
+    /// (to a few ulps), bounded through [`Transform::origin_error_max`] by the largest
+    /// components of the hit's point and error; the rounding of the sum and the step of
+    /// one ulp outwards add at most two ulps of the result per axis, under `10⁻¹⁵·|p|∞`
+    /// while the offset is small. The factors are generous, and the last term covers a
+    /// point at zero, whose step is subnormal. The sums of magnitudes stand for the largest
+    /// components (never smaller, and NaN when a component is).
+    pub fn reach(&self) -> f64 {
+        let (local, local_err) = self.local;
+        let sum = |v: DVec3| v.x.abs() + v.y.abs() + v.z.abs();
+        let p = sum(self.p);
+        let err = 2.0
+            * self
+                .transform
+                .origin_error_max(sum(local), sum(local_err), p);
+        1.01 * 3.0 * err + 1e-14 * p + 1e-300
     }
 }
 
@@ -218,9 +221,7 @@ impl Scene {
         let sp = SurfacePoint::new(obj, &hit.local, ray.dir);
         let self_skip = self.self_skip(&hit, sp.outside);
 
-        // Every secondary ray leaves on the incoming side: one origin serves them all, and
-        // one error bound serves it and the shadow rays' test below.
-        let mut err: Option<DVec3> = None;
+        // Every secondary ray leaves on the incoming side: one origin serves them all.
         let mut ahead: Option<DVec3> = None;
         let mut ahead_len: Option<f64> = None;
         let mut color = Color::ZERO;
@@ -248,11 +249,10 @@ impl Scene {
                     if can_block && !known_clear {
                         // A shadow ray shown clear of every other solid from wherever its
                         // origin may lie is not traced (see `Scene::shadow_certainly_clear`).
-                        let err = *err.get_or_insert_with(|| sp.err());
-                        let reach = || sp.reach(err);
+                        let reach = || sp.reach();
                         if !self.shadow_certainly_clear(sp.p, reach, light.position, self_skip) {
                             Counters::bump(&c.shadow);
-                            let origin = *ahead.get_or_insert_with(|| sp.origin_ahead_within(err));
+                            let origin = *ahead.get_or_insert_with(|| sp.origin_ahead());
                             let origin_len = *ahead_len.get_or_insert_with(|| origin.length());
                             if self.shadow_blocked::<TABLES>(li, origin, origin_len, self_skip) {
                                 v = 1.0 - self.shadow;
@@ -269,9 +269,7 @@ impl Scene {
             Counters::bump(&c.mirror);
             let d = ray.dir.normalize();
             let r = d - sp.n * (2.0 * d.dot(sp.n));
-            let origin = *ahead.get_or_insert_with(|| {
-                sp.origin_ahead_within(*err.get_or_insert_with(|| sp.err()))
-            });
+            let origin = *ahead.get_or_insert_with(|| sp.origin_ahead());
             let mirror_ray = Ray::new(origin, r);
             let (reflected, _) =
                 self.radiance::<TABLES>(&mirror_ray, bounces_left - 1, self_skip, c);

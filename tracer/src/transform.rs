@@ -33,6 +33,17 @@ fn abs(m: &DMat3) -> DMat3 {
     DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs())
 }
 
+/// The largest sum of magnitudes along a row of `m` (its ∞-norm): `|M|·v` has no component
+/// above it times `max(v)` for `v ≥ 0`. NaN when an entry is.
+fn row_sum_max(m: &DMat3) -> f64 {
+    let a = abs(m);
+    let rows = a.x_axis + a.y_axis + a.z_axis;
+    if rows.is_nan() {
+        return f64::NAN;
+    }
+    rows.max_element()
+}
+
 /// Whether every entry of `m` off its diagonal is zero.
 fn is_diagonal(m: &DMat3) -> bool {
     let c = m.to_cols_array_2d();
@@ -55,6 +66,9 @@ pub struct Transform {
     /// products with a vector of error bounds are then per-axis scalings (see
     /// [`Self::origin_error`]).
     diagonal: bool,
+    /// The largest row sums of the magnitudes of the forward and inverse linear parts, and
+    /// the largest magnitudes of their translations, for [`Self::origin_error_max`].
+    error_norms: [f64; 4],
 }
 
 impl Default for Transform {
@@ -72,6 +86,7 @@ impl Transform {
         similarity: Some((1.0, DVec3::ZERO)),
         inv_scale: 1.0,
         diagonal: true,
+        error_norms: [1.0, 1.0, 0.0, 0.0],
     };
 
     fn from_parts(to_world: DAffine3, to_object: DAffine3) -> Transform {
@@ -85,6 +100,12 @@ impl Transform {
             similarity: is_similarity.then_some((uniform, to_world.translation)),
             inv_scale: 1.0 / uniform,
             diagonal: is_diagonal(&m) && is_diagonal(&to_object.matrix3),
+            error_norms: [
+                row_sum_max(&m),
+                row_sum_max(&to_object.matrix3),
+                to_world.translation.abs().max_element(),
+                to_object.translation.abs().max_element(),
+            ],
         }
     }
 
@@ -222,6 +243,19 @@ impl Transform {
             }
         }
         self.error_to_world(p, p_err) + self.round_trip_error(world)
+    }
+
+    /// A bound on every component of [`Self::origin_error`]`(p, p_err, world)` from the
+    /// largest components `p_max`, `p_err_max` and `world_max` of `|p|`, `p_err` and
+    /// `|world|` alone: each product `|M|·v` of that bound is at most `‖M‖∞·max(v)` per
+    /// axis, with the norms computed once with the transform. Its own rounding is a few
+    /// ulps, which a caller's factor must cover. NaN when an input is.
+    #[inline]
+    pub fn origin_error_max(&self, p_max: f64, p_err_max: f64, world_max: f64) -> f64 {
+        let [m, n, t, ti] = self.error_norms;
+        gamma(3) * (m * p_max + t)
+            + (1.0 + gamma(3)) * (m * p_err_max)
+            + m * (gamma(3) * (n * world_max + ti))
     }
 
     /// A world-space bound on the error made when a world point `p` is carried back into

@@ -770,9 +770,8 @@ fn shadow_pre_test_clears_only_unblocked_rays() {
             }
             let sp = SurfacePoint::new(&s.objects[0], &hit.local, ray.dir);
             let skip = s.self_skip(&hit, sp.outside);
-            let err = sp.err();
-            let clear = s.shadow_certainly_clear(sp.p, || sp.reach(err), light, skip);
-            let origin = sp.origin_ahead_within(err);
+            let clear = s.shadow_certainly_clear(sp.p, || sp.reach(), light, skip);
+            let origin = sp.origin_ahead();
             let shadow = Ray::new(origin, light - origin);
             let end = 1.0 - SHADOW_END_REL * (origin.length() / shadow.dir.length() + 1.0);
             let is_blocked = s.occluded(&shadow, end, skip);
