@@ -42,9 +42,6 @@ pub(super) const BVH_MIN_COST: f64 = BVH_MIN_PRIMS as f64 * SPHERE_COST;
 /// What the plain loop reads of each prim, in prim order.
 #[derive(Debug, Clone, Default)]
 pub(super) struct Lone {
-    /// The packed quick test (see [`quick_of`]), so that a missed sphere costs a few
-    /// multiplications in the loop rather than a call.
-    pub(super) quick: Vec<(DVec3, f64)>,
     /// Per prim, a ball every line meeting it meets, for
     /// [`Scene::shadow_certainly_clear`](super::Scene::shadow_certainly_clear).
     pub(super) balls: Vec<ShadowBall>,
@@ -126,7 +123,7 @@ impl ShadowBall {
 /// The acceleration structure of a scene.
 #[derive(Debug, Clone)]
 pub(super) enum Accel {
-    /// Test every prim in order, each first by its quick test.
+    /// Test every prim in order, a similarity sphere first by its quick test.
     Linear(Lone),
     /// A BVH over the bounded prims (items are indices into `prims`) and the prims without
     /// a usable box (planes, unbounded CSG), tested every time.
@@ -318,7 +315,6 @@ impl Accel {
         // where they did not would simply stay linear.
         if !wanted || u32::try_from(prims.len()).is_err() {
             let lone = Lone {
-                quick: prims.iter().map(|p| quick_of(p, objects)).collect(),
                 balls: prims.iter().map(|p| ShadowBall::of(p, objects)).collect(),
             };
             return (Accel::Linear(lone), Vec::new());

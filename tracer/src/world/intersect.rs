@@ -3,12 +3,10 @@
 
 use std::ops::ControlFlow;
 
-use glam::DVec3;
-
 use crate::bvh::Bvh;
 use crate::csg::{Csg, Prim};
 use crate::math::Ray;
-use crate::object::quick_missed;
+use crate::object::{quick_missed, sphere_certainly_missed};
 use crate::point_index::{self};
 
 use super::accel::{Accel, Quick};
@@ -40,7 +38,7 @@ impl Scene {
         skip: Option<u32>,
     ) -> Option<Hit> {
         match &self.accel {
-            Accel::Linear(lone) => self.intersect_linear(&lone.quick, ray, t_max, skip),
+            Accel::Linear(_) => self.intersect_linear(ray, t_max, skip),
             Accel::Bvh {
                 bvh,
                 unbounded,
@@ -126,20 +124,19 @@ impl Scene {
         best.map(|(h, _)| h)
     }
 
-    /// Every prim in order: a prim replaces the best hit only when strictly nearer. A prim
-    /// its quick test rejects (`quick`, per prim) has no hit, and is not asked.
-    #[inline]
-    pub(super) fn intersect_linear(
-        &self,
-        quick: &[(DVec3, f64)],
-        ray: &Ray,
-        t_max: f64,
-        skip: Option<u32>,
-    ) -> Option<Hit> {
+    /// Every prim in order: a prim replaces the best hit only when strictly nearer. A sphere
+    /// placed by a similarity that its quick test rejects (see
+    /// [`Object::certainly_missed_by`](crate::object::Object::certainly_missed_by)) has no
+    /// hit and is not asked: the test runs here, in the loop, rather than behind a call.
+    #[inline(always)]
+    pub(super) fn intersect_linear(&self, ray: &Ray, t_max: f64, skip: Option<u32>) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut t_best = t_max;
-        for (prim, &(c, r2)) in self.prims.iter().zip(quick) {
-            if quick_missed(c, r2, ray) {
+        for prim in &self.prims {
+            if let Prim::Object(i) = prim
+                && let Some((c, r2)) = self.objects[*i as usize].sphere
+                && sphere_certainly_missed(c, r2, ray)
+            {
                 continue;
             }
             if let Some(h) = self.prim_hit(prim, ray, t_best, skip) {
