@@ -224,7 +224,7 @@ impl Scene {
     }
 
     /// The same scene tracing every shadow ray, even those `crate::shadow` knows cannot be
-    /// blocked and those [`Scene::shadow_certainly_clear`] shows clear: the reference that
+    /// blocked and those `Scene::shadow_certainly_clear` shows clear: the reference that
     /// tests and benchmarks compare the culling against (the images are the same).
     #[cfg(feature = "bench")]
     pub fn without_shadow_culling(mut self) -> Scene {
