@@ -8,10 +8,8 @@ use crate::bvh::{Bvh, Item};
 #[cfg(doc)]
 use crate::csg::Ball;
 use crate::csg::Prim;
-use crate::math::Aabb;
-use crate::math::Ray;
-use crate::object::Object;
-use crate::object::line_clears_ball;
+use crate::math::{Aabb, Ray};
+use crate::object::{Object, line_clears_ball};
 use crate::point_index::{self, PointIndex};
 use crate::scene::Light;
 

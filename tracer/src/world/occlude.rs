@@ -189,14 +189,14 @@ impl Scene {
 
     /// Whether a shadow ray towards `light` from any origin within `reach()` of `p` certainly
     /// meets nothing but the object `skip`: in a scene searched by the plain loop, when
-    /// every other prim has a ball (a similarity sphere's own, a CSG tree's first) that the
-    /// line from `p` to the light misses grown by `reach`, by the margin of the prim's own
-    /// test. Each point of the segment from such an origin `o` to
-    /// the light lies within `|o − p|` of the segment from `p` (the two meet at the light),
-    /// so the shadow ray misses every such ball by the ball's own margin, and no prim's test
-    /// can report a hit there ([`Self::occluded`] answers `false`, as the ball's test would
-    /// have it). `false` wherever that is not shown: a scene with a BVH, a prim with no
-    /// known ball (a plane, a box, a union), a line through a ball.
+    /// every other prim has a ball (a sphere's own, a CSG tree's first) that the line from
+    /// `p` to the light misses grown by `reach`, by the margin of the prim's own test. Each
+    /// point of the segment from such an origin `o` to the light lies within `|o − p|` of
+    /// the segment from `p` (the two meet at the light), so the shadow ray misses every such
+    /// ball by the ball's own margin, and no prim's test can report a hit there
+    /// ([`Self::occluded`] answers `false`, as the ball's test would have it). `false`
+    /// wherever that is not shown: a scene with a BVH, a prim with no known ball (a plane, a
+    /// box, a union), a line through a ball.
     ///
     /// It spares the shadow rays of the usual lit point, far from every solid's shadow, the
     /// origin's offset and the ray's scale, which are long chains of dependent arithmetic.
