@@ -133,10 +133,7 @@ impl Scene {
         let mut best: Option<Hit> = None;
         let mut t_best = t_max;
         for prim in &self.prims {
-            if let Prim::Object(i) = prim
-                && let Some((c, r2)) = self.objects[*i as usize].sphere
-                && sphere_certainly_missed(c, r2, ray)
-            {
+            if self.lone_sphere_missed(prim, ray) {
                 continue;
             }
             if let Some(h) = self.prim_hit(prim, ray, t_best, skip) {
@@ -145,6 +142,19 @@ impl Scene {
             }
         }
         best
+    }
+
+    /// Whether `prim` is a sphere placed by a similarity whose quick test rejects the ray
+    /// (see [`Object::certainly_missed_by`](crate::object::Object::certainly_missed_by)):
+    /// the plain loops' test, read from the object and inlined into them.
+    #[inline(always)]
+    pub(super) fn lone_sphere_missed(&self, prim: &Prim, ray: &Ray) -> bool {
+        match prim {
+            Prim::Object(i) => self.objects[*i as usize]
+                .sphere
+                .is_some_and(|(c, r2)| sphere_certainly_missed(c, r2, ray)),
+            Prim::Csg(_) => false,
+        }
     }
 
     /// The unbounded prims, then the BVH's candidates nearest first.

@@ -8,7 +8,7 @@ use glam::DVec3;
 use crate::bvh::Bvh;
 use crate::csg::Prim;
 use crate::math::Ray;
-use crate::object::{quick_missed, sphere_certainly_missed};
+use crate::object::quick_missed;
 use crate::point_index::{self};
 
 use super::accel::{Accel, Quick};
@@ -118,14 +118,7 @@ impl Scene {
     ) -> bool {
         match &self.accel {
             Accel::Linear(_) => self.prims.iter().any(|prim| {
-                // A similarity sphere's quick test in the loop, as in `intersect_linear`.
-                let missed = match prim {
-                    Prim::Object(i) => self.objects[*i as usize]
-                        .sphere
-                        .is_some_and(|(c, r2)| sphere_certainly_missed(c, r2, ray)),
-                    Prim::Csg(_) => false,
-                };
-                !missed && self.prim_blocks(prim, ray, t_max, skip)
+                !self.lone_sphere_missed(prim, ray) && self.prim_blocks(prim, ray, t_max, skip)
             }),
             Accel::Bvh {
                 bvh,
