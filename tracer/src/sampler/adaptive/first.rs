@@ -128,7 +128,7 @@ pub(in crate::sampler) fn cell_sample<F: Fn(f64, f64) -> Sample>(
 ///
 /// For even `n` it is rank 0 of the quadrant, so every later stage reuses it. For odd `n`
 /// (at least 3) the quadrants do not align with the grid: the four samples are four
-/// distinct cells of the `n × n` grid drawn at random (see `odd_first_cell`), at the
+/// distinct cells of the `n × n` grid drawn at random (see `odd_first_cells`), at the
 /// cells' own hashed positions, and the offset returned is the cell's column and row. A
 /// pixel refined takes the other cells, its `n × n` rays being exactly `jitter`'s.
 pub(in crate::sampler) fn first_position(
@@ -141,16 +141,8 @@ pub(in crate::sampler) fn first_position(
 ) -> ((f64, f64), (u32, u32)) {
     let FirstHashes { first, cells } = *hashes;
     let Some(order) = order else {
-        let (ci, cj) = odd_first_cell(first, k, n);
-        let (ox, oy) = cells.pair(cj * n + ci);
-        let inv = 1.0 / f64::from(n);
-        return (
-            (
-                x as f64 + (f64::from(ci) + ox) * inv,
-                y as f64 + (f64::from(cj) + oy) * inv,
-            ),
-            (ci, cj),
-        );
+        let c = odd_first_cells(first, n, k as usize + 1)[k as usize];
+        return odd_position(x, y, n, c, cells);
     };
     let h = order.h;
     let (a, b) = quadrant_offset(first, k, h);
@@ -170,36 +162,60 @@ pub(in crate::sampler) fn first_position(
     )
 }
 
-/// The column and row of the cell of the `n × n` grid (odd `n ≥ 3`) that first-pass sample
-/// `k` of a pixel with first-pass hash `first` takes (see [`first_position`]).
+/// Where the first-pass sample that takes cell `c` (number `cj·n + ci`) of pixel `(x, y)`'s
+/// `n × n` grid lies, at the cell's hashed position (`cells`, as `jitter`'s), with the cell's
+/// column and row.
+#[inline]
+fn odd_position(x: i64, y: i64, n: u32, c: u32, cells: PixelHash) -> ((f64, f64), (u32, u32)) {
+    let (ci, cj) = (c % n, c / n);
+    let (ox, oy) = cells.pair(cj * n + ci);
+    let inv = 1.0 / f64::from(n);
+    (
+        (
+            x as f64 + (f64::from(ci) + ox) * inv,
+            y as f64 + (f64::from(cj) + oy) * inv,
+        ),
+        (ci, cj),
+    )
+}
+
+/// The cells of the `n × n` grid (odd `n ≥ 3`, numbered `cj·n + ci`) that the first `count`
+/// (at most four) first-pass samples of a pixel with first-pass hash `first` take (see
+/// [`first_position`]); the entries past `count` are 0.
 ///
 /// The four cells are a uniformly random set of four distinct cells, drawn without
-/// replacement: sample `k` takes the `r`-th of the `n² − k` cells the samples before it
+/// replacement: sample `j` takes the `r`-th of the `n² − j` cells the samples before it
 /// left, `r` uniform. So each cell is among them with chance `4/n²` (the mean of the four is
 /// unbiased), and whether each cell is among them is negatively associated, which keeps the
-/// bound that four rays in four quadrants give on missing a feature (STABILITY.md).
+/// bound that four rays in four quadrants give on missing a feature (STABILITY.md). A pass
+/// draws all four at once: each draw depends on the ones before it.
 #[inline]
-fn odd_first_cell(first: PixelHash, k: u32, n: u32) -> (u32, u32) {
+fn odd_first_cells(first: PixelHash, n: u32, count: usize) -> [u32; 4] {
     let mut taken = [0u32; 4];
-    for j in 0..=k {
+    // The cells taken so far in ascending order, then `u32::MAX`, above every cell.
+    let mut ascending = [u32::MAX; 4];
+    for j in 0..count.min(4) {
         // ⌊u · m / 2³²⌋ for u uniform on 32 bits takes each value in [0, m) with probability
         // within 2⁻³² of 1/m (as in `quadrant_offset`).
-        let u = mix(first.0 ^ u64::from(j)) >> 32;
-        let mut r = ((u * u64::from(n * n - j)) >> 32) as u32;
+        let u = mix(first.0 ^ j as u64) >> 32;
+        let mut r = ((u * u64::from(n * n - j as u32)) >> 32) as u32;
         // The r-th cell not yet taken: step past each taken cell at or below it, in
         // ascending order.
-        let mut earlier = [u32::MAX; 4];
-        earlier[..j as usize].copy_from_slice(&taken[..j as usize]);
-        earlier.sort_unstable();
-        for c in earlier {
+        for c in ascending {
             if c <= r {
                 r += 1;
             }
         }
-        taken[j as usize] = r;
+        taken[j] = r;
+        // Insert `r` in order: `j` cells precede the free slot.
+        let mut i = j;
+        while i > 0 && ascending[i - 1] > r {
+            ascending[i] = ascending[i - 1];
+            i -= 1;
+        }
+        ascending[i] = r;
     }
-    let c = taken[k as usize];
-    (c % n, c / n)
+    taken
 }
 
 /// The offset `(a, b)` in `[0, h)²` that quadrant `k` of a pixel with first-pass hash
@@ -254,18 +270,26 @@ pub(in crate::sampler) fn first_pass<F: Fn(f64, f64) -> Sample>(
         offsets: [(0, 0); 4],
     };
     let hashes = FirstHashes::new(x, y);
+    // An odd cap's four cells, drawn once for the pass.
+    let odd = match order {
+        None => odd_first_cells(hashes.first, n, 4),
+        Some(_) => [0; 4],
+    };
     for k in 0..4u32 {
         let ((sx, sy), offset, sample) = match probed {
             // The probe is this very ray: only the quadrant's offset is left to draw.
             Some((at, s)) if k == 0 => {
                 let offset = match order {
                     Some(o) => quadrant_offset(hashes.first, 0, o.h),
-                    None => odd_first_cell(hashes.first, 0, n),
+                    None => (odd[0] % n, odd[0] / n),
                 };
                 (at, offset, s)
             }
             _ => {
-                let ((sx, sy), offset) = first_position(x, y, n, order, k, &hashes);
+                let ((sx, sy), offset) = match order {
+                    Some(_) => first_position(x, y, n, order, k, &hashes),
+                    None => odd_position(x, y, n, odd[k as usize], hashes.cells),
+                };
                 ((sx, sy), offset, trace(sx, sy))
             }
         };
