@@ -194,7 +194,7 @@ fn odd_first_cells(first: PixelHash, n: u32, count: usize) -> [u32; 4] {
     let mut taken = [0u32; 4];
     // The cells taken so far in ascending order, then `u32::MAX`, above every cell.
     let mut ascending = [u32::MAX; 4];
-    for j in 0..count.min(4) {
+    for (j, cell) in taken.iter_mut().enumerate().take(count) {
         // ⌊u · m / 2³²⌋ for u uniform on 32 bits takes each value in [0, m) with probability
         // within 2⁻³² of 1/m (as in `quadrant_offset`).
         let u = mix(first.0 ^ j as u64) >> 32;
@@ -206,7 +206,7 @@ fn odd_first_cells(first: PixelHash, n: u32, count: usize) -> [u32; 4] {
                 r += 1;
             }
         }
-        taken[j] = r;
+        *cell = r;
         // Insert `r` in order: `j` cells precede the free slot.
         let mut i = j;
         while i > 0 && ascending[i - 1] > r {
