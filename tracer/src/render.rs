@@ -232,7 +232,7 @@ impl Scene {
                 // The lights nothing else can hide from this object (see `crate::shadow`):
                 // known clear where the shadow ray would skip the object itself.
                 let mut clear = match self_skip {
-                    Some(o) if can_block => self.clear_lights(o),
+                    Some(o) if can_block => self.clear_lights_at(o, hit.local.p.y),
                     _ => 0,
                 };
                 for (li, light) in self.lights.iter().enumerate() {

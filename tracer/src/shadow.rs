@@ -15,7 +15,9 @@
 //! The boxes are those the renderer's BVH uses: a long cylinder or cone is the slices it is
 //! cut into (see [`Object::pieces`]), each with its own ball, which keeps a rod's capsules
 //! thin; a sphere placed by a similarity is its own ball, and as a blocker must also come
-//! within `r` of the segment.
+//! within `r` of the segment. A sliced object also keeps each slice's clear lights, which a
+//! hit reads by its object-space height ([`ClearLights::mask_at`]): in a fan of rods the
+//! slices where two rods pass close are not clear, and the rest of each rod still is.
 //!
 //! Every test errs towards "may block": boxes are the BVH's padded ones (their slack,
 //! 1e-7 of their size, dwarfs both the offset of a shadow ray's origin from the surface and
@@ -48,9 +50,19 @@ use crate::shape::Shape;
 pub const BUDGET: u64 = 1 << 22;
 
 /// Per object, a bit per light (bit `l` for light `l < 64`): set when no prim other than
-/// the object's own can block a shadow ray from the object to that light.
+/// the object's own can block a shadow ray from the object to that light. For a long
+/// cylinder or cone, also a mask per slice (see [`Object::pieces`]): a light that some slice's
+/// shadow rays may find blocked is often clear from the others.
 #[derive(Debug, Clone, Default)]
-pub struct ClearLights(Vec<u64>);
+pub struct ClearLights {
+    masks: Vec<u64>,
+    /// Per object, where its slices' masks start in `slice_masks`: empty when no object is
+    /// sliced, `u32::MAX` for an object that is not.
+    slice_start: Vec<u32>,
+    /// Per sliced object, its number of slices `k`, then `k` masks, the slice of the lowest
+    /// object-space `y` first.
+    slice_masks: Vec<u64>,
+}
 
 impl ClearLights {
     /// The clear lights of every object of a scene. `tree` is the scene's BVH if it has one
@@ -62,10 +74,14 @@ impl ClearLights {
         lights: &[Light],
         tree: Option<&Bvh>,
     ) -> ClearLights {
-        let mut masks = vec![0u64; objects.len()];
+        let masks = vec![0u64; objects.len()];
+        let mut clear = ClearLights {
+            masks,
+            ..ClearLights::default()
+        };
         let lights = &lights[..lights.len().min(64)];
         if lights.is_empty() {
-            return ClearLights(masks);
+            return clear;
         }
         // One pass over the prims. Unbounded ones: a plane is kept to test against; anything
         // else (an unbounded CSG tree) may be anywhere, and nothing is culled. Bounded ones:
@@ -85,7 +101,7 @@ impl ClearLights {
                     let (p0, _) = t.point_to_world(DVec3::ZERO, DVec3::ZERO);
                     planes.push((p0, t.normal_to_world(DVec3::Y)));
                 }
-                (_, None) => return ClearLights(masks),
+                (_, None) => return clear,
                 (_, Some(b)) => {
                     let cut = match p {
                         Prim::Object(o) => objects[*o as usize].pieces(),
@@ -93,7 +109,7 @@ impl ClearLights {
                     };
                     for x in if cut.is_empty() { vec![b] } else { cut } {
                         let (Some(padded), Ok(id)) = (bvh::padded(&x), u32::try_from(pi)) else {
-                            return ClearLights(masks);
+                            return clear;
                         };
                         pieces.push(padded);
                         if tree.is_none() {
@@ -169,28 +185,65 @@ impl ClearLights {
                     .map(|x| (x.centroid(), 0.5 * (x.max - x.min).length() * (1.0 + 1e-9)))
                     .collect(),
             };
-            let mut mask = 0u64;
-            for (l, light) in lights.iter().enumerate() {
-                let blocked = own.iter().any(|x| {
-                    planes
-                        .iter()
-                        .any(|&(p0, n)| plane_may_block(p0, n, x, light.position))
-                }) || balls
-                    .iter()
-                    .any(|&(c, r)| may_block(pi, c, r, light.position));
-                if !blocked {
-                    mask |= 1 << l;
+            // Per ball (one per slice for a sliced object), the lights clear from it.
+            let ball_masks: Vec<u64> = balls
+                .iter()
+                .zip(own)
+                .map(|(&(c, r), x)| {
+                    let mut mask = 0u64;
+                    for (l, light) in lights.iter().enumerate() {
+                        let blocked = planes
+                            .iter()
+                            .any(|&(p0, n)| plane_may_block(p0, n, x, light.position))
+                            || may_block(pi, c, r, light.position);
+                        if !blocked {
+                            mask |= 1 << l;
+                        }
+                    }
+                    mask
+                })
+                .collect();
+            let oi = *oi as usize;
+            clear.masks[oi] = ball_masks.iter().fold(u64::MAX, |a, &m| a & m);
+            // Slices worth keeping: some light clear from a slice but not from the whole.
+            if ball_masks.len() > 1 && ball_masks.iter().any(|&m| m != clear.masks[oi]) {
+                if clear.slice_start.is_empty() {
+                    clear.slice_start = vec![u32::MAX; objects.len()];
+                }
+                // Slices are at most `MAX_PIECES` per object, so the masks of every object
+                // of a scene that fits in memory index with u32; past that, no slice masks.
+                if let Ok(start) = u32::try_from(clear.slice_masks.len()) {
+                    clear.slice_start[oi] = start;
+                    clear.slice_masks.push(ball_masks.len() as u64);
+                    clear.slice_masks.extend(ball_masks);
                 }
             }
-            masks[*oi as usize] = mask;
         }
-        ClearLights(masks)
+        clear
     }
 
     /// The clear lights of `object`, bit `l` for light `l`.
     #[inline]
     pub fn mask(&self, object: u32) -> u64 {
-        self.0.get(object as usize).copied().unwrap_or(0)
+        self.masks.get(object as usize).copied().unwrap_or(0)
+    }
+
+    /// The clear lights of `object` at the point of object-space height `y` on it: its
+    /// slice's when it is a sliced cylinder or cone (slice `j` of `k` spans `y` from
+    /// `−1 + 2j/k` to `−1 + 2(j + 1)/k`), else [`Self::mask`]. A point within rounding of
+    /// a boundary between two slices lies in both slices' padded boxes, so either slice
+    /// answers for it; `y` past the ends (the caps, by rounding) takes the end slice.
+    #[inline]
+    pub fn mask_at(&self, object: u32, y: f64) -> u64 {
+        let start = match self.slice_start.get(object as usize) {
+            Some(&s) if s != u32::MAX => s as usize,
+            _ => return self.mask(object),
+        };
+        let k = self.slice_masks[start];
+        // `as u64` saturates: NaN gives slice 0, whose mask is as valid as any for a point
+        // the object's own mask would also have to answer for.
+        let j = (((y + 1.0) * 0.5 * k as f64) as u64).min(k - 1);
+        self.slice_masks[start + 1 + j as usize]
     }
 
     /// Whether nothing but `object` itself can block its shadow rays to light `light`.
@@ -313,6 +366,48 @@ mod tests {
         // Just above that end, the sphere is in the way.
         let s = scene(&(rod.to_string() + &sphere(0.5, (-end, end + 2.0, 0.0)) + LIGHT_ABOVE));
         assert!(!s.light_is_clear(0, 0));
+    }
+
+    /// A rod whose light one end's slices may find blocked keeps it clear from the others:
+    /// lying diagonally under a light straight above, with a sphere over its lower end only,
+    /// the whole rod is not clear, its upper slices are, and its lower ones are not. The
+    /// shadow rays of the clear slices are skipped, and the image, the sphere's shadow on
+    /// the rod included, is the one every shadow ray traced gives.
+    #[test]
+    fn a_rod_s_slices_have_their_own_clear_lights() {
+        let end = 5.0 * std::f64::consts::FRAC_1_SQRT_2;
+        // From the front and a little above: the lower end shows below the sphere.
+        let cam = "[CAMERA]\neye = <0, 8, 30>\nlook_at = <0, 0, 0>\nfov = 30\n[/CAMERA]\n";
+        for shape in ["cylinder", "cone"] {
+            let rod = format!(
+                "[OBJECT]\ntype = {shape}\nscale = <0.6, 5, 0.6>\nrotate = <0, 0, 45>\n[/OBJECT]\n"
+            );
+            let s = scene(&(rod + &sphere(1.0, (end, 3.0 - end, 0.0)) + LIGHT_ABOVE + cam));
+            let k = s.objects[0].pieces().len();
+            assert!(k >= 2, "{shape}: {k} slices");
+            assert!(!s.light_is_clear(0, 0), "{shape}");
+            // Object-space y runs from −1 (the lower end, under the sphere) to 1.
+            assert!(s.clear_lights_at(0, 0.99) & 1 == 1, "{shape}");
+            assert!(s.clear_lights_at(0, -0.99) & 1 == 0, "{shape}");
+            // A slice's mask holds at least the whole's, at every height.
+            let whole = s.clear_lights(0);
+            for j in 0..=200 {
+                let y = -1.0 + f64::from(j) / 100.0;
+                assert_eq!(s.clear_lights_at(0, y) & whole, whole, "{shape}, y = {y}");
+            }
+            let rect = Rect::full(40, 30);
+            let (a, sa) = s.render_rect_stats(rect);
+            let (b, sb) = s.clone().without_shadow_culling().render_rect_stats(rect);
+            assert!(a == b, "{shape}: images differ");
+            assert!(sa.shadow < sb.shadow, "{shape}: {sa:?} {sb:?}");
+            // The sphere's shadow shows: without shadows the image is another.
+            let mut unshadowed = s.clone();
+            unshadowed.shadow = 0.0;
+            assert!(
+                unshadowed.render_rect(rect) != a,
+                "{shape}: no shadow in view"
+            );
+        }
     }
 
     /// A plane blocks only what it separates from the light.

@@ -262,6 +262,14 @@ impl Scene {
         self.clear_lights.mask(object)
     }
 
+    /// [`Self::clear_lights`] at the point of object-space height `y` on `object`: a long
+    /// cylinder's or cone's slice may have lights clear that the whole has not (see
+    /// `ClearLights::mask_at`).
+    #[inline]
+    pub(crate) fn clear_lights_at(&self, object: u32, y: f64) -> u64 {
+        self.clear_lights.mask_at(object, y)
+    }
+
     /// The same scene tested prim by prim for every ray (no BVH).
     #[cfg(feature = "bench")]
     pub fn without_acceleration(self) -> Scene {
