@@ -232,16 +232,17 @@ impl ClearLights {
     /// slice's when it is a sliced cylinder or cone (slice `j` of `k` spans `y` from
     /// `−1 + 2j/k` to `−1 + 2(j + 1)/k`), else [`Self::mask`]. A point within rounding of
     /// a boundary between two slices lies in both slices' padded boxes, so either slice
-    /// answers for it; `y` past the ends (the caps, by rounding) takes the end slice.
+    /// answers for it; `y` just past the ends (on the caps, by rounding) takes the end
+    /// slice. A `y` that no point of the object has (NaN, or far past an end) gets the
+    /// whole object's mask.
     #[inline]
     pub fn mask_at(&self, object: u32, y: f64) -> u64 {
         let start = match self.slice_start.get(object as usize) {
-            Some(&s) if s != u32::MAX => s as usize,
+            Some(&s) if s != u32::MAX && (-1.5..=1.5).contains(&y) => s as usize,
             _ => return self.mask(object),
         };
         let k = self.slice_masks[start];
-        // `as u64` saturates: NaN gives slice 0, whose mask is as valid as any for a point
-        // the object's own mask would also have to answer for.
+        // `(y + 1)/2` lies in [−0.25, 1.25]: `as u64` takes a negative value to slice 0.
         let j = (((y + 1.0) * 0.5 * k as f64) as u64).min(k - 1);
         self.slice_masks[start + 1 + j as usize]
     }
@@ -394,6 +395,10 @@ mod tests {
             for j in 0..=200 {
                 let y = -1.0 + f64::from(j) / 100.0;
                 assert_eq!(s.clear_lights_at(0, y) & whole, whole, "{shape}, y = {y}");
+            }
+            // No slice answers for a height the rod does not have.
+            for y in [f64::NAN, -3.0, 3.0] {
+                assert_eq!(s.clear_lights_at(0, y), whole, "{shape}, y = {y}");
             }
             let rect = Rect::full(40, 30);
             let (a, sa) = s.render_rect_stats(rect);
