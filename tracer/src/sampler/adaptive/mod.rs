@@ -18,6 +18,9 @@ pub(super) use refine::se_bound;
 use refine::{Ask, refine};
 use tally::Tally;
 
+/// A probe: the image position of a pixel's first ray, and its sample.
+type Probe = ((f64, f64), Sample);
+
 /// Traces the probe of pixel `(x, y)` (the first ray of its first pass, see
 /// [`first_position`]) into `slot`, and returns it. Kept out of line: its callers mostly find
 /// the probe already traced, and should not pay for this body's registers.
@@ -27,8 +30,8 @@ fn trace_probe<F: Fn(f64, f64) -> Sample>(
     max: u32,
     order: Option<&QuadrantOrder>,
     trace: &F,
-    slot: &mut Option<((f64, f64), Sample)>,
-) -> ((f64, f64), Sample) {
+    slot: &mut Option<Probe>,
+) -> Probe {
     let hashes = FirstHashes::new(x, y);
     let ((sx, sy), _) = first_position(x, y, max, order, 0, &hashes);
     let p = ((sx, sy), trace(sx, sy));
@@ -99,24 +102,41 @@ pub(super) fn adaptive<F, G>(
 /// hands their pages back to the system in between and every tile faults them in again,
 /// which costs more than the rays on a scene of small objects. Only the allocations are
 /// reused; every array is refilled for each rect, so no value carries over.
+///
+/// The per-pixel arrays are kept small (a state byte, indices into `cells` and `passes`)
+/// so that a tile's arrays fit in a core's caches: the few pixels that have cells' sums or a
+/// first pass keep them in the dense arrays.
 #[derive(Default)]
 struct Scratch {
-    ends: Vec<Option<Color>>,
-    probes: Vec<Option<((f64, f64), Sample)>>,
-    sums: Vec<Option<CellSums>>,
-    decided: Vec<bool>,
+    state: Vec<u8>,
+    probes: Vec<Option<Probe>>,
+    cell_slot: Vec<u32>,
+    cells: Vec<CellSums>,
     slot: Vec<u32>,
     passes: Vec<FirstPass>,
 }
+
+/// A pixel's `Scratch::state`: not yet decided (or, without a geometry, never decided:
+/// every pixel then goes on).
+const UNDECIDED: u8 = 0;
+/// Decided: the pixel takes its first pass.
+const GOES_ON: u8 = 1;
+/// Decided: the pixel ends with its probe's colour.
+const ENDS_PROBE: u8 = 2;
+/// Decided: the pixel ends with its cells' exact sum.
+const ENDS_EXACT: u8 = 3;
+
+/// No entry in `Scratch::cells` or `Scratch::passes`.
+const NONE: u32 = u32::MAX;
 
 impl Scratch {
     /// The memory the arrays hold.
     fn bytes(&self) -> usize {
         use std::mem::size_of;
-        self.ends.capacity() * size_of::<Option<Color>>()
-            + self.probes.capacity() * size_of::<Option<((f64, f64), Sample)>>()
-            + self.sums.capacity() * size_of::<Option<CellSums>>()
-            + self.decided.capacity()
+        self.state.capacity()
+            + self.probes.capacity() * size_of::<Option<Probe>>()
+            + self.cell_slot.capacity() * size_of::<u32>()
+            + self.cells.capacity() * size_of::<CellSums>()
             + self.slot.capacity() * size_of::<u32>()
             + self.passes.capacity() * size_of::<FirstPass>()
     }
@@ -144,10 +164,10 @@ fn adaptive_in<F, G>(
     G: PixelGeometry,
 {
     let Scratch {
-        ends,
+        state,
         probes,
-        sums,
-        decided,
+        cell_slot,
+        cells,
         slot,
         passes,
     } = scratch;
@@ -174,23 +194,25 @@ fn adaptive_in<F, G>(
     // with). A pixel's probe is traced when first needed, and its neighbours' only once its
     // own is smooth, so a region nothing can end in (a mirror) traces no probes beyond the
     // first passes' first rays.
-    // `Some(value)`: the pixel ends with that value (its probe's, or the geometry's).
-    refill(ends, pw * ph, None);
+    refill(state, pw * ph, UNDECIDED);
     refill(probes, pw * ph, None);
-    // What a checkered plane's cells give each decided pixel (see `PixelGeometry::cells`).
-    refill(sums, pw * ph, None);
+    // What a checkered plane's cells give each decided pixel (see `PixelGeometry::cells`):
+    // its index in `cells`, NONE where it has none.
+    refill(cell_slot, pw * ph, NONE);
+    cells.clear();
     if let Some(geometry) = geometry {
         // The probe of the pixel at `i`, traced if it is not yet. The check is inlined at
         // every call and the tracing is not: most calls find the probe traced.
-        let probe = |probes: &mut Vec<Option<((f64, f64), Sample)>>, bx: usize, by: usize| {
+        let probe = |probes: &mut Vec<Option<Probe>>, bx: usize, by: usize| {
             let i = at(bx, by);
             match probes[i] {
                 Some(p) => p,
                 None => trace_probe(pixel(bx, by), max, order, trace, &mut probes[i]),
             }
         };
-        let decide = |probes: &mut Vec<Option<((f64, f64), Sample)>>,
-                      sums: &mut Vec<Option<CellSums>>,
+        let decide = |probes: &mut Vec<Option<Probe>>,
+                      cell_slot: &mut Vec<u32>,
+                      cells: &mut Vec<CellSums>,
                       bx: usize,
                       by: usize| {
             let ((sx, sy), p) = probe(probes, bx, by);
@@ -220,37 +242,51 @@ fn adaptive_in<F, G>(
                     .zip(traced)
                     .all(|(&(nx, ny), done)| done || gentle(&probe(probes, nx, ny).1));
             if smooth {
-                return Some(p.color);
+                return ENDS_PROBE;
             }
             // A checkered plane alone in the square: its cells' exact areas, where they are
             // few enough to cost less than the rays they replace; the pixel's value where
             // nothing else changes in it, and otherwise the control variate its rays are
             // corrected by (see `corrected`).
-            let cells = geometry.cells(x, y, (sx, sy), &p, threshold, exact_cells(max));
-            sums[at(bx, by)] = cells;
-            cells.and_then(|c| c.exact)
+            let Some(sums) = geometry.cells(x, y, (sx, sy), &p, threshold, exact_cells(max)) else {
+                return GOES_ON;
+            };
+            // At most one entry per pixel of the grown rect (see `slot` below).
+            cell_slot[at(bx, by)] = cells.len() as u32;
+            cells.push(sums);
+            if sums.exact.is_some() {
+                ENDS_EXACT
+            } else {
+                GOES_ON
+            }
         };
-        refill(decided, pw * ph, false);
         for by in 2..h + 2 {
             for bx in 2..w + 2 {
-                ends[at(bx, by)] = decide(probes, sums, bx, by);
-                decided[at(bx, by)] = true;
+                state[at(bx, by)] = decide(probes, cell_slot, cells, bx, by);
             }
         }
         for by in 2..h + 2 {
             for bx in 2..w + 2 {
-                if ends[at(bx, by)].is_some() {
+                if state[at(bx, by)] >= ENDS_PROBE {
                     continue;
                 }
                 for (nx, ny) in neighbours(bx, by) {
-                    if !decided[at(nx, ny)] {
-                        ends[at(nx, ny)] = decide(probes, sums, nx, ny);
-                        decided[at(nx, ny)] = true;
+                    if state[at(nx, ny)] == UNDECIDED {
+                        state[at(nx, ny)] = decide(probes, cell_slot, cells, nx, ny);
                     }
                 }
             }
         }
     }
+    let (state, probes, cells) = (&*state, &*probes, &*cells);
+    // The pixel's cells' sums, where it has them.
+    let sums = |i: usize| (cell_slot[i] != NONE).then(|| cells[cell_slot[i] as usize]);
+    // The value of a pixel that ends, `None` for one that goes on.
+    let ends = |i: usize| match state[i] {
+        ENDS_PROBE => probes[i].map(|(_, p)| p.color),
+        ENDS_EXACT => sums(i).and_then(|c| c.exact),
+        _ => None,
+    };
 
     // A pixel's rays, each corrected by the control variate of its checkered plane's cells
     // where it has one: `f − direct + mean(direct)` has the same mean over the square as
@@ -267,23 +303,22 @@ fn adaptive_in<F, G>(
 
     // First passes where the rect's decisions need them: its pixels that go on, and their
     // neighbours that go on (`slot` indexes `passes`, NONE where a pixel has none).
-    const NONE: u32 = u32::MAX;
     refill(slot, pw * ph, NONE);
     passes.clear();
     for by in 2..h + 2 {
         for bx in 2..w + 2 {
-            if ends[at(bx, by)].is_some() {
+            if state[at(bx, by)] >= ENDS_PROBE {
                 continue;
             }
             for (qx, qy) in std::iter::once((bx, by)).chain(neighbours(bx, by)) {
                 let i = at(qx, qy);
-                if slot[i] == NONE && ends[i].is_none() {
+                if slot[i] == NONE && state[i] < ENDS_PROBE {
                     let (x, y) = pixel(qx, qy);
-                    let probed = probes[i].map(|(at, p)| (at, correct(sums[i], p, at)));
+                    let probed = probes[i].map(|(at, p)| (at, correct(sums(i), p, at)));
                     // At most one pass per pixel of the grown rect, whose size is bounded
                     // by the image's (`Limits`) and far below u32::MAX.
                     slot[i] = passes.len() as u32;
-                    passes.push(first_pass(x, y, max, order, &corrected(sums[i]), probed));
+                    passes.push(first_pass(x, y, max, order, &corrected(sums(i)), probed));
                 }
             }
         }
@@ -293,7 +328,7 @@ fn adaptive_in<F, G>(
     // ended, its probe's (corrected, where the pixel has cells' sums).
     let seen = |i: usize| -> Tally {
         match (slot[i], probes[i]) {
-            (NONE, Some((at, p))) => Tally::of(correct(sums[i], p, at)),
+            (NONE, Some((at, p))) => Tally::of(correct(sums(i), p, at)),
             (NONE, None) => Tally::of(Sample {
                 color: Color::ZERO,
                 object: Sample::BACKGROUND,
@@ -307,7 +342,7 @@ fn adaptive_in<F, G>(
         for bx in 2..w + 2 {
             let here = at(bx, by);
             let (x, y) = (rect.x + (bx - 2) as u32, rect.y + (by - 2) as u32);
-            out[i] = match (ends[here], slot[here]) {
+            out[i] = match (ends(here), slot[here]) {
                 (Some(value), _) => value,
                 // Unreachable: a pixel that does not end has its first pass.
                 (_, NONE) => Color::ZERO,
@@ -339,12 +374,12 @@ fn adaptive_in<F, G>(
                     // Two pixels on one checkered plane whose rays are corrected by its cells
                     // (`corrected`) compare what is left: shadows and reflections. Their
                     // cells differ, and the cells are summed exactly in both.
-                    let mine = sums[here];
+                    let mine = sums(here);
                     let (mut near, mut unseen, mut beside_other) = (false, false, false);
                     for (nx, ny) in neighbours(bx, by) {
                         let there = at(nx, ny);
                         let (mut c, mut nb) = (*c, seen(there));
-                        if let (Some(a), Some(b)) = (mine, sums[there])
+                        if let (Some(a), Some(b)) = (mine, sums(there))
                             && a.object == b.object
                         {
                             (c, nb) = (c.shifted(-a.direct), nb.shifted(-b.direct));
