@@ -322,6 +322,22 @@ impl Scene {
         }
     }
 
+    /// The sample of a primary ray that meets nothing, as [`Self::primary`] returns it: the
+    /// background, clamped like every primary sample. What a pixel the footprints know to
+    /// be blank takes without tracing (see `Footprints::blank`).
+    pub(crate) fn background_sample(&self) -> Sample {
+        Sample {
+            color: self.background.min(Color::ONE),
+            object: Sample::BACKGROUND,
+        }
+    }
+
+    /// [`Self::primary`], for tests.
+    #[cfg(test)]
+    pub(crate) fn primary_sample(&self, x: f64, y: f64) -> Sample {
+        self.primary::<true>(x, y, &Counters::default())
+    }
+
     /// The clamped radiance of the primary ray through image-plane position `(x, y)`.
     fn primary<const TABLES: bool>(&self, x: f64, y: f64, c: &Counters) -> Sample {
         Counters::bump(&c.primary);

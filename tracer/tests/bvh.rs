@@ -787,7 +787,12 @@ fn long_rods_count_their_slices_towards_the_tables() {
         let rect = Rect::full(s.width, s.height);
         let ((a, sa), (b, sb)) = (s.render_rect_stats(rect), plain.render_rect_stats(rect));
         assert_eq!(sa, sb, "{shape}");
-        assert!(sa.primary > u64::from(s.width * s.height), "{sa:?}");
+        // Where the tables are built, they answer refined rays too, not only probes (the
+        // fan of spheres, which builds none, is mostly blank pixels that trace nothing).
+        assert!(
+            !tables || sa.primary > u64::from(s.width * s.height),
+            "{shape}: {sa:?}"
+        );
         assert!(a == b, "{shape}: images differ");
     }
 }

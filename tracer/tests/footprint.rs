@@ -601,8 +601,8 @@ fn a_checker_just_above_the_threshold_is_searched_only_as_far_as_its_bound() {
 }
 
 /// In a scene of plain spheres on the background, the adaptive sampler ends most pixels
-/// after one ray, and its image assembles from tiles byte for byte, at caps of 4 (refined
-/// in one step) and 8 (in stages).
+/// after one ray (or none, where the pixel is blank), and its image assembles from tiles
+/// byte for byte, at caps of 4 (refined in one step) and 8 (in stages).
 #[test]
 fn plain_scenes_take_one_ray_in_flat_pixels_and_stay_tile_independent() {
     for cap in [4, 8] {
@@ -629,10 +629,10 @@ fn plain_scene_at(cap: u32) {
     let whole = s.render_rect_stats(Rect::full(w, h)).0;
     let counts = s.primary_rays_per_pixel(Rect::full(w, h), &s.sampler);
     // Without the smoothness test every pixel would take at least its four-ray first pass.
-    let ones = counts.iter().filter(|&&c| c == 1).count();
+    let ones = counts.iter().filter(|&&c| c <= 1).count();
     assert!(
         2 * ones > counts.len(),
-        "cap {cap}: {ones} of {} pixels end after one ray",
+        "cap {cap}: {ones} of {} pixels end after one ray or none",
         counts.len()
     );
     for tile in [3u32, 8, 19] {
@@ -711,10 +711,11 @@ fn corrected_checker_floors_stay_tile_independent() {
 }
 
 /// The count of rays per pixel that the chart draws: jitter's is `n²` in every pixel; an
-/// adaptive render's counts lie between one and its cap's `n²`, sum to no more than the
+/// adaptive render's counts lie between none and its cap's `n²`, sum to no more than the
 /// render's own count of primary rays (which also holds the rays traced around the rect for
 /// its decisions), and show both extremes where a sphere's edge crosses a flat background:
-/// one ray in the background's pixels far from it, every ray on its edge.
+/// none in the background's pixels far from it (blank: nothing can show there), every ray
+/// on its edge.
 #[test]
 fn rays_per_pixel_are_counted_where_they_fall() {
     let s = common::scene(
@@ -739,7 +740,7 @@ fn rays_per_pixel_are_counted_where_they_fall() {
         "{sum} counted, {} traced",
         stats.primary
     );
-    assert!(counts.iter().all(|&c| (1..=16).contains(&c)));
-    assert_eq!(counts[0], 1, "a background pixel far from the sphere");
+    assert!(counts.iter().all(|&c| c <= 16));
+    assert_eq!(counts[0], 0, "a background pixel far from the sphere");
     assert!(counts.contains(&16), "the sphere's edge");
 }

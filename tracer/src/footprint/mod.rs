@@ -119,6 +119,9 @@ pub struct Footprints<'s> {
     flags: Vec<u8>,
     /// The planes (world point, normal, object), tested per pixel.
     planes: Vec<(DVec3, DVec3, u32)>,
+    /// Where each plane of `planes` can show in the image, for [`Footprints::blank`];
+    /// `None` where the eye lies on it (or it is not finite).
+    plane_sides: Vec<Option<PlaneSide>>,
     /// The checkered planes without a texture, with their rays' map in image coordinates,
     /// for [`Footprints::direct`].
     checker_planes: Vec<(u32, average::PlaneImage<'s>)>,
@@ -192,6 +195,58 @@ fn count(record: &mut u32, id: u32) {
     }
 }
 
+/// Where a plane can show in the image. A primary ray through image position `(x, y)`
+/// heads for the plane when its direction has a positive component along `towards` (the
+/// normal turned to the plane's side away from the eye); that component, of the camera's
+/// unnormalised direction `corner + right·x + down·y`, is `c + a·x + b·y`: affine in the
+/// image position, so over a pixel's square it is largest at one corner.
+#[derive(Debug, Clone, Copy)]
+struct PlaneSide {
+    a: f64,
+    b: f64,
+    c: f64,
+    /// Per unit of `|c|`, `|x|` and `|y|` below: what the rounding of the direction and of
+    /// the sum can move the component by, a billion times over.
+    slack: [f64; 3],
+}
+
+impl PlaneSide {
+    /// `None` where the eye lies on the plane (every pixel may show it) or something is not
+    /// finite.
+    fn new(camera: &crate::camera::Camera, p0: DVec3, n: DVec3) -> Option<PlaneSide> {
+        let h = (camera.eye() - p0).dot(n);
+        if !(h != 0.0) || !h.is_finite() || !n.is_finite() {
+            return None;
+        }
+        let towards = if h > 0.0 { -n } else { n };
+        let (right, down) = camera.steps();
+        let corner = camera.direction(0.0, 0.0);
+        let t = towards.length();
+        let side = PlaneSide {
+            a: towards.dot(right),
+            b: towards.dot(down),
+            c: towards.dot(corner),
+            slack: [
+                1e-9 * t * corner.length(),
+                1e-9 * t * right.length(),
+                1e-9 * t * down.length(),
+            ],
+        };
+        let finite = [side.a, side.b, side.c].iter().all(|v| v.is_finite());
+        finite.then_some(side)
+    }
+
+    /// Whether no ray through pixel `(px, py)`'s square heads for the plane: the component
+    /// at the square's corner where it is largest is below zero by more than the slack.
+    fn misses(&self, px: i64, py: i64) -> bool {
+        let x = px as f64 + if self.a > 0.0 { 1.0 } else { 0.0 };
+        let y = py as f64 + if self.b > 0.0 { 1.0 } else { 0.0 };
+        let most = self.c + self.a * x + self.b * y;
+        let [sc, sx, sy] = self.slack;
+        most < -(sc + sx * x.abs() + sy * y.abs())
+    }
+}
+
 /// Where a box's projection lies.
 enum Projection {
     /// Wholly behind the eye's plane: no primary ray reaches it.
@@ -218,6 +273,7 @@ impl<'s> Footprints<'s> {
             near: vec![[0; NEAR]; n],
             flags: vec![0; n],
             planes: Vec::new(),
+            plane_sides: Vec::new(),
             checker_planes: Vec::new(),
             solids: std::cell::OnceCell::new(),
         };
@@ -258,6 +314,7 @@ impl<'s> Footprints<'s> {
                 if matches!(obj.shape, Shape::Plane) {
                     let (p0, n) = plane_of(obj);
                     self.planes.push((p0, n, *o));
+                    self.plane_sides.push(PlaneSide::new(&scene.camera, p0, n));
                     if obj.material.color2.is_some() && obj.material.texture.is_none() {
                         let image = average::PlaneImage::frame(scene, *o, 0, 0);
                         self.checker_planes.push((*o, image));
@@ -654,6 +711,23 @@ impl<'s> Footprints<'s> {
             .map_or(Color::ZERO, |(_, image)| image.direct(at))
     }
 
+    /// The background's sample, where nothing else can show in pixel `(px, py)`'s square:
+    /// no solid's footprint meets it (the solids counted by their rectangles, the others by
+    /// the cone around the centre ray, which holds every ray of the square), and that cone
+    /// misses every plane. A ray through the square then meets nothing, and its radiance is
+    /// the background's. Pixels outside the region: `None`.
+    pub fn blank(&self, px: i64, py: i64) -> Option<Sample> {
+        let i = self.index(px, py)?;
+        if self.shown[i] != NOTHING {
+            return None;
+        }
+        let misses = |side: &Option<PlaneSide>| side.is_some_and(|s| s.misses(px, py));
+        if !self.plane_sides.iter().all(misses) {
+            return None;
+        }
+        Some(self.scene.background_sample())
+    }
+
     /// Pixel `(px, py)`'s place in the per-pixel records; `None` outside the region.
     fn index(&self, px: i64, py: i64) -> Option<usize> {
         let reg = self.region;
@@ -730,6 +804,10 @@ impl crate::sampler::PixelGeometry for Footprints<'_> {
 
     fn fitted_quadrants(&self, px: i64, py: i64) -> Option<u8> {
         Footprints::fitted_quadrants(self, px, py)
+    }
+
+    fn blank(&self, px: i64, py: i64) -> Option<Sample> {
+        Footprints::blank(self, px, py)
     }
 
     fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool {

@@ -265,3 +265,109 @@ fn exact_values_only_where_a_checker_plane_is_alone() {
     }
     assert!(one_colour > 0);
 }
+
+/// A pixel the footprints call blank returns the background's sample to every ray through
+/// its closed square (its corners, where a plane's horizon or a silhouette would first
+/// enter, and a grid inside), bit for bit, clamped as a primary sample is; and blank
+/// pixels exist where nothing shows, so the sampler has rays to save.
+#[test]
+fn a_blank_pixel_s_every_ray_sees_the_background() {
+    let spheres: String = (0..12)
+        .map(|k| {
+            let (x, y) = (f64::from(k % 4) * 2.5 - 3.75, f64::from(k / 4) * 2.5 - 2.5);
+            let r = 0.05 + 0.1 * f64::from(k);
+            format!("[OBJECT]\ntype = sphere\nradius = {r}\ntranslate = <{x}, {y}, 0>\n[/OBJECT]\n")
+        })
+        .collect();
+    let cloud = scene(&format!(
+        "[GLOBALS]\nwidth = 40\nheight = 30\nbackground = <1.5, 0.4, 0.2>\n[/GLOBALS]\n\
+         [CAMERA]\neye = <0, 0, 12>\n[/CAMERA]\n{spheres}"
+    ));
+    // A checker floor and a wall to the right, the camera rolled so that the horizon
+    // crosses pixels at a slant: blank is what lies above the floor's horizon and left of
+    // the wall's.
+    let floor = "[OBJECT]\ntype = plane\ncolor1 = 1\ncolor2 = 0\n[/OBJECT]\n\
+                 [OBJECT]\ntype = sphere\nradius = 0.7\ntranslate = <0.5, 0.7, 0>\n[/OBJECT]\n";
+    let rolled = scene(&format!(
+        "[GLOBALS]\nwidth = 40\nheight = 30\nbackground = <0.2, 0.3, 0.9>\n[/GLOBALS]\n\
+         [CAMERA]\neye = <0, 1.5, 8>\nlook_at = <0, 1.2, 0>\nup = <0.35, 1, 0>\n[/CAMERA]\n\
+         {floor}[OBJECT]\ntype = plane\nrotate = <0, 0, 90>\ntranslate = <3, 0, 0>\n\
+         color1 = 0.5\n[/OBJECT]\n"
+    ));
+    // Seen from below, looking down at the horizon from under the floor.
+    let below = scene(&format!(
+        "[GLOBALS]\nwidth = 40\nheight = 30\nbackground = 0.6\n[/GLOBALS]\n\
+         [CAMERA]\neye = <0, -1, 8>\nlook_at = <0, -1.3, 0>\n[/CAMERA]\n{floor}"
+    ));
+    for (name, s, least) in [
+        ("cloud", &cloud, 600),
+        ("rolled", &rolled, 1),
+        ("below", &below, 1),
+    ] {
+        let region = PixelRegion {
+            x: -2,
+            y: -2,
+            width: 44,
+            height: 34,
+        };
+        let fp = Footprints::new(s, region);
+        let (mut blank, mut other) = (0, 0);
+        for py in -2..32 {
+            for px in -2..42 {
+                let Some(sample) = fp.blank(px, py) else {
+                    other += 1;
+                    continue;
+                };
+                blank += 1;
+                assert_eq!(sample.object, Sample::BACKGROUND, "{name}");
+                assert_eq!(sample.color, s.background.min(DVec3::ONE), "{name}");
+                for j in 0..=4 {
+                    for i in 0..=4 {
+                        let (x, y) = (
+                            px as f64 + f64::from(i) / 4.0,
+                            py as f64 + f64::from(j) / 4.0,
+                        );
+                        let traced = s.primary_sample(x, y);
+                        assert_eq!(
+                            (traced.object, traced.color),
+                            (sample.object, sample.color),
+                            "{name}: pixel ({px}, {py}), ray through ({x}, {y})"
+                        );
+                    }
+                }
+            }
+        }
+        assert!(
+            blank >= least && other > 0,
+            "{name}: {blank} blank, {other} not"
+        );
+    }
+    // Outside the region nothing is known: a pixel blank in the whole image's region, in
+    // a region of its own, and its neighbours outside that.
+    let whole = Footprints::new(
+        &cloud,
+        PixelRegion {
+            x: 0,
+            y: 0,
+            width: 40,
+            height: 30,
+        },
+    );
+    let (px, py) = (1..39)
+        .flat_map(|y| (1..39).map(move |x| (x, y)))
+        .find(|&(x, y)| {
+            whole.blank(x - 1, y).is_some()
+                && whole.blank(x, y).is_some()
+                && whole.blank(x + 1, y).is_some()
+        })
+        .expect("three blank pixels in a row");
+    let alone = PixelRegion {
+        x: px,
+        y: py,
+        width: 1,
+        height: 1,
+    };
+    let fp = Footprints::new(&cloud, alone);
+    assert!(fp.blank(px, py).is_some());
+    assert!(fp.blank(px - 1, py).is_none() && fp.blank(px + 1, py).is_none());
+}

@@ -283,6 +283,14 @@ pub trait PixelGeometry {
         None
     }
 
+    /// The sample every primary ray through pixel `(px, py)`'s square returns, where the
+    /// geometry knows it without tracing one: nothing but the background can show there.
+    /// `None` where it does not know. Never a sample that a ray through the square would
+    /// not return, bit for bit: the sampler takes it in place of tracing that ray.
+    fn blank(&self, _px: i64, _py: i64) -> Option<Sample> {
+        None
+    }
+
     /// What an edge of `object`'s own pattern (a checker's cell boundary) can hide in pixel
     /// `(px, py)`'s square on a side that none of the first pass's rays, through image
     /// positions `seen`, all of which saw `object`, fell on; `None` where there is no such

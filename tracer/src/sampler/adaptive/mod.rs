@@ -22,19 +22,29 @@ use tally::Tally;
 type Probe = ((f64, f64), Sample);
 
 /// Traces the probe of pixel `(x, y)` (the first ray of its first pass, see
-/// [`first_position`]) into `slot`, and returns it. Kept out of line: its callers mostly find
-/// the probe already traced, and should not pay for this body's registers.
+/// [`first_position`]) into `slot`, and returns it; where the geometry knows every ray of
+/// the pixel to be blank ([`PixelGeometry::blank`]), takes its sample instead and sets
+/// `blank`. Kept out of line: its callers mostly find the probe already traced, and should
+/// not pay for this body's registers.
 #[inline(never)]
-fn trace_probe<F: Fn(f64, f64) -> Sample>(
+fn trace_probe<F: Fn(f64, f64) -> Sample, G: PixelGeometry>(
     (x, y): (i64, i64),
     max: u32,
     order: Option<&QuadrantOrder>,
     trace: &F,
-    slot: &mut Option<Probe>,
+    geometry: &G,
+    (slot, blank): (&mut Option<Probe>, &mut bool),
 ) -> Probe {
     let hashes = FirstHashes::new(x, y);
     let ((sx, sy), _) = first_position(x, y, max, order, 0, &hashes);
-    let p = ((sx, sy), trace(sx, sy));
+    let sample = match geometry.blank(x, y) {
+        Some(s) => {
+            *blank = true;
+            s
+        }
+        None => trace(sx, sy),
+    };
+    let p = ((sx, sy), sample);
     *slot = Some(p);
     p
 }
@@ -110,6 +120,8 @@ pub(super) fn adaptive<F, G>(
 struct Scratch {
     state: Vec<u8>,
     probes: Vec<Option<Probe>>,
+    /// Whether the pixel's probe found it blank: its every ray is the probe's sample.
+    blank: Vec<bool>,
     cell_slot: Vec<u32>,
     cells: Vec<CellSums>,
     slot: Vec<u32>,
@@ -134,6 +146,7 @@ impl Scratch {
     fn bytes(&self) -> usize {
         use std::mem::size_of;
         self.state.capacity()
+            + self.blank.capacity()
             + self.probes.capacity() * size_of::<Option<Probe>>()
             + self.cell_slot.capacity() * size_of::<u32>()
             + self.cells.capacity() * size_of::<CellSums>()
@@ -166,6 +179,7 @@ fn adaptive_in<F, G>(
     let Scratch {
         state,
         probes,
+        blank,
         cell_slot,
         cells,
         slot,
@@ -196,6 +210,7 @@ fn adaptive_in<F, G>(
     // first passes' first rays.
     refill(state, pw * ph, UNDECIDED);
     refill(probes, pw * ph, None);
+    refill(blank, pw * ph, false);
     // What a checkered plane's cells give each decided pixel (see `PixelGeometry::cells`):
     // its index in `cells`, NONE where it has none.
     refill(cell_slot, pw * ph, NONE);
@@ -203,19 +218,24 @@ fn adaptive_in<F, G>(
     if let Some(geometry) = geometry {
         // The probe of the pixel at `i`, traced if it is not yet. The check is inlined at
         // every call and the tracing is not: most calls find the probe traced.
-        let probe = |probes: &mut Vec<Option<Probe>>, bx: usize, by: usize| {
-            let i = at(bx, by);
-            match probes[i] {
-                Some(p) => p,
-                None => trace_probe(pixel(bx, by), max, order, trace, &mut probes[i]),
-            }
-        };
+        let probe =
+            |probes: &mut Vec<Option<Probe>>, blank: &mut Vec<bool>, bx: usize, by: usize| {
+                let i = at(bx, by);
+                match probes[i] {
+                    Some(p) => p,
+                    None => {
+                        let into = (&mut probes[i], &mut blank[i]);
+                        trace_probe(pixel(bx, by), max, order, trace, geometry, into)
+                    }
+                }
+            };
         let decide = |probes: &mut Vec<Option<Probe>>,
+                      blank: &mut Vec<bool>,
                       cell_slot: &mut Vec<u32>,
                       cells: &mut Vec<CellSums>,
                       bx: usize,
                       by: usize| {
-            let ((sx, sy), p) = probe(probes, bx, by);
+            let ((sx, sy), p) = probe(probes, blank, bx, by);
             let (x, y) = pixel(bx, by);
             let gentle = |q: &Sample| {
                 q.object != p.object || (q.color - p.color).abs().max_element() <= threshold
@@ -240,7 +260,7 @@ fn adaptive_in<F, G>(
                 && around
                     .iter()
                     .zip(traced)
-                    .all(|(&(nx, ny), done)| done || gentle(&probe(probes, nx, ny).1));
+                    .all(|(&(nx, ny), done)| done || gentle(&probe(probes, blank, nx, ny).1));
             if smooth {
                 return ENDS_PROBE;
             }
@@ -262,7 +282,7 @@ fn adaptive_in<F, G>(
         };
         for by in 2..h + 2 {
             for bx in 2..w + 2 {
-                state[at(bx, by)] = decide(probes, cell_slot, cells, bx, by);
+                state[at(bx, by)] = decide(probes, blank, cell_slot, cells, bx, by);
             }
         }
         for by in 2..h + 2 {
@@ -272,13 +292,13 @@ fn adaptive_in<F, G>(
                 }
                 for (nx, ny) in neighbours(bx, by) {
                     if state[at(nx, ny)] == UNDECIDED {
-                        state[at(nx, ny)] = decide(probes, cell_slot, cells, nx, ny);
+                        state[at(nx, ny)] = decide(probes, blank, cell_slot, cells, nx, ny);
                     }
                 }
             }
         }
     }
-    let (state, probes, cells) = (&*state, &*probes, &*cells);
+    let (state, probes, blank, cells) = (&*state, &*probes, &*blank, &*cells);
     // The pixel's cells' sums, where it has them.
     let sums = |i: usize| (cell_slot[i] != NONE).then(|| cells[cell_slot[i] as usize]);
     // The value of a pixel that ends, `None` for one that goes on.
@@ -298,8 +318,18 @@ fn adaptive_in<F, G>(
         },
         _ => s,
     };
-    let corrected =
-        |cells: Option<CellSums>| move |sx: f64, sy: f64| correct(cells, trace(sx, sy), (sx, sy));
+    // Pixel `i`'s rays, corrected: traced, or its probe's sample where the probe found the
+    // pixel blank.
+    let corrected = |i: usize| {
+        let (cells, known) = (sums(i), probes[i].filter(|_| blank[i]));
+        move |sx: f64, sy: f64| {
+            let s = match known {
+                Some((_, s)) => s,
+                None => trace(sx, sy),
+            };
+            correct(cells, s, (sx, sy))
+        }
+    };
 
     // First passes where the rect's decisions need them: its pixels that go on, and their
     // neighbours that go on (`slot` indexes `passes`, NONE where a pixel has none).
@@ -318,7 +348,7 @@ fn adaptive_in<F, G>(
                     // At most one pass per pixel of the grown rect, whose size is bounded
                     // by the image's (`Limits`) and far below u32::MAX.
                     slot[i] = passes.len() as u32;
-                    passes.push(first_pass(x, y, max, order, &corrected(sums(i)), probed));
+                    passes.push(first_pass(x, y, max, order, &corrected(i), probed));
                 }
             }
         }
@@ -463,7 +493,7 @@ fn adaptive_in<F, G>(
                             fp,
                             order,
                             quadrants,
-                            &corrected(mine),
+                            &corrected(here),
                         )
                     } else {
                         mean

@@ -913,3 +913,96 @@ fn flagged_thin_features_get_jitters_estimate() {
         "{with_quarters} rays with quarters named, {without} without, {crossed} pixels crossed"
     );
 }
+
+/// [`PixelGeometry`] `G` that also knows the pixels `blank(px, py)` names to be blank.
+struct Blanked<'g, G, B>(&'g G, B);
+
+impl<G: PixelGeometry, B: Fn(i64, i64) -> Option<Sample>> PixelGeometry for Blanked<'_, G, B> {
+    fn is_smooth(&self, px: i64, py: i64, x: f64, y: f64, seen: &Sample) -> bool {
+        self.0.is_smooth(px, py, x, y, seen)
+    }
+
+    fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
+        self.0.may_hide(px, py, object)
+    }
+
+    fn blank(&self, px: i64, py: i64) -> Option<Sample> {
+        (self.1)(px, py)
+    }
+
+    fn unseen_pattern(
+        &self,
+        px: i64,
+        py: i64,
+        object: u32,
+        seen: &[(f64, f64)],
+    ) -> Option<UnseenPattern> {
+        self.0.unseen_pattern(px, py, object, seen)
+    }
+
+    fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool {
+        self.0.pattern_alone(px, py, x, y, object)
+    }
+}
+
+/// A pixel the geometry knows to be blank takes its sample for every ray it would trace
+/// (its probe, its first pass and any refinement a neighbour asks of it): it traces none,
+/// and every pixel's value is the one tracing would give, whatever the cap and the tile.
+#[test]
+fn a_blank_pixel_traces_nothing_and_changes_nothing() {
+    // A disc on a background: a pixel whose square lies wholly outside is blank.
+    let (cx, cy, r) = (8.3, 5.1, 3.0);
+    let background = Sample {
+        color: Color::new(0.1, 0.2, 0.3),
+        object: Sample::BACKGROUND,
+    };
+    let disc = |x: f64, y: f64| {
+        if (x - cx).powi(2) + (y - cy).powi(2) < r * r {
+            Sample {
+                color: Color::splat(0.9),
+                object: 1,
+            }
+        } else {
+            background
+        }
+    };
+    let outside = |px: i64, py: i64| {
+        let nx = (px as f64).max(cx.min(px as f64 + 1.0));
+        let ny = (py as f64).max(cy.min(py as f64 + 1.0));
+        (nx - cx).powi(2) + (ny - cy).powi(2) > r * r
+    };
+    // Nothing ends after its probe, so blank pixels take first passes, and those beside the
+    // disc are refined as its neighbours.
+    let geometry = smooth_where(|_, _| false);
+    let blanked = Blanked(&geometry, |px: i64, py: i64| {
+        outside(px, py).then_some(background)
+    });
+    for max in [2, 3, 4, 6, 8] {
+        let s = Sampler::Adaptive {
+            max,
+            threshold: 0.02,
+        };
+        let mut saved = 0;
+        for tile in [3u32, 17] {
+            for rect in crate::tile::tiles(17, 11, tile) {
+                let (traced, all) = traced_probed(s, rect, disc, &geometry);
+                let (known, fewer) = traced_probed(s, rect, disc, &blanked);
+                assert_eq!(known, traced, "cap {max}, tile {rect:?}");
+                let blank_rays = |rays: &[(f64, f64)]| {
+                    rays.iter()
+                        .filter(|(x, y)| outside(x.floor() as i64, y.floor() as i64))
+                        .count()
+                };
+                assert_eq!(blank_rays(&fewer), 0, "cap {max}, tile {rect:?}");
+                saved += blank_rays(&all);
+                // The other pixels' rays are the same rays.
+                let kept: Vec<_> = all
+                    .iter()
+                    .filter(|(x, y)| !outside(x.floor() as i64, y.floor() as i64))
+                    .collect();
+                assert_eq!(fewer.iter().collect::<Vec<_>>(), kept, "cap {max}");
+            }
+        }
+        assert!(saved > 0, "cap {max}");
+    }
+}
