@@ -673,11 +673,21 @@ fn a_flagged_pixel_stops_early_once_its_rays_meet_the_solid() {
     }
 }
 
-/// [`PixelGeometry`] `G` that also names the quarters of each pixel a thin solid may show
-/// in, by `quadrants(px, py)`.
-struct Quartered<'g, G, Q>(&'g G, Q);
+/// [`PixelGeometry`] `G` that is also told the quarters of each pixel a thin solid may show
+/// in, by `quadrants(px, py)`, and the pixels that are blank, by `blank(px, py)`.
+struct Told<'g, G, Q, B>(&'g G, Q, B);
 
-impl<G: PixelGeometry, Q: Fn(i64, i64) -> Option<u8>> PixelGeometry for Quartered<'_, G, Q> {
+/// No pixel known blank, for [`Told`].
+fn none_blank(_: i64, _: i64) -> Option<Sample> {
+    None
+}
+
+impl<G, Q, B> PixelGeometry for Told<'_, G, Q, B>
+where
+    G: PixelGeometry,
+    Q: Fn(i64, i64) -> Option<u8>,
+    B: Fn(i64, i64) -> Option<Sample>,
+{
     fn is_smooth(&self, px: i64, py: i64, x: f64, y: f64, seen: &Sample) -> bool {
         self.0.is_smooth(px, py, x, y, seen)
     }
@@ -688,6 +698,10 @@ impl<G: PixelGeometry, Q: Fn(i64, i64) -> Option<u8>> PixelGeometry for Quartere
 
     fn fitted_quadrants(&self, px: i64, py: i64) -> Option<u8> {
         (self.1)(px, py)
+    }
+
+    fn blank(&self, px: i64, py: i64) -> Option<Sample> {
+        (self.2)(px, py)
     }
 
     fn unseen_pattern(
@@ -727,7 +741,7 @@ fn only_the_quarters_a_solid_may_show_in_are_refined() {
             max,
             threshold: 0.02,
         };
-        let geometry = Quartered(&flags, |_, _| Some(named));
+        let geometry = Told(&flags, |_, _| Some(named), none_blank);
         let (out, rays) = traced_probed(s, Rect::new(4, 2, 1, 1), flat, &geometry);
         let rays = rays_in(&rays, 4, 2);
         assert_eq!(rays.len(), expected, "max {max}, quarters {named:04b}");
@@ -769,7 +783,7 @@ fn a_thin_solid_s_silhouette_beside_a_neighbour_is_searched_to_the_cap() {
         threshold: 0.02,
     };
     for (quarters, expected) in [(Some(0b1111), 64), (None, 8)] {
-        let geometry = Quartered(&flags, |_, _| quarters);
+        let geometry = Told(&flags, |_, _| quarters, none_blank);
         let (_, rays) = traced_probed(s, Rect::new(4, 2, 2, 1), split, &geometry);
         assert_eq!(
             rays_in(&rays, 4, 2).len(),
@@ -797,7 +811,7 @@ fn quarters_refined_alone_stop_only_once_they_meet_both_sides() {
     };
     let rect = Rect::new(4, 2, 1, 1);
     let flags = Geo(|_, _| false, |_, _, _| false, no_crossing);
-    let left = Quartered(&flags, |_, _| Some(0b0101));
+    let left = Told(&flags, |_, _| Some(0b0101), none_blank);
     let exact = 0.45 * 0.2 + 0.55 * 0.9;
     for max in [6, 8, 12, 16] {
         let s = Sampler::Adaptive {
@@ -891,7 +905,7 @@ fn flagged_thin_features_get_jitters_estimate() {
     s.render_rect_probed(
         rect,
         counted,
-        &Quartered(&geometry, quarters),
+        &Told(&geometry, quarters, none_blank),
         &mut quartered,
     );
     let with_quarters = count.replace(0);
@@ -912,37 +926,6 @@ fn flagged_thin_features_get_jitters_estimate() {
         with_quarters + 3 * crossed <= without,
         "{with_quarters} rays with quarters named, {without} without, {crossed} pixels crossed"
     );
-}
-
-/// [`PixelGeometry`] `G` that also knows the pixels `blank(px, py)` names to be blank.
-struct Blanked<'g, G, B>(&'g G, B);
-
-impl<G: PixelGeometry, B: Fn(i64, i64) -> Option<Sample>> PixelGeometry for Blanked<'_, G, B> {
-    fn is_smooth(&self, px: i64, py: i64, x: f64, y: f64, seen: &Sample) -> bool {
-        self.0.is_smooth(px, py, x, y, seen)
-    }
-
-    fn may_hide(&self, px: i64, py: i64, object: u32) -> bool {
-        self.0.may_hide(px, py, object)
-    }
-
-    fn blank(&self, px: i64, py: i64) -> Option<Sample> {
-        (self.1)(px, py)
-    }
-
-    fn unseen_pattern(
-        &self,
-        px: i64,
-        py: i64,
-        object: u32,
-        seen: &[(f64, f64)],
-    ) -> Option<UnseenPattern> {
-        self.0.unseen_pattern(px, py, object, seen)
-    }
-
-    fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool {
-        self.0.pattern_alone(px, py, x, y, object)
-    }
 }
 
 /// A pixel the geometry knows to be blank takes its sample for every ray it would trace
@@ -974,9 +957,11 @@ fn a_blank_pixel_traces_nothing_and_changes_nothing() {
     // Nothing ends after its probe, so blank pixels take first passes, and those beside the
     // disc are refined as its neighbours.
     let geometry = smooth_where(|_, _| false);
-    let blanked = Blanked(&geometry, |px: i64, py: i64| {
-        outside(px, py).then_some(background)
-    });
+    let blanked = Told(
+        &geometry,
+        |_, _| None,
+        |px: i64, py: i64| outside(px, py).then_some(background),
+    );
     for max in [2, 3, 4, 6, 8] {
         let s = Sampler::Adaptive {
             max,
