@@ -40,6 +40,10 @@
 //! each quarter of the square, where everything else in it is one backdrop of smooth
 //! shading; the sampler then refines only the quarters a thin solid may show in.
 //!
+//! **Blank pixels.** Where no solid counts in a pixel and no plane can show in it,
+//! [`Footprints::blank`] gives the background's sample: every ray through the square would
+//! return it, so the sampler takes it without tracing.
+//!
 //! **Cones.** Every ray through a pixel's square lies within [`crate::camera::Camera::pixel_angle`]
 //! of any other, so within the cone of that half-angle around any one of them, and within
 //! [`crate::camera::Camera::pixel_angle_from_centre`] of the ray through its centre. A sphere of
