@@ -44,7 +44,10 @@ fn chart_quick_writes_a_csv_and_an_svg() {
             .map(|x| x.parse().expect("a number"))
             .collect();
         assert!(nums.iter().all(|x| x.is_finite() && *x >= 0.0), "{row}");
-        assert!(nums[0] >= 1.0 && nums[2] > 0.0 && nums[3] > 0.0, "{row}");
+        assert!(nums[0] > 0.0 && nums[2] > 0.0 && nums[3] > 0.0, "{row}");
+        // Every sampler but adaptive traces a ray or more in every pixel; adaptive traces
+        // none in a blank one, so its average may fall below one.
+        assert!(f[1].starts_with("adaptive") || nums[0] >= 1.0, "{row}");
     }
     assert!(csv.lines().any(|l| l.ends_with(",true")), "no Pareto point");
     let svg = std::fs::read_to_string(out.join("chart.svg")).expect("chart.svg");
