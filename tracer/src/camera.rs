@@ -102,6 +102,11 @@ impl Camera {
         self.corner + self.right_per_px * x + self.down_per_px * y
     }
 
+    /// The unit direction through the image centre, perpendicular to the image plane.
+    pub(crate) fn forward(&self) -> DVec3 {
+        self.forward
+    }
+
     /// How [`Camera::direction`] changes per pixel to the right and per pixel down.
     pub(crate) fn steps(&self) -> (DVec3, DVec3) {
         (self.right_per_px, self.down_per_px)

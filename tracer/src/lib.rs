@@ -84,7 +84,7 @@ pub mod internals {
     pub use crate::math::{Aabb, Ray};
     pub use crate::object::{Material, Object};
     pub use crate::render::{SHADOW_END_REL, SurfacePoint};
-    pub use crate::sampler::Sample;
+    pub use crate::sampler::{Coverage, Sample};
     pub use crate::shape::LocalHit;
     pub use crate::srgb::encode_rgb8;
     pub use crate::world::Hit;

@@ -808,3 +808,54 @@ fn whole_image_footprints(s: &tessera_tracer::Scene) -> tessera_tracer::internal
         },
     )
 }
+
+/// A flat sphere's silhouette: the footprints' share of each pixel's square inside the
+/// sphere's outline is the disc's area there (`disc_coverage`, a closed form), from a disc
+/// smaller than a pixel to one of 13 pixels' radius; and the adaptive sampler, which weighs
+/// the rays that met the sphere by that share, makes every pixel where one did exact, where
+/// `jitter` at the same cap errs along the whole silhouette.
+#[test]
+fn adaptive_silhouettes_of_a_flat_disc_are_exact() {
+    let size = 40;
+    for radius in [0.35, 2.6, 13.3] {
+        let (src, exact) = disc_scene(size, radius);
+        let s = scene(&src);
+        let fp = whole_image_footprints(&s);
+        let mut partial = 0;
+        for (k, &e) in exact.iter().enumerate() {
+            let (px, py) = ((k as u32 % size).into(), (k as u32 / size).into());
+            let share = fp.coverage(px, py).map_or(0.0, |c| c.share);
+            assert!(
+                (share * FLAT - e).abs() < 1e-9,
+                "radius {radius}, pixel ({px}, {py}): share {share}, exact {}",
+                e / FLAT
+            );
+            partial += usize::from(e > 0.0 && e < FLAT);
+        }
+        assert!(partial >= 4, "radius {radius}: {partial} edge pixels");
+        for max in [4, 8] {
+            let rect = Rect::full(size, size);
+            let sampler = Sampler::Adaptive {
+                max,
+                threshold: 0.02,
+            };
+            let (v, _) = s.render_rect_linear_with(rect, &sampler);
+            let (j, _) = s.render_rect_linear_with(rect, &Sampler::Jitter { n: max });
+            let (mut exact_edges, mut jitter_off) = (0, 0);
+            for (k, &e) in exact.iter().enumerate() {
+                let got = v[k].x;
+                // A pixel none of whose rays met the sphere is the background's.
+                if got != 0.0 || e == 0.0 {
+                    assert!(
+                        (got - e).abs() < 1e-9,
+                        "radius {radius}, cap {max}, pixel {k}"
+                    );
+                    exact_edges += usize::from(e > 0.0 && e < FLAT);
+                }
+                jitter_off += usize::from((j[k].x - e).abs() > 1e-6);
+            }
+            assert!(exact_edges * 4 >= partial * 3, "radius {radius}, cap {max}");
+            assert!(jitter_off * 2 >= partial, "radius {radius}, cap {max}");
+        }
+    }
+}

@@ -44,6 +44,11 @@
 //! [`Footprints::blank`] gives the background's sample: every ray through the square would
 //! return it, so the sampler takes it without tracing.
 //!
+//! **Silhouettes.** Where a pixel shows one plain similarity sphere against the background
+//! alone, [`Footprints::coverage`] gives the exact share of its square inside the sphere's
+//! outline (an ellipse, see `coverage`): the sampler weighs the rays that met the sphere by
+//! it, and the silhouette costs no rays.
+//!
 //! **Cones.** Every ray through a pixel's square lies within [`crate::camera::Camera::pixel_angle`]
 //! of any other, so within the cone of that half-angle around any one of them, and within
 //! [`crate::camera::Camera::pixel_angle_from_centre`] of the ray through its centre. A sphere of
@@ -68,7 +73,7 @@ use glam::DVec3;
 use crate::bvh;
 use crate::csg::Prim;
 use crate::math::{Aabb, Color};
-use crate::sampler::{ALL_QUADRANTS, CellSums, Sample, UnseenPattern};
+use crate::sampler::{ALL_QUADRANTS, CellSums, Coverage, Sample, UnseenPattern};
 use crate::shape::Shape;
 use crate::world::Scene;
 use cells::{cell_edges, cell_parity, covers, one_cell, plane_of};
@@ -76,9 +81,11 @@ use cells::{cell_edges, cell_parity, covers, one_cell, plane_of};
 mod average;
 mod cells;
 mod cone;
+mod coverage;
 
 pub use cone::{Aperture, Cone, PlaneView};
 use cone::{BallTest, CapsuleTest};
+use coverage::Ellipse;
 
 /// A rectangle of pixels (it may reach outside the image: the adaptive sampler looks at a
 /// border around each tile).
@@ -170,6 +177,9 @@ const NEAR: usize = 4;
 struct Outline {
     centre: PieceTest,
     quadrant: PieceTest,
+    /// A sphere's outline in the image, for [`Footprints::coverage`]: only for a similarity
+    /// sphere outside any CSG tree, wholly in front of the eye.
+    ellipse: Option<Ellipse>,
 }
 
 /// One piece's cone test for one aperture (never a false no).
@@ -454,9 +464,11 @@ impl<'s> Footprints<'s> {
             if let Some(b) = clipped(b) {
                 let eye = self.scene.camera.eye();
                 let ball = |ap| PieceTest::Ball(BallTest::new(eye, ap, c, r));
+                let camera = &self.scene.camera;
                 let piece = Outline {
                     centre: ball(self.centre_aperture),
                     quadrant: ball(self.quadrant_aperture),
+                    ellipse: clip.is_none().then(|| Ellipse::new(camera, c, r)).flatten(),
                 };
                 self.add_where(o, &b, piece);
             }
@@ -474,6 +486,7 @@ impl<'s> Footprints<'s> {
                 let piece = Outline {
                     centre: capsule(self.centre_aperture),
                     quadrant: capsule(self.quadrant_aperture),
+                    ellipse: None,
                 };
                 self.add_where(o, &b, piece);
             }
@@ -732,6 +745,34 @@ impl<'s> Footprints<'s> {
         Some(self.scene.background_sample())
     }
 
+    /// What pixel `(px, py)`'s square shows where it is one plain sphere's silhouette
+    /// against the background: a similarity sphere outside any CSG tree, wholly in front of
+    /// the eye, with a plain material and no shadow ray to trace (as a pixel that ends after
+    /// one ray needs), the only solid whose footprint meets the square, and no plane can
+    /// show in it. Its rays
+    /// then see the sphere's smooth shading inside its outline and the background outside,
+    /// and the share of the square inside is known exactly (see `coverage`). `None`
+    /// elsewhere, and outside the region.
+    pub fn coverage(&self, px: i64, py: i64) -> Option<Coverage> {
+        let i = self.index(px, py)?;
+        let o = self.shown[i];
+        // One solid, counted by its cone alone, by one piece.
+        if o >= CSG || self.flags[i] != 0 || self.near[i][1] != 0 {
+            return None;
+        }
+        let slot = self.near[i][0].checked_sub(1)?;
+        let ellipse = self.outlines[slot as usize].ellipse?;
+        let misses = |side: &Option<PlaneSide>| side.is_some_and(|s| s.misses(px, py));
+        if !self.plane_sides.iter().all(misses) || !self.scene.plain(o) {
+            return None;
+        }
+        Some(Coverage {
+            object: o,
+            share: ellipse.share(px, py),
+            backdrop: self.scene.background_sample().color,
+        })
+    }
+
     /// Pixel `(px, py)`'s place in the per-pixel records; `None` outside the region.
     fn index(&self, px: i64, py: i64) -> Option<usize> {
         let reg = self.region;
@@ -812,6 +853,10 @@ impl crate::sampler::PixelGeometry for Footprints<'_> {
 
     fn blank(&self, px: i64, py: i64) -> Option<Sample> {
         Footprints::blank(self, px, py)
+    }
+
+    fn coverage(&self, px: i64, py: i64) -> Option<Coverage> {
+        Footprints::coverage(self, px, py)
     }
 
     fn pattern_alone(&self, px: i64, py: i64, x: f64, y: f64, object: u32) -> bool {

@@ -57,7 +57,10 @@ pub enum Sampler {
     /// solid may hide in it unseen: then it stops only once its rays meet two objects.
     /// Where the geometry names the quarters of the square a thin solid may show in
     /// (`PixelGeometry::fitted_quadrants`), a pixel that goes on because of one refines
-    /// only those.
+    /// only those. Where it knows the share of the square a plain solid covers against the
+    /// background (`PixelGeometry::coverage`), the pixel weighs its rays on the solid by
+    /// that share, and takes rays only until they bound the solid's shading (see `covered`
+    /// in `sampler/adaptive/refine.rs`).
     Adaptive {
         /// Most rays per axis: a pixel takes at most `max × max`.
         max: u32,
@@ -291,6 +294,15 @@ pub trait PixelGeometry {
         None
     }
 
+    /// Where pixel `(px, py)`'s square shows one solid's smooth shading (no edge, texture,
+    /// reflection or shadow edge on it) and the background around it, and nothing else:
+    /// the solid, the share of the square in which rays meet it, and the background's
+    /// sample. `None` where it does not know. The share must be exact to rounding: the
+    /// sampler weighs the solid's rays by it ([`Coverage::value`]).
+    fn coverage(&self, _px: i64, _py: i64) -> Option<Coverage> {
+        None
+    }
+
     /// What an edge of `object`'s own pattern (a checker's cell boundary) can hide in pixel
     /// `(px, py)`'s square on a side that none of the first pass's rays, through image
     /// positions `seen`, all of which saw `object`, fell on; `None` where there is no such
@@ -349,6 +361,28 @@ pub struct CellSums {
     pub direct: Color,
     /// The pixel's value, where nothing but the cells and smooth shading change in it.
     pub exact: Option<Color>,
+}
+
+/// A pixel's square that shows one solid of smooth shading against the background (see
+/// `PixelGeometry::coverage`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Coverage {
+    /// The solid.
+    pub object: u32,
+    /// The share of the square in which primary rays meet it, in `[0, 1]`.
+    pub share: f64,
+    /// What every other ray returns: the background's colour, clamped as a sample is.
+    pub backdrop: Color,
+}
+
+impl Coverage {
+    /// The pixel's value, given `inner`, the mean of some of its rays that met the solid:
+    /// its share of `inner` and the rest of the backdrop. The square's silhouette is then
+    /// exact, and only the solid's shading is estimated (post-stratification: each part of
+    /// the square weighed by its known area rather than by the rays that fell in it).
+    pub fn value(&self, inner: Color) -> Color {
+        inner * self.share + self.backdrop * (1.0 - self.share)
+    }
 }
 
 /// A pattern's edges in a pixel's square that its first rays may have missed (see

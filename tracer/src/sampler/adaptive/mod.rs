@@ -15,7 +15,7 @@ pub(super) use first::{FirstHashes, QuadrantOrder, first_position};
 use first::{FirstPass, cell_sample, first_pass};
 #[cfg(test)]
 pub(super) use refine::se_bound;
-use refine::{Ask, refine};
+use refine::{Ask, covered, refine};
 use tally::Tally;
 
 /// A probe: the image position of a pixel's first ray, and its sample.
@@ -137,6 +137,11 @@ const GOES_ON: u8 = 1;
 const ENDS_PROBE: u8 = 2;
 /// Decided: the pixel ends with its cells' exact sum.
 const ENDS_EXACT: u8 = 3;
+/// Decided: the pixel ends with its probe's colour weighed by its solid's exact share of
+/// the square, the background's for the rest ([`PixelGeometry::coverage`]).
+const ENDS_COVERED: u8 = 4;
+/// Not a state: [`ENDS_COVERED`] once a neighbour's probe is found on the same solid.
+const ENDS_COVERING: u8 = 5;
 
 /// No entry in `Scratch::cells` or `Scratch::passes`.
 const NONE: u32 = u32::MAX;
@@ -255,14 +260,39 @@ fn adaptive_in<F, G>(
                     }
                 }
             }
-            let smooth = gentle_so_far
-                && geometry.is_smooth(x, y, sx, sy, &p)
+            // Smooth, or one plain solid's silhouette against the background whose probe
+            // met the solid (or whose square holds none of it): the solid's share of the
+            // square is exact, and the probe stands for its shading where a neighbour's
+            // probe on the solid agrees with it (the shading is smooth at the pixel's
+            // scale: not a solid a few pixels across, whose shading spans its whole range
+            // within one).
+            let ends = if !gentle_so_far {
+                None
+            } else if geometry.is_smooth(x, y, sx, sy, &p) {
+                Some(ENDS_PROBE)
+            } else {
+                match geometry.coverage(x, y) {
+                    Some(c) if c.share == 0.0 => Some(ENDS_COVERED),
+                    Some(c) if c.object == p.object => Some(ENDS_COVERING),
+                    _ => None,
+                }
+            };
+            if let Some(state) = ends
                 && around
                     .iter()
                     .zip(traced)
-                    .all(|(&(nx, ny), done)| done || gentle(&probe(probes, blank, nx, ny).1));
-            if smooth {
-                return ENDS_PROBE;
+                    .all(|(&(nx, ny), done)| done || gentle(&probe(probes, blank, nx, ny).1))
+            {
+                if state != ENDS_COVERING {
+                    return state;
+                }
+                // Every neighbour's probe is traced by now.
+                let beside = |&(nx, ny): &(usize, usize)| {
+                    probes[at(nx, ny)].is_some_and(|(_, q)| q.object == p.object)
+                };
+                if around.iter().any(beside) {
+                    return ENDS_COVERED;
+                }
             }
             // A checkered plane alone in the square: its cells' exact areas, where they are
             // few enough to cost less than the rays they replace; the pixel's value where
@@ -301,10 +331,14 @@ fn adaptive_in<F, G>(
     let (state, probes, blank, cells) = (&*state, &*probes, &*blank, &*cells);
     // The pixel's cells' sums, where it has them.
     let sums = |i: usize| (cell_slot[i] != NONE).then(|| cells[cell_slot[i] as usize]);
-    // The value of a pixel that ends, `None` for one that goes on.
-    let ends = |i: usize| match state[i] {
+    // The value of pixel `(px, py)` at `i` where it ends, `None` where it goes on.
+    let ends = |i: usize, px: i64, py: i64| match state[i] {
         ENDS_PROBE => probes[i].map(|(_, p)| p.color),
         ENDS_EXACT => sums(i).and_then(|c| c.exact),
+        ENDS_COVERED => {
+            let c = geometry?.coverage(px, py)?;
+            probes[i].map(|(_, p)| c.value(p.color))
+        }
         _ => None,
     };
 
@@ -372,12 +406,34 @@ fn adaptive_in<F, G>(
         for bx in 2..w + 2 {
             let here = at(bx, by);
             let (x, y) = (rect.x + (bx - 2) as u32, rect.y + (by - 2) as u32);
-            out[i] = match (ends(here), slot[here]) {
+            let (px, py) = (i64::from(x), i64::from(y));
+            out[i] = match (ends(here, px, py), slot[here]) {
                 (Some(value), _) => value,
                 // Unreachable: a pixel that does not end has its first pass.
                 (_, NONE) => Color::ZERO,
                 (_, k) => {
                     let fp = &passes[k as usize];
+                    if let Some(g) = geometry
+                        && let Some(cover) = g.coverage(px, py)
+                    {
+                        // A plain solid's silhouette against the background: its rays are
+                        // weighed by its exact share, and the pixel takes rays only until
+                        // they estimate the solid's shading. A quarter the solid cannot
+                        // show in holds the background alone, and takes no more rays.
+                        let quadrants = order.and_then(|_| g.fitted_quadrants(px, py));
+                        out[i] = covered(
+                            (x, y),
+                            max,
+                            threshold,
+                            fp,
+                            order,
+                            quadrants.unwrap_or(ALL_QUADRANTS),
+                            cover,
+                            &corrected(here),
+                        );
+                        i += 1;
+                        continue;
+                    }
                     let c = &fp.tally;
                     // More samples where the pixel's own samples disagree (contrast or a
                     // second object) or the geometry says a solid they did not see may show
@@ -398,7 +454,6 @@ fn adaptive_in<F, G>(
                     // between two objects of like colours costs less than the threshold if
                     // missed, so only colours count here.
                     let mean = c.mean();
-                    let (px, py) = (i64::from(x), i64::from(y));
                     let flagged =
                         !c.mixed && geometry.is_some_and(|g| g.may_hide(px, py, c.object));
                     // Two pixels on one checkered plane whose rays are corrected by its cells

@@ -5,7 +5,7 @@ use crate::math::Color;
 
 use super::{FirstPass, QuadrantOrder, Tally, cell_sample};
 use crate::sampler::jitter::{PixelHash, SEED_JITTER};
-use crate::sampler::{ALL_QUADRANTS, Sample, UnseenPattern};
+use crate::sampler::{ALL_QUADRANTS, Coverage, Sample, UnseenPattern};
 
 /// Why a pixel takes more samples than its first pass (see [`refine`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -191,6 +191,109 @@ pub(in crate::sampler) fn refine<F: Fn(f64, f64) -> Sample>(
     }
     value(sum, all)
 }
+
+/// The estimate of a pixel that shows one solid's smooth shading against the background
+/// (`cover`, see [`Coverage`]), from its first pass `fp` and as many more of its rays as it
+/// needs: its rays that met the solid estimate the solid's shading, and [`Coverage::value`]
+/// weighs that by the solid's exact share. The silhouette is then exact whatever rays are
+/// taken; rays are taken, in the order [`refine`] takes them (for even `n`, rank by rank in
+/// each quadrant named in `quadrants`; for odd `n`, the cells the first pass left), until
+/// the solid's rays so far bound the shading's error:
+/// - one ray met the solid and its share is at most [`ONE_RAY`] of `threshold` (no ray's
+///   colour is more than 1 from another's in a channel, so the pixel errs by at most the
+///   share);
+/// - or two or more did, and their range times the share is at most [`RANGE`] of
+///   `threshold`, or their standard error times the share at most [`SE`] of the stage's
+///   bound ([`se_bound`]).
+///
+/// The solid's shading is smooth, but across a solid a few pixels wide it spans its whole
+/// range within one pixel: hence bounds tighter than the threshold. For even `n` the stops
+/// are tested after whole ranks, so that every quadrant searched has as many rays. An odd
+/// cap's rest of its grid, taken in row order, would meet the solid's top first, so an odd
+/// cap stops only after its first pass. A pixel none of whose rays meet the solid is the
+/// background's.
+#[allow(clippy::too_many_arguments)]
+pub(in crate::sampler) fn covered<F: Fn(f64, f64) -> Sample>(
+    (x, y): (u32, u32),
+    n: u32,
+    threshold: f64,
+    fp: &FirstPass,
+    order: Option<&QuadrantOrder>,
+    quadrants: u8,
+    cover: Coverage,
+    trace: &F,
+) -> Color {
+    let mut inner = Tally::new();
+    let mut rays = 4;
+    let add = |inner: &mut Tally, s: Sample| {
+        if s.object == cover.object {
+            inner.add(s);
+        }
+    };
+    for &s in &fp.samples {
+        add(&mut inner, s);
+    }
+    let enough = |inner: &Tally, rays: u32| match inner.count {
+        0 => false,
+        1 => cover.share <= ONE_RAY * threshold,
+        _ => {
+            cover.share * (inner.max - inner.min).max_element() <= RANGE * threshold
+                || cover.share * inner.standard_error() <= SE * se_bound(threshold, rays)
+        }
+    };
+    let value = |inner: &Tally| {
+        if inner.count == 0 {
+            cover.backdrop
+        } else {
+            cover.value(inner.mean())
+        }
+    };
+    if enough(&inner, rays) || cover.share == 0.0 {
+        return value(&inner);
+    }
+    let hash = PixelHash::new(x, y, SEED_JITTER);
+    let inv = 1.0 / f64::from(n);
+    let (xi, yi) = (i64::from(x), i64::from(y));
+    match order {
+        Some(order) => {
+            for rank in 1..order.h * order.h {
+                for k in (0..4u32).filter(|k| quadrants & (1 << k) != 0) {
+                    let cell = order.column_row(k, rank, fp.offsets[k as usize]);
+                    add(&mut inner, cell_sample(xi, yi, hash, n, inv, cell, trace));
+                    rays += 1;
+                }
+                if enough(&inner, rays) {
+                    break;
+                }
+            }
+        }
+        None => {
+            for cj in 0..n {
+                for ci in 0..n {
+                    if fp.offsets.contains(&(ci, cj)) {
+                        continue;
+                    }
+                    add(
+                        &mut inner,
+                        cell_sample(xi, yi, hash, n, inv, (ci, cj), trace),
+                    );
+                }
+            }
+        }
+    }
+    value(&inner)
+}
+
+/// A covered pixel's one ray on its solid stands for the solid's shading where the
+/// solid's share is at most this part of the threshold: the ray errs by at most 1 in a
+/// channel, so the pixel by at most a quarter of the threshold.
+const ONE_RAY: f64 = 0.25;
+/// A covered pixel's rays on its solid stand for its shading where their range, weighed by
+/// the share, is at most this part of the threshold...
+const RANGE: f64 = 0.5;
+/// ... or their standard error, weighed by the share, at most this part of the stage's
+/// bound.
+const SE: f64 = 0.5;
 
 /// The standard error at or below which a pixel of `rays` rays (16 or more) takes no more:
 /// `threshold` at 16 rays, growing as √(rays/16).

@@ -674,20 +674,31 @@ fn a_flagged_pixel_stops_early_once_its_rays_meet_the_solid() {
 }
 
 /// [`PixelGeometry`] `G` that is also told the quarters of each pixel a thin solid may show
-/// in, by `quadrants(px, py)`, and the pixels that are blank, by `blank(px, py)`.
-struct Told<'g, G, Q, B>(&'g G, Q, B);
+/// in, by `quadrants(px, py)`, the pixels that are blank, by `blank(px, py)`, and what a
+/// solid covers of a pixel, by `coverage(px, py)`.
+struct Told<'g, G, Q, B, C = fn(i64, i64) -> Option<Coverage>>(&'g G, Q, B, C);
 
 /// No pixel known blank, for [`Told`].
 fn none_blank(_: i64, _: i64) -> Option<Sample> {
     None
 }
 
-impl<G, Q, B> PixelGeometry for Told<'_, G, Q, B>
+/// No pixel's coverage known, for [`Told`].
+fn none_covered(_: i64, _: i64) -> Option<Coverage> {
+    None
+}
+
+impl<G, Q, B, C> PixelGeometry for Told<'_, G, Q, B, C>
 where
     G: PixelGeometry,
     Q: Fn(i64, i64) -> Option<u8>,
     B: Fn(i64, i64) -> Option<Sample>,
+    C: Fn(i64, i64) -> Option<Coverage>,
 {
+    fn coverage(&self, px: i64, py: i64) -> Option<Coverage> {
+        (self.3)(px, py)
+    }
+
     fn is_smooth(&self, px: i64, py: i64, x: f64, y: f64, seen: &Sample) -> bool {
         self.0.is_smooth(px, py, x, y, seen)
     }
@@ -741,7 +752,7 @@ fn only_the_quarters_a_solid_may_show_in_are_refined() {
             max,
             threshold: 0.02,
         };
-        let geometry = Told(&flags, |_, _| Some(named), none_blank);
+        let geometry = Told(&flags, |_, _| Some(named), none_blank, none_covered);
         let (out, rays) = traced_probed(s, Rect::new(4, 2, 1, 1), flat, &geometry);
         let rays = rays_in(&rays, 4, 2);
         assert_eq!(rays.len(), expected, "max {max}, quarters {named:04b}");
@@ -783,7 +794,7 @@ fn a_thin_solid_s_silhouette_beside_a_neighbour_is_searched_to_the_cap() {
         threshold: 0.02,
     };
     for (quarters, expected) in [(Some(0b1111), 64), (None, 8)] {
-        let geometry = Told(&flags, |_, _| quarters, none_blank);
+        let geometry = Told(&flags, |_, _| quarters, none_blank, none_covered);
         let (_, rays) = traced_probed(s, Rect::new(4, 2, 2, 1), split, &geometry);
         assert_eq!(
             rays_in(&rays, 4, 2).len(),
@@ -811,7 +822,7 @@ fn quarters_refined_alone_stop_only_once_they_meet_both_sides() {
     };
     let rect = Rect::new(4, 2, 1, 1);
     let flags = Geo(|_, _| false, |_, _, _| false, no_crossing);
-    let left = Told(&flags, |_, _| Some(0b0101), none_blank);
+    let left = Told(&flags, |_, _| Some(0b0101), none_blank, none_covered);
     let exact = 0.45 * 0.2 + 0.55 * 0.9;
     for max in [6, 8, 12, 16] {
         let s = Sampler::Adaptive {
@@ -905,7 +916,7 @@ fn flagged_thin_features_get_jitters_estimate() {
     s.render_rect_probed(
         rect,
         counted,
-        &Told(&geometry, quarters, none_blank),
+        &Told(&geometry, quarters, none_blank, none_covered),
         &mut quartered,
     );
     let with_quarters = count.replace(0);
@@ -961,6 +972,7 @@ fn a_blank_pixel_traces_nothing_and_changes_nothing() {
         &geometry,
         |_, _| None,
         |px: i64, py: i64| outside(px, py).then_some(background),
+        none_covered,
     );
     for max in [2, 3, 4, 6, 8] {
         let s = Sampler::Adaptive {
@@ -990,4 +1002,163 @@ fn a_blank_pixel_traces_nothing_and_changes_nothing() {
         }
         assert!(saved > 0, "cap {max}");
     }
+}
+
+/// A pixel whose square shows one solid's smooth shading on the background weighs its rays
+/// that met the solid by the solid's exact share: on a flat disc every pixel is then exact
+/// (the share from `exact::disc_coverage`, a closed form), whatever the cap and the tile;
+/// with shading, the pixel is the share of its solid's rays' mean and the background's
+/// colour for the rest, the same whole or tiled, and takes no more rays than without.
+#[test]
+fn a_covered_pixel_weighs_its_solid_s_rays_by_its_share() {
+    use crate::exact::disc_coverage;
+    use glam::DVec2;
+    let (c, r) = (DVec2::new(8.3, 5.1), 3.2);
+    let backdrop = Color::new(0.1, 0.2, 0.3);
+    let share = |px: i64, py: i64| {
+        let lo = DVec2::new(px as f64, py as f64);
+        disc_coverage(c, r, lo, lo + DVec2::ONE)
+    };
+    let cover = |px: i64, py: i64| {
+        Some(Coverage {
+            object: 1,
+            share: share(px, py),
+            backdrop,
+        })
+    };
+    for slope in [0.0, 0.004, 0.3] {
+        let disc = |x: f64, y: f64| {
+            if (x - c.x).powi(2) + (y - c.y).powi(2) < r * r {
+                Sample {
+                    color: Color::new(0.9, 0.5 + slope * (x - c.x), 0.7),
+                    object: 1,
+                }
+            } else {
+                Sample {
+                    color: backdrop,
+                    object: Sample::BACKGROUND,
+                }
+            }
+        };
+        let geometry = smooth_where(|_, _| false);
+        let covered = Told(&geometry, |_, _| None, none_blank, cover);
+        for max in [2, 3, 4, 6, 8] {
+            let s = Sampler::Adaptive {
+                max,
+                threshold: 0.02,
+            };
+            let whole = Rect::new(0, 0, 17, 11);
+            let (plain, plain_rays) = traced_probed(s, whole, disc, &geometry);
+            let (out, rays) = traced_probed(s, whole, disc, &covered);
+            assert!(rays.len() <= plain_rays.len(), "cap {max}, slope {slope}");
+            for tile in [3u32, 5] {
+                for rect in crate::tile::tiles(17, 11, tile) {
+                    let (part, _) = traced_probed(s, rect, disc, &covered);
+                    for (k, v) in part.iter().enumerate() {
+                        let (x, y) = (
+                            rect.x + k as u32 % rect.width,
+                            rect.y + k as u32 / rect.width,
+                        );
+                        assert_eq!(*v, out[(y * 17 + x) as usize], "cap {max}, tile {rect:?}");
+                    }
+                }
+            }
+            let (mut exact_pixels, mut plain_err) = (0, 0.0);
+            for (k, v) in out.iter().enumerate() {
+                let (px, py) = (k as u32 % 17, k as u32 / 17);
+                let a = share(i64::from(px), i64::from(py));
+                let inner: Vec<Color> = rays_in(&rays, px, py)
+                    .into_iter()
+                    .map(|(x, y)| disc(x, y))
+                    .filter(|s| s.object == 1)
+                    .map(|s| s.color)
+                    .collect();
+                let expected = if inner.is_empty() {
+                    backdrop
+                } else {
+                    let mean = inner.iter().fold(Color::ZERO, |m, &c| m + c) / inner.len() as f64;
+                    mean * a + backdrop * (1.0 - a)
+                };
+                assert!(
+                    (*v - expected).abs().max_element() < 1e-12,
+                    "cap {max}, pixel {px},{py}"
+                );
+                // On the flat disc a pixel that found its solid is exact.
+                let exact = Color::new(0.9, 0.5, 0.7) * a + backdrop * (1.0 - a);
+                if slope == 0.0 && !inner.is_empty() {
+                    assert!(
+                        (*v - exact).abs().max_element() < 1e-12,
+                        "cap {max}, pixel {px},{py}"
+                    );
+                    exact_pixels += usize::from(a > 0.0 && a < 1.0);
+                    plain_err += (plain[k] - exact).length_squared();
+                }
+            }
+            if slope == 0.0 {
+                assert!(exact_pixels > 12, "cap {max}: {exact_pixels}");
+                // Without its coverage the same pixels are off.
+                assert!(plain_err > 1e-3, "cap {max}: {plain_err}");
+            }
+        }
+    }
+}
+
+/// A solid a pixel wide, whose shading spans its whole range within the pixel, never ends
+/// a pixel at its probe, even where the probe met it and its share is known: no neighbour's
+/// probe on the solid vouches that its shading is smooth at the pixel's scale.
+#[test]
+fn a_solid_a_pixel_wide_is_not_ended_by_its_probe() {
+    use crate::exact::disc_coverage;
+    use glam::DVec2;
+    let r = 0.45;
+    let centre = |px: i64, py: i64| DVec2::new(px as f64 + 0.5, py as f64 + 0.5);
+    // One disc in every third pixel, lit across its width.
+    let holds = |px: i64, py: i64| px.rem_euclid(3) == 1 && py.rem_euclid(3) == 1;
+    let backdrop = Color::splat(0.05);
+    let disc = |x: f64, y: f64| {
+        let (px, py) = (x.floor() as i64, y.floor() as i64);
+        let c = centre(px, py);
+        if holds(px, py) && (x - c.x).powi(2) + (y - c.y).powi(2) < r * r {
+            Sample {
+                color: Color::splat(0.5 + (x - c.x)),
+                object: 1,
+            }
+        } else {
+            Sample {
+                color: backdrop,
+                object: Sample::BACKGROUND,
+            }
+        }
+    };
+    let cover = |px: i64, py: i64| {
+        let lo = DVec2::new(px as f64, py as f64);
+        let share = if holds(px, py) {
+            disc_coverage(centre(px, py), r, lo, lo + DVec2::ONE)
+        } else {
+            0.0
+        };
+        Some(Coverage {
+            object: 1,
+            share,
+            backdrop,
+        })
+    };
+    let geometry = smooth_where(|_, _| false);
+    let covered = Told(&geometry, |_, _| None, none_blank, cover);
+    let s = Sampler::Adaptive {
+        max: 4,
+        threshold: 0.02,
+    };
+    let (_, rays) = traced_probed(s, Rect::new(0, 0, 15, 12), disc, &covered);
+    let mut met = 0;
+    for py in 0..12u32 {
+        for px in 0..15u32 {
+            let mine = rays_in(&rays, px, py);
+            if holds(px.into(), py.into()) && disc(mine[0].0, mine[0].1).object == 1 {
+                met += 1;
+                assert!(mine.len() >= 4, "pixel ({px}, {py}): {} rays", mine.len());
+            }
+        }
+    }
+    assert!(met >= 5, "{met} probes met a disc");
 }
