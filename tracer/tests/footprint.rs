@@ -836,3 +836,58 @@ fn share_by_rows(s: &Scene, object: u32, px: i64, py: i64, rows: u32) -> f64 {
     }
     area
 }
+
+/// A fan of rods, from two pixels wide to a twentieth, at every slant: where
+/// [`Footprints::coverage`] answers for a rod (away from its ends, whose caps have no band
+/// for an outline), its share is the area in which the renderer's rays meet it, measured
+/// as above, and the square shows the rod and the background alone.
+#[test]
+fn a_rod_s_share_is_where_its_rays_meet_it() {
+    let mut rods = String::new();
+    for k in 0..12 {
+        let r = 0.134 * 0.8f64.powi(k);
+        let x = -9.0 + 1.6 * f64::from(k);
+        let turn = -35.0 + 6.0 * f64::from(k);
+        rods += &format!(
+            "[OBJECT]\ntype = cylinder\nradius = {r}\ncolor1 = <0.1, 0.15, 0.3>\n\
+             scale = <1, 7, 1>\nrotate = <{}, 0, {turn}>\ntranslate = <{x}, 0, 0>\n[/OBJECT]\n",
+            5.0 * f64::from(k)
+        );
+    }
+    let src = format!(
+        "[GLOBALS]\nwidth = 160\nheight = 120\nambient = 0.15\nbackground = 0.9\n\
+         light = <5, 10, 30>\n[/GLOBALS]\n[CAMERA]\neye = <0, 0, 30>\nfov = 30\n[/CAMERA]\n{rods}"
+    );
+    let s = common::scene(&src);
+    let fp = Footprints::new(&s, past_the_image(&s));
+    let (mut covered, mut measured) = (0u32, 0u32);
+    for py in 0..s.height as i64 {
+        for px in 0..s.width as i64 {
+            let Some(c) = fp.coverage(px, py) else {
+                continue;
+            };
+            covered += 1;
+            for j in 0..=8 {
+                for i in 0..=8 {
+                    let (qx, qy) = (px as f64 + i as f64 / 8.0, py as f64 + j as f64 / 8.0);
+                    let o = seen(&s, qx, qy);
+                    assert!(
+                        o == c.object || o == Sample::BACKGROUND,
+                        "pixel ({px}, {py})"
+                    );
+                }
+            }
+            if c.share > 0.0 && c.share < 1.0 && (px + py) % 5 == 0 {
+                measured += 1;
+                let by_rows = share_by_rows(&s, c.object, px, py, 128);
+                assert!(
+                    (by_rows - c.share).abs() < 2e-3,
+                    "pixel ({px}, {py}): share {} but {by_rows} by rows",
+                    c.share
+                );
+            }
+        }
+    }
+    assert!(covered > 500, "{covered} covered pixels");
+    assert!(measured > 50, "{measured} partly covered pixels measured");
+}

@@ -1,6 +1,8 @@
-//! The share of a pixel's square in which primary rays meet a similarity sphere, exact to
-//! rounding: what the adaptive sampler weighs a silhouette pixel's rays by. Not whether
-//! anything else shows in the square ([`super::Footprints::coverage`] decides that).
+//! The share of a pixel's square in which primary rays meet a similarity sphere, or a
+//! circular cylinder away from its ends, exact to rounding: what the adaptive sampler weighs
+//! a silhouette pixel's rays by. Not whether anything else shows in the square
+//! ([`super::Footprints::coverage`] decides that). The sphere's outline is below; the
+//! cylinder's is at [`Band`].
 //!
 //! A ray through image position `q` meets the sphere (centre `c`, radius `r`, seen from the
 //! eye `e`) when its line passes within `r` of the centre: `|w × d(q)|² ≤ r² |d(q)|²`, with
@@ -107,6 +109,100 @@ impl Ellipse {
         }
         // The parallelogram's area is det Lᵀ times the square's.
         (area.abs() / (self.l11 * self.l22)).clamp(0.0, 1.0)
+    }
+}
+
+/// A circular cylinder's outline in the image, away from its ends: the rays that meet the
+/// infinite cylinder in front of the eye are those between its two tangent planes through
+/// the eye, and each plane's side is an affine function of the image position, `c + a·x +
+/// b·y ≥ 0`. The share of a square is then the area of a polygon, exact to rounding.
+///
+/// Projected along the axis `u`, the cylinder (radius `r`, axis through `p`) is a disc of
+/// radius `r` about `w′`, the part of `w = p − eye` across the axis, and a line from the
+/// eye meets the cylinder where its projection meets the disc: within the wedge of the two
+/// tangents from the eye, whose unit normals are `(r/L)·ŵ′ ± √(1 − r²/L²)·(u × ŵ′)`,
+/// `L = |w′|`. A ray whose projection heads away from the disc never meets the cylinder.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Band {
+    sides: [(f64, f64, f64); 2],
+}
+
+impl Band {
+    /// The outline of the cylinder of radius `r` around the line through `p` along the unit
+    /// vector `u`; `None` where the eye lies within `r` of the line (by a millionth of `r`)
+    /// or a number is not finite.
+    pub(super) fn new(camera: &Camera, p: DVec3, u: DVec3, r: f64) -> Option<Band> {
+        let w = p - camera.eye();
+        let across = w - u * w.dot(u);
+        let l = across.length();
+        if !(r > 0.0 && l > r * (1.0 + 1e-6)) {
+            return None;
+        }
+        let (toward, side) = (across / l, u.cross(across / l));
+        let (cos, sin) = (r / l, (1.0 - (r / l) * (r / l)).sqrt());
+        let (right, down) = camera.steps();
+        let corner = camera.direction(0.0, 0.0);
+        let plane = |n: DVec3| (n.dot(corner), n.dot(right), n.dot(down));
+        let sides = [
+            plane(toward * cos + side * sin),
+            plane(toward * cos - side * sin),
+        ];
+        let finite = sides
+            .iter()
+            .all(|&(c, a, b)| [c, a, b].iter().all(|v| v.is_finite()));
+        finite.then_some(Band { sides })
+    }
+
+    /// The share of pixel `(px, py)`'s square between the two planes, in `[0, 1]`: the
+    /// square clipped by each side in turn, its area by the shoelace formula.
+    pub(super) fn share(&self, px: i64, py: i64) -> f64 {
+        let (x0, y0) = (px as f64, py as f64);
+        let mut poly: Vec<DVec2> = vec![
+            DVec2::new(x0, y0),
+            DVec2::new(x0 + 1.0, y0),
+            DVec2::new(x0 + 1.0, y0 + 1.0),
+            DVec2::new(x0, y0 + 1.0),
+        ];
+        for &(c, a, b) in &self.sides {
+            let h = |q: DVec2| c + a * q.x + b * q.y;
+            let mut kept = Vec::with_capacity(poly.len() + 1);
+            for k in 0..poly.len() {
+                let (p, q) = (poly[k], poly[(k + 1) % poly.len()]);
+                let (hp, hq) = (h(p), h(q));
+                if hp >= 0.0 {
+                    kept.push(p);
+                }
+                if (hp >= 0.0) != (hq >= 0.0) {
+                    kept.push(p + (q - p) * (hp / (hp - hq)));
+                }
+            }
+            poly = kept;
+            if poly.is_empty() {
+                return 0.0;
+            }
+        }
+        let n = poly.len();
+        let twice: f64 = (0..n).map(|k| poly[k].perp_dot(poly[(k + 1) % n])).sum();
+        (0.5 * twice.abs()).clamp(0.0, 1.0)
+    }
+}
+
+/// A solid's outline in the image, for [`super::Footprints::coverage`].
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Silhouette {
+    /// A sphere's.
+    Ellipse(Ellipse),
+    /// A cylinder's, away from its ends.
+    Band(Band),
+}
+
+impl Silhouette {
+    /// The share of pixel `(px, py)`'s square inside the outline.
+    pub(super) fn share(&self, px: i64, py: i64) -> f64 {
+        match self {
+            Silhouette::Ellipse(e) => e.share(px, py),
+            Silhouette::Band(b) => b.share(px, py),
+        }
     }
 }
 

@@ -44,10 +44,11 @@
 //! [`Footprints::blank`] gives the background's sample: every ray through the square would
 //! return it, so the sampler takes it without tracing.
 //!
-//! **Silhouettes.** Where a pixel shows one plain similarity sphere against the background
-//! alone, [`Footprints::coverage`] gives the exact share of its square inside the sphere's
-//! outline (an ellipse, see `coverage`): the sampler weighs the rays that met the sphere by
-//! it, and the silhouette costs no rays.
+//! **Silhouettes.** Where a pixel shows one plain similarity sphere, or a plain circular
+//! cylinder away from its ends, against the background alone, [`Footprints::coverage`]
+//! gives the exact share of its square inside the solid's outline (an ellipse or a band,
+//! see `coverage`): the sampler weighs the rays that met the solid by it, and the
+//! silhouette costs no rays.
 //!
 //! **Cones.** Every ray through a pixel's square lies within [`crate::camera::Camera::pixel_angle`]
 //! of any other, so within the cone of that half-angle around any one of them, and within
@@ -85,7 +86,7 @@ mod coverage;
 
 pub use cone::{Aperture, Cone, PlaneView};
 use cone::{BallTest, CapsuleTest};
-use coverage::Ellipse;
+use coverage::{Band, Ellipse, Silhouette};
 
 /// A rectangle of pixels (it may reach outside the image: the adaptive sampler looks at a
 /// border around each tile).
@@ -177,9 +178,10 @@ const NEAR: usize = 4;
 struct Outline {
     centre: PieceTest,
     quadrant: PieceTest,
-    /// A sphere's outline in the image, for [`Footprints::coverage`]: only for a similarity
-    /// sphere outside any CSG tree, wholly in front of the eye.
-    ellipse: Option<Ellipse>,
+    /// The solid's outline in the image, for [`Footprints::coverage`]: only for a
+    /// similarity sphere, or a circular cylinder's slices but its two ends, outside any CSG
+    /// tree and wholly in front of the eye.
+    silhouette: Option<Silhouette>,
 }
 
 /// One piece's cone test for one aperture (never a false no).
@@ -468,7 +470,10 @@ impl<'s> Footprints<'s> {
                 let piece = Outline {
                     centre: ball(self.centre_aperture),
                     quadrant: ball(self.quadrant_aperture),
-                    ellipse: clip.is_none().then(|| Ellipse::new(camera, c, r)).flatten(),
+                    silhouette: clip
+                        .is_none()
+                        .then(|| Ellipse::new(camera, c, r).map(Silhouette::Ellipse))
+                        .flatten(),
                 };
                 self.add_where(o, &b, piece);
             }
@@ -478,20 +483,49 @@ impl<'s> Footprints<'s> {
         if pieces.is_empty() {
             return false;
         }
-        for p in pieces {
+        let band = clip.is_none().then(|| self.cylinder_band(obj)).flatten();
+        let last = pieces.len() - 1;
+        for (j, p) in pieces.into_iter().enumerate() {
             let (a, e) = p.axis;
             if let Some(b) = clipped(p.bounds) {
                 let eye = self.scene.camera.eye();
                 let capsule = |ap| PieceTest::Capsule(CapsuleTest::new(eye, ap, a, e, p.radius));
+                // The end slices hold the caps, whose outline is no band.
+                let interior = j > 0 && j < last;
                 let piece = Outline {
                     centre: capsule(self.centre_aperture),
                     quadrant: capsule(self.quadrant_aperture),
-                    ellipse: None,
+                    silhouette: band.filter(|_| interior).map(Silhouette::Band),
                 };
                 self.add_where(o, &b, piece);
             }
         }
         true
+    }
+
+    /// The outline of a cylinder whose cross-section is a circle (the transform's images of
+    /// the object's x and z axes of one length and square to each other and to its axis, to
+    /// 1e-12 of their lengths) and which lies wholly in front of the eye's plane; `None` for
+    /// any other solid.
+    fn cylinder_band(&self, obj: &crate::object::Object) -> Option<Band> {
+        if !matches!(obj.shape, Shape::Cylinder) {
+            return None;
+        }
+        let m = obj.transform.to_world();
+        let (c0, c1, c2) = (m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis);
+        let r = c0.length();
+        let tol = 1e-12 * r * (r + c1.length());
+        let circular = (c2.length() - r).abs() <= 1e-12 * r
+            && c0.dot(c2).abs() <= tol
+            && c0.dot(c1).abs() <= tol
+            && c2.dot(c1).abs() <= tol;
+        let camera = &self.scene.camera;
+        let depth = |p: DVec3| (p - camera.eye()).dot(camera.forward());
+        let (a, e) = (m.translation - c1, m.translation + c1);
+        let in_front = depth(a) > r * (1.0 + 1e-6) && depth(e) > r * (1.0 + 1e-6);
+        (circular && in_front)
+            .then(|| Band::new(camera, m.translation, c1.normalize(), r))
+            .flatten()
     }
 
     /// Counts the fitted leaves of a CSG tree ([`Self::add_fitted`]) within its box `clip`
@@ -745,32 +779,54 @@ impl<'s> Footprints<'s> {
         Some(self.scene.background_sample())
     }
 
-    /// What pixel `(px, py)`'s square shows where it is one plain sphere's silhouette
-    /// against the background: a similarity sphere outside any CSG tree, wholly in front of
-    /// the eye, with a plain material and no shadow ray to trace (as a pixel that ends after
-    /// one ray needs), the only solid whose footprint meets the square, and no plane can
-    /// show in it. Its rays
-    /// then see the sphere's smooth shading inside its outline and the background outside,
-    /// and the share of the square inside is known exactly (see `coverage`). `None`
-    /// elsewhere, and outside the region.
+    /// What pixel `(px, py)`'s square shows where it is one plain solid's silhouette
+    /// against the background: a similarity sphere, or a circular cylinder whose ends' slices
+    /// do not meet the square, outside any CSG tree, wholly in front of the eye, with a
+    /// plain material and no shadow ray to trace (as a pixel that ends after one ray needs),
+    /// the only solid whose footprint meets the square, and no plane can show in it. Its
+    /// rays then see the solid's smooth shading inside its outline and the background
+    /// outside, and the share of the square inside is known exactly (see `coverage`).
+    /// `None` elsewhere, and outside the region.
     pub fn coverage(&self, px: i64, py: i64) -> Option<Coverage> {
         let i = self.index(px, py)?;
         let o = self.shown[i];
-        // One solid, counted by its cone alone, by one piece.
-        if o >= CSG || self.flags[i] != 0 || self.near[i][1] != 0 {
+        // One solid, counted by its cone alone, by pieces that all have the outline.
+        if o >= CSG || self.flags[i] != 0 {
             return None;
         }
         let slot = self.near[i][0].checked_sub(1)?;
-        let ellipse = self.outlines[slot as usize].ellipse?;
+        let silhouette = self.outlines[slot as usize].silhouette?;
+        let outlined = |&s: &u32| s == 0 || self.outlines[s as usize - 1].silhouette.is_some();
+        if !self.near[i].iter().all(outlined) {
+            return None;
+        }
         let misses = |side: &Option<PlaneSide>| side.is_some_and(|s| s.misses(px, py));
-        if !self.plane_sides.iter().all(misses) || !self.scene.plain(o) {
+        if !self.plane_sides.iter().all(misses) || !self.smooth_alone(o) {
             return None;
         }
         Some(Coverage {
             object: o,
-            share: ellipse.share(px, py),
+            share: silhouette.share(px, py),
             backdrop: self.scene.background_sample().color,
         })
+    }
+
+    /// Whether object `o`'s shading is smooth: no texture, checker or mirror, outside any
+    /// CSG tree, no shadow ray to trace ([`Scene::plain`] for a sphere or plane, and the
+    /// same of any other shape).
+    fn smooth_alone(&self, o: u32) -> bool {
+        let obj = &self.scene.objects[o as usize];
+        let m = &obj.material;
+        match obj.shape {
+            Shape::Sphere | Shape::Plane => self.scene.plain(o),
+            _ => {
+                m.texture.is_none()
+                    && m.color2.is_none()
+                    && m.mirror <= 0.0
+                    && !obj.in_csg
+                    && self.scene.casts_no_shadow_on(o)
+            }
+        }
     }
 
     /// Pixel `(px, py)`'s place in the per-pixel records; `None` outside the region.
