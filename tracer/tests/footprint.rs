@@ -13,7 +13,7 @@ mod common;
 use common::Rng;
 
 use glam::DVec3;
-use tessera_tracer::internals::{Footprints, PixelRegion, Sample, SceneInternals};
+use tessera_tracer::internals::{Footprints, PixelRegion, Ray, Sample, SceneInternals};
 use tessera_tracer::{Rect, Sampler, Scene, Shape};
 
 fn v(p: DVec3) -> String {
@@ -837,10 +837,11 @@ fn share_by_rows(s: &Scene, object: u32, px: i64, py: i64, rows: u32) -> f64 {
     area
 }
 
-/// A fan of rods, from two pixels wide to a twentieth, at every slant: where
-/// [`Footprints::coverage`] answers for a rod (away from its ends, whose caps have no band
-/// for an outline), its share is the area in which the renderer's rays meet it, measured
-/// as above, and the square shows the rod and the background alone.
+/// A fan of rods, from two pixels wide to a twentieth, at every slant, crossing in depth
+/// so that some cast shadows on others: where [`Footprints::coverage`] answers for a rod
+/// (away from its ends, whose caps have no band for an outline), its share is the area in
+/// which the renderer's rays meet it, measured as above, and the square shows the rod and
+/// the background alone, with no shadow on the rod at any of 81 points.
 #[test]
 fn a_rod_s_share_is_where_its_rays_meet_it() {
     let mut rods = String::new();
@@ -854,13 +855,16 @@ fn a_rod_s_share_is_where_its_rays_meet_it() {
             5.0 * f64::from(k)
         );
     }
+    // A bar in front of the fan, between it and the light: its shadow crosses the rods.
+    rods += "[OBJECT]\ntype = cylinder\nradius = 0.3\nscale = <1, 12, 1>\n\
+             rotate = <0, 0, 90>\ntranslate = <0, 2, 3>\n[/OBJECT]\n";
     let src = format!(
         "[GLOBALS]\nwidth = 160\nheight = 120\nambient = 0.15\nbackground = 0.9\n\
          light = <5, 10, 30>\n[/GLOBALS]\n[CAMERA]\neye = <0, 0, 30>\nfov = 30\n[/CAMERA]\n{rods}"
     );
     let s = common::scene(&src);
     let fp = Footprints::new(&s, past_the_image(&s));
-    let (mut covered, mut measured) = (0u32, 0u32);
+    let (mut covered, mut measured, mut lit) = (0u32, 0u32, 0u32);
     for py in 0..s.height as i64 {
         for px in 0..s.width as i64 {
             let Some(c) = fp.coverage(px, py) else {
@@ -870,11 +874,22 @@ fn a_rod_s_share_is_where_its_rays_meet_it() {
             for j in 0..=8 {
                 for i in 0..=8 {
                     let (qx, qy) = (px as f64 + i as f64 / 8.0, py as f64 + j as f64 / 8.0);
-                    let o = seen(&s, qx, qy);
-                    assert!(
-                        o == c.object || o == Sample::BACKGROUND,
-                        "pixel ({px}, {py})"
-                    );
+                    let ray = s.camera().ray(qx, qy);
+                    let Some(h) = s.intersect(&ray, f64::INFINITY, None) else {
+                        continue;
+                    };
+                    assert_eq!(h.object, c.object, "pixel ({px}, {py})");
+                    // No shadow falls there: the rod's shading is smooth.
+                    let p = ray.origin + ray.dir * h.local.t;
+                    for light in s.lights() {
+                        let to = light.position - p;
+                        let shadow = Ray::new(p, to.normalize());
+                        assert!(
+                            !s.occluded(&shadow, to.length(), Some(c.object)),
+                            "pixel ({px}, {py}) covered, but ({qx}, {qy}) is in a shadow"
+                        );
+                        lit += 1;
+                    }
                 }
             }
             if c.share > 0.0 && c.share < 1.0 && (px + py) % 5 == 0 {
@@ -890,4 +905,5 @@ fn a_rod_s_share_is_where_its_rays_meet_it() {
     }
     assert!(covered > 500, "{covered} covered pixels");
     assert!(measured > 50, "{measured} partly covered pixels measured");
+    assert!(lit > 1000, "{lit} shadow rays checked");
 }

@@ -73,11 +73,23 @@ impl Scene {
     /// Whether no shadow ray from object `o` needs tracing: no light, no shadow, nothing
     /// else in the scene, or every light known clear of it.
     pub(super) fn casts_no_shadow_on(&self, o: u32) -> bool {
+        self.casts_no_shadow_at(o, self.clear_lights(o))
+    }
+
+    /// [`Scene::casts_no_shadow_on`] for the slice of a cylinder or cone at object-space
+    /// height `y` (see `Scene::clear_lights_at`).
+    pub(super) fn casts_no_shadow_on_slice(&self, o: u32, y: f64) -> bool {
+        self.casts_no_shadow_at(o, self.clear_lights_at(o, y))
+    }
+
+    /// Whether no shadow ray from object `o` needs tracing, given `clear`, the lights known
+    /// clear of it (or of the part of it asked about).
+    fn casts_no_shadow_at(&self, o: u32, clear: u64) -> bool {
         let m = &self.objects[o as usize].material;
         // A sphere seen from outside (`covers` requires it) and a plane are left without
         // re-hitting themselves, so their shadow rays skip them, as `crate::shadow` assumes.
         let n = self.lights.len();
-        let all_clear = n <= 64 && self.clear_lights(o) == u64::MAX >> (64 - n.max(1));
+        let all_clear = n <= 64 && clear == u64::MAX >> (64 - n.max(1));
         let traces_shadows = self.shadow > 0.0 && m.diffuse > 0.0 && self.anything_else(Some(o));
         n == 0 || !traces_shadows || all_clear
     }

@@ -484,14 +484,19 @@ impl<'s> Footprints<'s> {
             return false;
         }
         let band = clip.is_none().then(|| self.cylinder_band(obj)).flatten();
-        let last = pieces.len() - 1;
+        let k = pieces.len();
         for (j, p) in pieces.into_iter().enumerate() {
             let (a, e) = p.axis;
             if let Some(b) = clipped(p.bounds) {
                 let eye = self.scene.camera.eye();
                 let capsule = |ap| PieceTest::Capsule(CapsuleTest::new(eye, ap, a, e, p.radius));
-                // The end slices hold the caps, whose outline is no band.
-                let interior = j > 0 && j < last;
+                // The end slices hold the caps, whose outline is no band; and a slice a
+                // shadow may fall on has no smooth shading.
+                let middle = -1.0 + (2 * j + 1) as f64 / k as f64;
+                let interior = j > 0
+                    && j + 1 < k
+                    && band.is_some()
+                    && self.scene.casts_no_shadow_on_slice(o, middle);
                 let piece = Outline {
                     centre: capsule(self.centre_aperture),
                     quadrant: capsule(self.quadrant_aperture),
@@ -812,20 +817,14 @@ impl<'s> Footprints<'s> {
     }
 
     /// Whether object `o`'s shading is smooth: no texture, checker or mirror, outside any
-    /// CSG tree, no shadow ray to trace ([`Scene::plain`] for a sphere or plane, and the
-    /// same of any other shape).
+    /// CSG tree, and for a sphere or plane no shadow ray to trace ([`Scene::plain`]); a
+    /// cylinder's slices have their outline only where no shadow ray needs tracing.
     fn smooth_alone(&self, o: u32) -> bool {
         let obj = &self.scene.objects[o as usize];
         let m = &obj.material;
         match obj.shape {
             Shape::Sphere | Shape::Plane => self.scene.plain(o),
-            _ => {
-                m.texture.is_none()
-                    && m.color2.is_none()
-                    && m.mirror <= 0.0
-                    && !obj.in_csg
-                    && self.scene.casts_no_shadow_on(o)
-            }
+            _ => m.texture.is_none() && m.color2.is_none() && m.mirror <= 0.0 && !obj.in_csg,
         }
     }
 
