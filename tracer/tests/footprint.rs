@@ -13,7 +13,7 @@ mod common;
 use common::Rng;
 
 use glam::DVec3;
-use tessera_tracer::internals::{Footprints, PixelRegion, Ray, Sample, SceneInternals};
+use tessera_tracer::internals::{Coverage, Footprints, PixelRegion, Ray, Sample, SceneInternals};
 use tessera_tracer::{Rect, Sampler, Scene, Shape};
 
 fn v(p: DVec3) -> String {
@@ -778,18 +778,24 @@ fn a_covered_pixel_s_share_is_where_its_rays_meet_the_solid() {
                 }
                 if c.share > 0.0 && c.share < 1.0 && measured < 80 {
                     measured += 1;
-                    let by_rows = share_by_rows(&s, c.object, px, py, 128);
-                    assert!(
-                        (by_rows - c.share).abs() < 2e-3,
-                        "case {case}, pixel ({px}, {py}): share {} but {by_rows} by rows\n{src}",
-                        c.share
-                    );
+                    assert_share_by_rows(&s, &c, px, py, &format!("case {case}\n{src}"));
                 }
             }
         }
     }
     assert!(covered > 300, "{covered} covered pixels");
     assert!(measured == 80, "{measured} partly covered pixels measured");
+}
+
+/// Pixel `(px, py)`'s share `c` is the area its rays meet the solid in, by
+/// [`share_by_rows`] over 128 rows, within what the rows' spacing allows.
+fn assert_share_by_rows(s: &Scene, c: &Coverage, px: i64, py: i64, label: &str) {
+    let by_rows = share_by_rows(s, c.object, px, py, 128);
+    assert!(
+        (by_rows - c.share).abs() < 2e-3,
+        "pixel ({px}, {py}): share {} but {by_rows} by rows ({label})",
+        c.share
+    );
 }
 
 /// The share of pixel `(px, py)`'s square in which the primary rays meet `object`, by the
@@ -894,12 +900,7 @@ fn a_rod_s_share_is_where_its_rays_meet_it() {
             }
             if c.share > 0.0 && c.share < 1.0 && (px + py) % 5 == 0 {
                 measured += 1;
-                let by_rows = share_by_rows(&s, c.object, px, py, 128);
-                assert!(
-                    (by_rows - c.share).abs() < 2e-3,
-                    "pixel ({px}, {py}): share {} but {by_rows} by rows",
-                    c.share
-                );
+                assert_share_by_rows(&s, &c, px, py, "rods");
             }
         }
     }
