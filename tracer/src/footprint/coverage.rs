@@ -13,6 +13,7 @@
 //! disc and the square to a parallelogram, keeping ratios of areas; the disc's area inside
 //! a polygon is a sum over the polygon's edges of triangles and circular sectors.
 
+use arrayvec::ArrayVec;
 use glam::{DVec2, DVec3};
 
 use crate::camera::Camera;
@@ -157,15 +158,18 @@ impl Band {
     /// square clipped by each side in turn, its area by the shoelace formula.
     pub(super) fn share(&self, px: i64, py: i64) -> f64 {
         let (x0, y0) = (px as f64, py as f64);
-        let mut poly: Vec<DVec2> = vec![
+        // A square clipped by two half-planes keeps at most six corners: no allocation.
+        let mut poly: ArrayVec<DVec2, 8> = [
             DVec2::new(x0, y0),
             DVec2::new(x0 + 1.0, y0),
             DVec2::new(x0 + 1.0, y0 + 1.0),
             DVec2::new(x0, y0 + 1.0),
-        ];
+        ]
+        .into_iter()
+        .collect();
         for &(c, a, b) in &self.sides {
             let h = |q: DVec2| c + a * q.x + b * q.y;
-            let mut kept = Vec::with_capacity(poly.len() + 1);
+            let mut kept = ArrayVec::<DVec2, 8>::new();
             for k in 0..poly.len() {
                 let (p, q) = (poly[k], poly[(k + 1) % poly.len()]);
                 let (hp, hq) = (h(p), h(q));
