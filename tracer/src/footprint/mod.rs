@@ -86,7 +86,7 @@ mod coverage;
 
 pub use cone::{Aperture, Cone, PlaneView};
 use cone::{BallTest, CapsuleTest};
-use coverage::{Band, Ellipse, Silhouette};
+use coverage::{Ellipse, Silhouette};
 
 /// A rectangle of pixels (it may reach outside the image: the adaptive sampler looks at a
 /// border around each tile).
@@ -508,31 +508,6 @@ impl<'s> Footprints<'s> {
         true
     }
 
-    /// The outline of a cylinder whose cross-section is a circle (the transform's images of
-    /// the object's x and z axes of one length and square to each other and to its axis, to
-    /// 1e-12 of their lengths) and which lies wholly in front of the eye's plane; `None` for
-    /// any other solid.
-    fn cylinder_band(&self, obj: &crate::object::Object) -> Option<Band> {
-        if !matches!(obj.shape, Shape::Cylinder) {
-            return None;
-        }
-        let m = obj.transform.to_world();
-        let (c0, c1, c2) = (m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis);
-        let r = c0.length();
-        let tol = 1e-12 * r * (r + c1.length());
-        let circular = (c2.length() - r).abs() <= 1e-12 * r
-            && c0.dot(c2).abs() <= tol
-            && c0.dot(c1).abs() <= tol
-            && c2.dot(c1).abs() <= tol;
-        let camera = &self.scene.camera;
-        let depth = |p: DVec3| (p - camera.eye()).dot(camera.forward());
-        let (a, e) = (m.translation - c1, m.translation + c1);
-        let in_front = depth(a) > r * (1.0 + 1e-6) && depth(e) > r * (1.0 + 1e-6);
-        (circular && in_front)
-            .then(|| Band::new(camera, m.translation, c1.normalize(), r))
-            .flatten()
-    }
-
     /// Counts the fitted leaves of a CSG tree ([`Self::add_fitted`]) within its box `clip`
     /// (none for an unbounded tree), visiting only the children whose boxes may project
     /// into the region (through the tree's index, when it has one: a union of thousands of
@@ -782,50 +757,6 @@ impl<'s> Footprints<'s> {
             return None;
         }
         Some(self.scene.background_sample())
-    }
-
-    /// What pixel `(px, py)`'s square shows where it is one plain solid's silhouette
-    /// against the background: a similarity sphere, or a circular cylinder whose ends' slices
-    /// do not meet the square, outside any CSG tree, wholly in front of the eye, with a
-    /// plain material and no shadow ray to trace (as a pixel that ends after one ray needs),
-    /// the only solid whose footprint meets the square, and no plane can show in it. Its
-    /// rays then see the solid's smooth shading inside its outline and the background
-    /// outside, and the share of the square inside is known exactly (see `coverage`).
-    /// `None` elsewhere, and outside the region.
-    pub fn coverage(&self, px: i64, py: i64) -> Option<Coverage> {
-        let i = self.index(px, py)?;
-        let o = self.shown[i];
-        // One solid, counted by its cone alone, by pieces that all have the outline.
-        if o >= CSG || self.flags[i] != 0 {
-            return None;
-        }
-        let slot = self.near[i][0].checked_sub(1)?;
-        let silhouette = self.outlines[slot as usize].silhouette?;
-        let outlined = |&s: &u32| s == 0 || self.outlines[s as usize - 1].silhouette.is_some();
-        if !self.near[i].iter().all(outlined) {
-            return None;
-        }
-        let misses = |side: &Option<PlaneSide>| side.is_some_and(|s| s.misses(px, py));
-        if !self.plane_sides.iter().all(misses) || !self.smooth_alone(o) {
-            return None;
-        }
-        Some(Coverage {
-            object: o,
-            share: silhouette.share(px, py),
-            backdrop: self.scene.background_sample().color,
-        })
-    }
-
-    /// Whether object `o`'s shading is smooth: no texture, checker or mirror, outside any
-    /// CSG tree, and for a sphere or plane no shadow ray to trace ([`Scene::plain`]); a
-    /// cylinder's slices have their outline only where no shadow ray needs tracing.
-    fn smooth_alone(&self, o: u32) -> bool {
-        let obj = &self.scene.objects[o as usize];
-        let m = &obj.material;
-        match obj.shape {
-            Shape::Sphere | Shape::Plane => self.scene.plain(o),
-            _ => m.texture.is_none() && m.color2.is_none() && m.mirror <= 0.0 && !obj.in_csg,
-        }
     }
 
     /// Pixel `(px, py)`'s place in the per-pixel records; `None` outside the region.
